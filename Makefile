@@ -1,0 +1,48 @@
+# pcdof: two commands from a fresh clone.
+#   make demo  - set everything up, render the bundled sample into out/demo/
+#   make test  - set everything up, run the test suite
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test test-slow bench stress setup sysdeps clean
+
+setup: sysdeps $(STAMP)
+
+# open3d links against libusb-1.0; install it when missing (root: apt-get; otherwise say how).
+sysdeps:
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing libusb-1.0-0 (needed by open3d)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null; \
+	  else \
+	    echo "open3d needs the system library libusb-1.0-0. Install it with:"; \
+	    echo "    sudo apt-get install -y libusb-1.0-0"; \
+	    exit 1; \
+	  fi; \
+	fi
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	@touch $(STAMP)
+
+demo: setup
+	$(VENV)/bin/pcdof demo -o out/demo
+
+test: setup
+	$(PY) -m pytest -q
+
+test-slow: setup
+	$(PY) -m pytest -q -m slow
+
+bench: setup
+	$(VENV)/bin/pcdof bench -o out/bench
+
+stress: setup
+	$(PY) scripts/stress --cases 10000
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

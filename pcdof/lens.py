@@ -1,0 +1,183 @@
+"""Lens models: user units (mm, f-number, metres) become a circle of confusion in pixels, once.
+
+Thin lens (the default, and what the ground-truth renderer simulates):
+    aperture diameter  A = f / N                      (metres)
+    circle of confusion c(z) = A * fx * |1/d_f - 1/z|  (pixels)
+The simulated lens keeps the colour camera's field of view, so ``fx`` (pixels) comes from
+the calibration and ``f`` only sets the aperture. The signed form ``A * fx * (1/d_f - 1/z)``
+is > 0 behind the focus plane and < 0 in front of it.
+
+The seed paper's weights (Kinect DoF paper, eqs. 1 and 2) are kept in :class:`PaperLens`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError, LensError
+
+#: Largest circle of confusion (pixels) the renderers compute; larger ones are clamped with a warning.
+MAX_COC_PX = 256.0
+
+
+def _positive(name: str, value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise LensError(f"{name} must be a number; got {value!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise LensError(f"{name} must be a finite number > 0; got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class ThinLens:
+    """A thin lens focused at ``focus_distance_m``.
+
+    Parameters
+    ----------
+    focal_length_mm : float, focal length f in millimetres (sets the aperture A = f/N only)
+    f_number : float, N (> 0)
+    focus_distance_m : float, distance d_f of the focus plane along the optical axis, metres
+    aperture_blades : int, 0 = circular aperture, >= 3 = regular polygon with that many blades
+    aperture_rotation_deg : float, rotation of the polygonal aperture
+    """
+
+    focal_length_mm: float
+    f_number: float
+    focus_distance_m: float
+    aperture_blades: int = 0
+    aperture_rotation_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "focal_length_mm", _positive("focal_length_mm", self.focal_length_mm))
+        object.__setattr__(self, "f_number", _positive("f_number", self.f_number))
+        object.__setattr__(self, "focus_distance_m", _positive("focus_distance_m", self.focus_distance_m))
+        blades = self.aperture_blades
+        if isinstance(blades, bool) or not isinstance(blades, (int, np.integer)) or blades < 0 or blades in (1, 2):
+            raise LensError(f"aperture_blades must be 0 (circle) or an integer >= 3; got {blades!r}")
+        object.__setattr__(self, "aperture_blades", int(blades))
+        rot = float(self.aperture_rotation_deg)
+        if not math.isfinite(rot):
+            raise LensError(f"aperture_rotation_deg must be finite; got {self.aperture_rotation_deg!r}")
+        object.__setattr__(self, "aperture_rotation_deg", rot)
+
+    @property
+    def aperture_m(self) -> float:
+        """Aperture diameter A = f / N in metres."""
+        return self.focal_length_mm * 1e-3 / self.f_number
+
+    def with_focus(self, focus_distance_m: float) -> "ThinLens":
+        return ThinLens(self.focal_length_mm, self.f_number, focus_distance_m, self.aperture_blades,
+                        self.aperture_rotation_deg)
+
+    def signed_coc_px(self, depth_m, fx: float) -> np.ndarray:
+        """Signed circle-of-confusion diameter, pixels: A*fx*(1/d_f - 1/z); 0 where depth is 0.
+
+        Parameters
+        ----------
+        depth_m : (H, W) float ndarray, metres, 0 = unknown
+        fx : float, colour camera focal length in pixels
+        """
+        z = np.asarray(depth_m, dtype=np.float32)
+        scale = np.float32(self.aperture_m * float(fx))
+        inv = np.divide(np.float32(1.0), z, out=np.zeros_like(z), where=z > 0)
+        out = scale * (np.float32(1.0 / self.focus_distance_m) - inv)
+        out[~(z > 0)] = 0.0
+        return out
+
+    def coc_px(self, depth_m, fx: float) -> np.ndarray:
+        """Circle-of-confusion diameter c(z) = A*fx*|1/d_f - 1/z|, pixels (0 where depth is 0)."""
+        return np.abs(self.signed_coc_px(depth_m, fx))
+
+    def dof_limits_m(self, fx: float, coc_limit_px: float = 1.0) -> tuple[float, float]:
+        """(near, far) depths in metres where c(z) equals *coc_limit_px*; far is inf past the hyperfocal."""
+        limit = _positive("coc_limit_px", coc_limit_px)
+        k = limit / (self.aperture_m * _positive("fx", fx))
+        inv_f = 1.0 / self.focus_distance_m
+        near = 1.0 / (inv_f + k)
+        far = 1.0 / (inv_f - k) if inv_f > k else math.inf
+        return near, far
+
+
+@dataclass(frozen=True)
+class PaperLens:
+    """The seed paper's method: one Gaussian blur blended by a depth weight.
+
+    Parameters
+    ----------
+    focus_distance_m : float, d_f in metres
+    sigma : float, eq. 2 width on depth normalised by ``max_range_m`` (paper: 0.3)
+    blur_sigma_px : float, standard deviation of the Gaussian blur, pixels (paper: 4)
+    weight : "eq2" (Gaussian, the paper's choice) or "eq1" (alpha = min(1, A |d - d_f| / d))
+    eq1_aperture : float, A of eq. 1 when ``weight == "eq1"`` (dimensionless)
+    max_range_m : float or None, sensor maximum range; None = take it from the rig
+    """
+
+    focus_distance_m: float
+    sigma: float = 0.3
+    blur_sigma_px: float = 4.0
+    weight: str = "eq2"
+    eq1_aperture: float = 1.0
+    max_range_m: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "focus_distance_m", _positive("focus_distance_m", self.focus_distance_m))
+        object.__setattr__(self, "sigma", _positive("sigma", self.sigma))
+        object.__setattr__(self, "blur_sigma_px", _positive("blur_sigma_px", self.blur_sigma_px))
+        object.__setattr__(self, "eq1_aperture", _positive("eq1_aperture", self.eq1_aperture))
+        if self.weight not in PAPER_WEIGHTS:
+            raise LensError(f"weight must be one of {sorted(PAPER_WEIGHTS)}; got {self.weight!r}")
+        if self.max_range_m is not None:
+            object.__setattr__(self, "max_range_m", _positive("max_range_m", self.max_range_m))
+
+    def alpha(self, depth_m, max_range_m: float) -> np.ndarray:
+        """Blend weight in [0, 1] of the blurred image (eq. 3's alpha), (H, W) float32."""
+        rng = self.max_range_m or _positive("max_range_m", max_range_m)
+        return PAPER_WEIGHTS[self.weight](np.asarray(depth_m, np.float32), self, rng)
+
+
+def _alpha_eq2(z: np.ndarray, lens: PaperLens, max_range_m: float) -> np.ndarray:
+    # eq. 2: f = 1 - exp(-(d - d_f)^2 / (2 sigma^2)), d and d_f as fractions of the max range
+    d = np.clip(z / np.float32(max_range_m), 0, 1)
+    df = min(lens.focus_distance_m / max_range_m, 1.0)
+    return (1.0 - np.exp(-((d - df) ** 2) / np.float32(2 * lens.sigma**2))).astype(np.float32)
+
+
+def _alpha_eq1(z: np.ndarray, lens: PaperLens, max_range_m: float) -> np.ndarray:
+    # eq. 1: C = A |d - d_f| / d, used directly as a weight, clipped to [0, 1]
+    c = np.divide(np.abs(z - lens.focus_distance_m), z, out=np.zeros_like(z), where=z > 0)
+    return np.clip(np.float32(lens.eq1_aperture) * c, 0, 1).astype(np.float32)
+
+
+PAPER_WEIGHTS = {"eq2": _alpha_eq2, "eq1": _alpha_eq1}
+
+
+def focus_depth_at(depth_m, x: float, y: float, *, radius_px: int = 7) -> float:
+    """Robust focus distance at pixel (x, y): the median of known depths in a window around it.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float ndarray, metres, 0 = unknown (registered to the colour camera)
+    x, y : pixel coordinates (column, row)
+    radius_px : half-size of the square window; grown up to 8x if the window has no known depth
+    """
+    z = np.asarray(depth_m)
+    if z.ndim != 2:
+        raise InputError(f"depth_m must be (H, W); got shape {z.shape}")
+    h, w = z.shape
+    if not (0 <= x < w and 0 <= y < h):
+        raise InputError(f"focus pixel ({x}, {y}) is outside the image of size {w}x{h}")
+    xi, yi = int(round(x)), int(round(y))
+    xi, yi = min(xi, w - 1), min(yi, h - 1)
+    r = max(int(radius_px), 0)
+    for _ in range(4):
+        win = z[max(0, yi - r): yi + r + 1, max(0, xi - r): xi + r + 1]
+        vals = win[np.isfinite(win) & (win > 0)]
+        if vals.size:
+            return float(np.median(vals))
+        r = max(2 * r, 1)
+    raise InputError(f"no known depth within {r} px of focus pixel ({x}, {y})")

@@ -1,0 +1,197 @@
+"""The pipeline executor: register -> fill -> circle of confusion -> render, with a trace.
+
+Stages are pure functions from the stage modules; this module decides whether each one has
+work to do, times it, and records what was skipped and why (``pcdof render --explain``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .camera import RGBDFrame, check_color
+from .errors import InputError, LensError
+from .lens import PaperLens, ThinLens, focus_depth_at
+from .render import METHODS, render_image
+
+
+@dataclass
+class StageTrace:
+    """What one stage did: its wall time (seconds), whether it was skipped, and why."""
+
+    name: str
+    seconds: float
+    skipped: bool
+    reason: str = ""
+    detail: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "seconds": self.seconds, "skipped": self.skipped, "reason": self.reason,
+                "detail": self.detail}
+
+
+@dataclass
+class RenderResult:
+    """Output of :func:`run`.
+
+    image : (H, W, 3) like the input colour; depth_registered_m / depth_filled_m : (H, W) float32
+    metres at colour resolution (0 = unknown in the registered one); coc_px : (H, W) float32
+    circle-of-confusion diameter in pixels (thin lens; None for the paper method); lens : the lens
+    used (with the resolved focus distance); trace : list of :class:`StageTrace`.
+    """
+
+    image: np.ndarray
+    depth_registered_m: np.ndarray
+    depth_filled_m: np.ndarray
+    coc_px: np.ndarray | None
+    lens: object
+    trace: list[StageTrace]
+
+    @property
+    def total_seconds(self) -> float:
+        return sum(t.seconds for t in self.trace)
+
+    @property
+    def skipped(self) -> dict[str, str]:
+        return {t.name: t.reason for t in self.trace if t.skipped}
+
+    def explain(self) -> str:
+        """Human-readable per-stage timing and skip report."""
+        lines = [f"{'stage':<10} {'ms':>9}  what happened"]
+        for t in self.trace:
+            what = ("skipped: " + t.reason) if t.skipped else (t.reason or "ran")
+            lines.append(f"{t.name:<10} {t.seconds * 1e3:9.2f}  {what}")
+        lines.append(f"{'total':<10} {self.total_seconds * 1e3:9.2f}")
+        return "\n".join(lines)
+
+
+class _Timer:
+    def __init__(self, trace: list, name: str):
+        self.trace, self.name = trace, name
+
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+        self.record = StageTrace(self.name, 0.0, False)
+        return self.record
+
+    def __exit__(self, *exc):
+        self.record.seconds = time.perf_counter() - self.t0
+        self.trace.append(self.record)
+        return False
+
+
+def register_stage(frame: RGBDFrame, trace: list) -> np.ndarray:
+    """Registered depth (colour grid); skipped for a rig whose cameras coincide."""
+    from .register import needs_registration, register_depth
+
+    with _Timer(trace, "register") as rec:
+        needed, reason = needs_registration(frame.rig)
+        if not needed:
+            rec.skipped, rec.reason = True, reason
+            return frame.depth_m.copy()
+        depth = register_depth(frame)
+        rec.reason = reason
+        rec.detail = {"coverage": float(np.count_nonzero(depth) / depth.size)}
+        return depth
+
+
+def fill_stage(depth_m: np.ndarray, color: np.ndarray, trace: list, *, method: str) -> np.ndarray:
+    """Hole-free depth; skipped when there are no holes."""
+    from .fill import fill_depth, needs_fill
+
+    with _Timer(trace, "fill") as rec:
+        needed, reason = needs_fill(depth_m)
+        if not needed:
+            rec.skipped, rec.reason = True, reason
+            return depth_m
+        rec.reason = f"{reason} ({method})"
+        rec.detail = {"holes": int(np.count_nonzero(depth_m == 0))}
+        return fill_depth(depth_m, color, method=method)
+
+
+def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False):
+    """Circle of confusion + render stages on registered, filled depth. Returns (image, coc_px)."""
+    coc = None
+    if isinstance(lens, ThinLens):
+        with _Timer(trace, "coc") as rec:
+            coc = lens.coc_px(depth_filled_m, fx)
+            rec.detail = {"max_coc_px": float(coc.max()) if coc.size else 0.0,
+                          "out_of_focus_share": float(np.mean(coc >= 1.0)) if coc.size else 0.0}
+            rec.reason = f"max {rec.detail['max_coc_px']:.2f} px"
+    with _Timer(trace, "render") as rec:
+        image, info = render_image(color, depth_filled_m, lens, fx=fx, method=method,
+                                   max_range_m=max_range_m, linear=linear)
+        rec.skipped = bool(info.pop("skipped", False))
+        rec.reason = info.pop("reason", method)
+        if not rec.skipped and method == "physical":
+            blurred = [f"{l['side']}[{l['coc_px'][0]:g},{l['coc_px'][1]:g})" for l in info["layers"] if l["blurred"]]
+            rec.reason = (f"physical, {len(blurred)} blur layers: {' '.join(blurred)}"
+                          + ("" if info.get("foreground_pass") else "; no foreground pass (nothing in front of focus)"))
+        rec.detail = info
+    return image, coc
+
+
+def _resolve_lens(lens, focus_at, depth_registered_m, depth_filled_m):
+    if not isinstance(lens, (ThinLens, PaperLens)):
+        raise LensError(f"lens must be a ThinLens or PaperLens; got {type(lens).__name__}")
+    if focus_at is None:
+        return lens
+    try:
+        x, y = (float(v) for v in focus_at)
+    except (TypeError, ValueError):
+        raise InputError(f"focus_at must be an (x, y) pixel; got {focus_at!r}") from None
+    source = depth_registered_m if np.any(depth_registered_m > 0) else depth_filled_m
+    d = focus_depth_at(source, x, y)
+    if isinstance(lens, ThinLens):
+        return lens.with_focus(d)
+    return PaperLens(d, lens.sigma, lens.blur_sigma_px, lens.weight, lens.eq1_aperture, lens.max_range_m)
+
+
+def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = "joint-bilateral",
+        focus_at=None, linear: bool = False) -> RenderResult:
+    """Register, fill, and render one frame.
+
+    Parameters
+    ----------
+    frame : RGBDFrame
+    lens : ThinLens (physical or paper method) or PaperLens (paper method)
+    method : a key of :data:`pcdof.render.METHODS`
+    fill_method : a key of :data:`pcdof.fill.FILL_METHODS`
+    focus_at : optional (x, y) colour pixel; focus at the robust depth around it
+    linear : colour holds linear light (float, may exceed 1) instead of sRGB
+    """
+    if not isinstance(frame, RGBDFrame):
+        raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
+    if method not in METHODS:
+        raise InputError(f"method must be one of {sorted(METHODS)}; got {method!r}")
+    if method == "physical" and isinstance(lens, PaperLens):
+        raise LensError("the physical method needs a ThinLens; a PaperLens only works with method='paper'")
+    trace: list[StageTrace] = []
+    registered = register_stage(frame, trace)
+    filled = fill_stage(registered, frame.color, trace, method=fill_method)
+    lens = _resolve_lens(lens, focus_at, registered, filled)
+    image, coc = render_stages(frame.color, filled, lens, frame.rig.color.fx, trace, method=method,
+                               max_range_m=frame.rig.max_range_m, linear=linear)
+    return RenderResult(image, registered, filled, coc, lens, trace)
+
+
+def render(frame: RGBDFrame, lens, *, method: str = "physical", **options) -> np.ndarray:
+    """Render *frame* with *lens*; returns an image of the input colour's dtype and shape.
+
+    Options are those of :func:`run` (``fill_method``, ``focus_at``, ``linear``).
+    """
+    return run(frame, lens, method=method, **options).image
+
+
+def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "physical",
+                      max_range_m: float = 10.0, linear: bool = False):
+    """Render from an already registered, hole-free depth (previews, sliders). Returns (image, trace)."""
+    color = check_color(color)
+    depth = np.asarray(depth_filled_m, np.float32)
+    if depth.shape != color.shape[:2]:
+        raise InputError(f"depth_filled_m must be (H, W) = {color.shape[:2]}; got {depth.shape}")
+    trace: list[StageTrace] = []
+    image, _ = render_stages(color, depth, lens, fx, trace, method=method, max_range_m=max_range_m, linear=linear)
+    return image, trace

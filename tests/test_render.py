@@ -1,0 +1,201 @@
+"""Renderer tests against analytic answers and an independent OpenCV disc convolution."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from pcdof.color import decode_to_linear, linear_to_srgb, srgb_to_linear
+from pcdof.errors import InputError, LensError
+from pcdof.lens import PaperLens, ThinLens
+from pcdof.render import render_image, render_layers_linear
+
+FX = 500.0
+
+
+def disc_kernel(diameter: float, supersample: int = 16) -> np.ndarray:
+    """Anti-aliased uniform disc of the given diameter (pixels), sum 1, by supersampling."""
+    r = diameter / 2
+    n = int(math.ceil(r + 0.5))
+    size = 2 * n + 1
+    s = supersample
+    offs = (np.arange(size * s) + 0.5) / s - (n + 0.5)
+    yy, xx = np.meshgrid(offs, offs, indexing="ij")
+    inside = (xx**2 + yy**2 <= r * r).astype(np.float64)
+    k = inside.reshape(size, s, size, s).mean(axis=(1, 3))
+    return (k / k.sum()).astype(np.float32)
+
+
+def psnr(a, b, peak=1.0):
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return math.inf if mse == 0 else 10 * math.log10(peak**2 / mse)
+
+
+def texture(h, w, seed=0):
+    rng = np.random.default_rng(seed)
+    noise = rng.random((h // 4 + 1, w // 4 + 1, 3)).astype(np.float32)
+    return cv2.resize(noise, (w, h), interpolation=cv2.INTER_NEAREST)[:h, :w]
+
+
+class TestPhysical:
+    def test_huge_f_number_returns_input_exactly(self):
+        rng = np.random.default_rng(1)
+        color = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+        depth = rng.uniform(0.5, 5.0, (40, 50)).astype(np.float32)
+        out, info = render_image(color, depth, ThinLens(50, 1e6, 1.0), fx=FX)
+        assert info["skipped"]
+        np.testing.assert_array_equal(out, color)
+
+    @pytest.mark.parametrize("blades", [0, 5])
+    def test_uniform_image_stays_uniform(self, blades):
+        rng = np.random.default_rng(2)
+        color = np.full((60, 70, 3), 173, np.uint8)
+        depth = rng.uniform(0.4, 8.0, (60, 70)).astype(np.float32)
+        out, _ = render_image(color, depth, ThinLens(50, 1.4, 1.0, aperture_blades=blades), fx=FX)
+        assert np.abs(out.astype(int) - 173).max() <= 1
+
+    def test_textured_plane_matches_disc_convolution(self):
+        h, w = 96, 112
+        lin = texture(h, w)
+        lens = ThinLens(50, 2.0, 1.0)
+        z = 2.0
+        c = lens.aperture_m * FX * abs(1 / lens.focus_distance_m - 1 / z)
+        assert 6 < c < 10
+        out, _ = render_layers_linear(lin, np.full((h, w), c, np.float32))
+        ref = cv2.filter2D(lin, -1, disc_kernel(c), borderType=cv2.BORDER_CONSTANT)
+        m = int(c) + 2
+        assert psnr(out[m:-m, m:-m], ref[m:-m, m:-m]) > 45
+
+    def test_bright_pixel_becomes_disc_of_predicted_diameter_with_its_energy(self):
+        h, w = 81, 81
+        img = np.zeros((h, w, 3), np.float32)
+        img[40, 40] = 50.0
+        for c in (3.0, 7.5, 15.0, 30.0):
+            out, _ = render_layers_linear(img, np.full((h, w), c, np.float32))
+            assert out[..., 0].sum() == pytest.approx(50.0, rel=1e-4)
+            lit = out[..., 0] > 1e-6
+            ys, xs = np.nonzero(lit)
+            width = xs.max() - xs.min() + 1
+            assert abs(width - c) <= 1.5, (c, width)  # a disc of diameter c covers about c pixels
+            assert abs(lit.sum() - math.pi * c * c / 4) <= 2 * math.pi * c / 2 + 2
+
+    def test_polygon_aperture_makes_polygon(self):
+        h, w = 81, 81
+        img = np.zeros((h, w, 1), np.float32)
+        img[40, 40] = 1.0
+        c = 40.0
+        hexagon, _ = render_layers_linear(img, np.full((h, w), c, np.float32), blades=6)
+        disc, _ = render_layers_linear(img, np.full((h, w), c, np.float32))
+        assert hexagon.sum() == pytest.approx(1.0, rel=1e-4)
+        # a vertex points up at rotation 0: the hexagon reaches the full radius vertically but only
+        # sqrt(3)/2 of it horizontally; the disc reaches the radius both ways
+        rows = np.nonzero(hexagon[:, 40, 0] > 1e-7)[0]
+        cols = np.nonzero(hexagon[40, :, 0] > 1e-7)[0]
+        assert rows.max() - rows.min() + 1 == pytest.approx(c, abs=1.5)
+        assert cols.max() - cols.min() + 1 == pytest.approx(c * math.sqrt(3) / 2, abs=1.5)
+        # the hexagon has less area than its circumscribed disc
+        assert (hexagon > 1e-7).sum() < (disc > 1e-7).sum()
+
+    def _subject_scene(self):
+        h, w = 80, 120
+        lin = np.zeros((h, w, 3), np.float32)
+        # high-contrast background: red/blue stripes far away
+        lin[:, :, 0] = (np.arange(w) // 4 % 2)[None, :] * 1.0
+        lin[:, :, 2] = 1.0 - lin[:, :, 0]
+        depth = np.full((h, w), 6.0, np.float32)
+        # a green subject at the focus distance
+        lin[20:60, 40:80] = [0.0, 1.0, 0.0]
+        depth[20:60, 40:80] = 1.0
+        return lin, depth
+
+    def test_sharp_subject_receives_no_background(self):
+        lin, depth = self._subject_scene()
+        lens = ThinLens(50, 1.4, 1.0)
+        coc = lens.signed_coc_px(depth, FX)
+        assert coc.max() > 10
+        out, _ = render_layers_linear(lin, coc)
+        subject = out[20:60, 40:80]
+        np.testing.assert_allclose(subject, np.broadcast_to([0, 1, 0], subject.shape), atol=1e-5)
+        # while the background right next to it is blurred (stripes averaged)
+        assert 0.2 < out[40, 20, 0] < 0.8
+
+    def test_blurred_foreground_spreads_over_sharp_background(self):
+        h, w = 80, 120
+        lin = np.zeros((h, w, 3), np.float32)
+        lin[..., 2] = 1.0  # blue background, in focus at 3 m
+        depth = np.full((h, w), 3.0, np.float32)
+        lin[20:60, 40:80] = [1.0, 0.0, 0.0]  # red foreground at 0.6 m, strongly blurred
+        depth[20:60, 40:80] = 0.6
+        lens = ThinLens(50, 2.0, 3.0)
+        coc = lens.signed_coc_px(depth, FX)
+        c = float(-coc.min())
+        assert c > 10
+        out, _ = render_layers_linear(lin, coc)
+        # red light reaches outside the silhouette, up to about c/2, and fades with distance
+        outside = out[40, 40 - int(c / 4), 0]
+        assert outside > 0.1
+        assert out[40, 40 - int(c / 2) - 2, 0] < 1e-6
+        # the background far from the foreground is untouched
+        np.testing.assert_allclose(out[5, 5], [0, 0, 1], atol=1e-6)
+        # soft edge: red fades monotonically across the silhouette
+        profile = out[40, 40 - int(c / 2): 40 + int(c / 2), 0]
+        assert np.all(np.diff(profile) >= -1e-5)
+
+    def test_light_is_conserved_on_a_plane(self):
+        lin = texture(64, 64) * 3
+        lin[:12], lin[-12:], lin[:, :12], lin[:, -12:] = 0, 0, 0, 0
+        out, _ = render_layers_linear(lin, np.full((64, 64), 12.0, np.float32))
+        assert out.sum() == pytest.approx(lin.sum(), rel=1e-4)
+
+    @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])
+    def test_dtype_and_shape_preserved(self, dtype):
+        rng = np.random.default_rng(3)
+        base = rng.random((30, 40, 3))
+        color = (base * np.iinfo(dtype).max).astype(dtype) if np.dtype(dtype).kind == "u" else base.astype(dtype)
+        depth = rng.uniform(0.5, 4, (30, 40)).astype(np.float32)
+        for method in ("physical", "paper"):
+            out, _ = render_image(color, depth, ThinLens(50, 1.4, 1.0), fx=FX, method=method)
+            assert out.dtype == color.dtype and out.shape == color.shape
+
+    def test_grey_image(self):
+        color = np.tile(np.arange(40, dtype=np.uint8)[None, :] * 6, (30, 1))
+        depth = np.full((30, 40), 3.0, np.float32)
+        out, _ = render_image(color, depth, ThinLens(50, 1.4, 1.0), fx=FX)
+        assert out.shape == color.shape and out.dtype == np.uint8
+
+    def test_rejects_bad_input(self):
+        color = np.zeros((10, 10, 3), np.uint8)
+        with pytest.raises(InputError, match="depth_m"):
+            render_image(color, np.ones((9, 10)), ThinLens(50, 2, 1), fx=FX)
+        with pytest.raises(InputError, match="method"):
+            render_image(color, np.ones((10, 10)), ThinLens(50, 2, 1), fx=FX, method="magic")
+        with pytest.raises(LensError, match="ThinLens"):
+            render_image(color, np.ones((10, 10)), PaperLens(1.0), fx=FX, method="physical")
+
+
+class TestPaper:
+    def test_uniform_image_unchanged_without_luminosity_constant(self):
+        color = np.full((50, 60, 3), 200, np.uint8)
+        depth = np.random.default_rng(0).uniform(0.5, 8, (50, 60)).astype(np.float32)
+        out, _ = render_image(color, depth, PaperLens(1.5, blur_sigma_px=6), fx=FX, method="paper")
+        assert np.abs(out.astype(int) - 200).max() == 0
+
+    def test_blend_follows_eq2_and_eq3(self):
+        rng = np.random.default_rng(4)
+        color = rng.random((40, 40, 3)).astype(np.float32)
+        depth = np.linspace(0.5, 4.5, 40 * 40, dtype=np.float32).reshape(40, 40)
+        lens = PaperLens(1.51, sigma=0.3, blur_sigma_px=4)
+        out, _ = render_image(color, depth, lens, fx=FX, method="paper", max_range_m=4.5)
+        blurred = cv2.GaussianBlur(color, (25, 25), 4, borderType=cv2.BORDER_REFLECT)
+        d, df = depth / 4.5, 1.51 / 4.5
+        alpha = 1 - np.exp(-((d - df) ** 2) / (2 * 0.3**2))
+        ref = blurred * alpha[..., None] + color * (1 - alpha[..., None])
+        np.testing.assert_allclose(out, ref, atol=1e-5)
+
+
+def test_srgb_round_trip():
+    x = np.linspace(0, 1, 1001, dtype=np.float32)
+    np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(x)), x, atol=1e-6)
+    lut = decode_to_linear(np.arange(256, dtype=np.uint8))
+    np.testing.assert_allclose(lut, srgb_to_linear(np.arange(256) / 255), atol=1e-7)

@@ -52,17 +52,31 @@ SHARP_COC_PX = 0.5
 
 
 # ----------------------------------------------------------------------------- aperture spans
+_G_SAMPLES = 4096
+# g(u) = u*sqrt(1 - u^2) + asin(u) on [-1, 1]: r^2 * (g(u1) - g(u0)) is the area of the disc of radius r
+# between heights u0*r and u1*r. Tabulated once: a lookup is far cheaper than asin and sqrt per strip.
+_U = np.linspace(-1.0, 1.0, _G_SAMPLES + 1)
+_G_TABLE = (_U * np.sqrt(np.maximum(1 - _U * _U, 0)) + np.arcsin(_U)).astype(np.float64)
+
+
 @njit(cache=True, inline="always")
-def _disk_strip_area(t0, t1, r):
+def _g(u, table):
+    f = (u + 1.0) * (0.5 * _G_SAMPLES)
+    i = int(f)
+    if i >= _G_SAMPLES:
+        return table[_G_SAMPLES]
+    frac = f - i
+    return table[i] + frac * (table[i + 1] - table[i])
+
+
+@njit(cache=True, inline="always")
+def _disk_strip_area(t0, t1, r, table):
     """Area of the disc of radius r (centred at 0) between heights t0 < t1."""
     lo = max(t0, -r)
     hi = min(t1, r)
     if hi <= lo:
         return 0.0
-    r2 = r * r
-    g_hi = hi * math.sqrt(max(r2 - hi * hi, 0.0)) + r2 * math.asin(min(1.0, hi / r))
-    g_lo = lo * math.sqrt(max(r2 - lo * lo, 0.0)) + r2 * math.asin(max(-1.0, lo / r))
-    return g_hi - g_lo  # = 2 * integral of sqrt(r^2 - t^2), i.e. the strip's area
+    return r * r * (_g(hi / r, table) - _g(lo / r, table))
 
 
 _SUBROWS = 8
@@ -96,16 +110,16 @@ def _polygon_strip(t0, t1, r, blades, rot):
     return area, csum / nhit
 
 
-@njit(cache=True)
-def _strip(dy, r, blades, rot):
+@njit(cache=True, inline="always")
+def _strip(dy, r, blades, rot, table):
     """(area, centre offset) of the aperture's footprint on the pixel row dy rows below its centre."""
     if blades == 0:
-        return _disk_strip_area(dy - 0.5, dy + 0.5, r), 0.0
+        return _disk_strip_area(dy - 0.5, dy + 0.5, r, table), 0.0
     return _polygon_strip(dy - 0.5, dy + 0.5, r, blades, rot)
 
 
 @njit(parallel=True, cache=True)
-def _inverse_areas(radius, blades, rot):
+def _inverse_areas(radius, blades, rot, table):
     """Per-pixel 1 / (total footprint area), so each source spreads exactly its own energy."""
     h, w = radius.shape
     out = np.zeros((h, w), np.float32)
@@ -118,7 +132,7 @@ def _inverse_areas(radius, blades, rot):
                 area = 0.0
                 n = int(math.ceil(r + 0.5))
                 for dy in range(-n, n + 1):
-                    area += _strip(dy, r, blades, rot)[0]
+                    area += _strip(dy, r, blades, rot, table)[0]
             out[y, x] = 1.0 / area if area > 0 else 0.0
     return out
 
@@ -145,18 +159,19 @@ def _sort_into_layers(layer, n_layers):
 
 
 @njit(parallel=True, cache=True)
-def _composite_layer(lin, radius, inv_area, cols, offsets, layer_index, r_max, y_lo, y_hi,
-                     blades, rot, acc, acc_a, trans, row_open):
-    """Scatter one layer (as a gather over output rows) and composite it under what is in front."""
+def _scatter_layer(lin, radius, weight, cols, offsets, layer_index, r_max, y_lo, y_hi, blades, rot, table, out):
+    """Scatter one layer into ``out`` (H, W, C+1: premultiplied colour, coverage), rows y_lo..y_hi.
+
+    Each source spreads ``weight`` (its share of the pixel, 1 at full resolution) over its
+    footprint, split exactly into per-row strips; runs as a gather over output rows.
+    """
     h, w, nc = lin.shape
     base = layer_index * h
     reach = int(math.ceil(r_max + 0.5))
     for y in prange(y_lo, y_hi + 1):
-        if not row_open[y]:
-            continue
         diff = np.zeros((w + 1, nc + 1), np.float32)
-        point = np.zeros((w, nc + 1), np.float32)
-        touched = False
+        row = out[y]
+        row[:] = 0.0
         for ys in range(max(0, y - reach), min(h - 1, y + reach) + 1):
             dy = y - ys
             for k in range(offsets[base + ys], offsets[base + ys + 1]):
@@ -164,33 +179,32 @@ def _composite_layer(lin, radius, inv_area, cols, offsets, layer_index, r_max, y
                 r = radius[ys, xs]
                 if abs(dy) - 0.5 >= r:
                     continue
-                area, centre = _strip(dy, r, blades, rot)
+                area, centre = _strip(dy, r, blades, rot, table)
                 if area <= 0.0:
                     continue
-                scale = inv_area[ys, xs]
+                scale = weight[ys, xs]
                 half = 0.5 * area  # strip height is one row, so its width equals its area
                 a = xs + centre - half
                 b = xs + centre + half
                 ka = int(math.floor(a + 0.5))
                 kb = int(math.floor(b + 0.5))
-                touched = True
                 if ka == kb:
                     if 0 <= ka < w:
                         f = scale * (b - a)
                         for c in range(nc):
-                            point[ka, c] += f * lin[ys, xs, c]
-                        point[ka, nc] += f
+                            row[ka, c] += f * lin[ys, xs, c]
+                        row[ka, nc] += f
                     continue
                 if 0 <= ka < w:
                     f = scale * (ka + 0.5 - a)
                     for c in range(nc):
-                        point[ka, c] += f * lin[ys, xs, c]
-                    point[ka, nc] += f
+                        row[ka, c] += f * lin[ys, xs, c]
+                    row[ka, nc] += f
                 if 0 <= kb < w:
                     f = scale * (b - (kb - 0.5))
                     for c in range(nc):
-                        point[kb, c] += f * lin[ys, xs, c]
-                    point[kb, nc] += f
+                        row[kb, c] += f * lin[ys, xs, c]
+                    row[kb, nc] += f
                 lo = max(ka + 1, 0)
                 hi = min(kb, w)  # interior pixels ka+1 .. kb-1
                 if hi > lo:
@@ -200,26 +214,29 @@ def _composite_layer(lin, radius, inv_area, cols, offsets, layer_index, r_max, y
                         diff[hi, c] -= v
                     diff[lo, nc] += scale
                     diff[hi, nc] -= scale
-        if not touched:
-            continue
         run = np.zeros(nc + 1, np.float32)
-        still_open = False
         for x in range(w):
             for c in range(nc + 1):
                 run[c] += diff[x, c]
+                row[x, c] += run[c]
+
+
+@njit(parallel=True, cache=True)
+def _composite_under(layer_buf, y_lo, y_hi, acc, acc_a, trans):
+    """Composite a scattered layer behind what is already there (front-to-back "over")."""
+    h, w, nc1 = layer_buf.shape
+    nc = nc1 - 1
+    for y in prange(y_lo, y_hi + 1):
+        for x in range(w):
             t = trans[y, x]
-            cover = run[nc] + point[x, nc]
+            cover = layer_buf[y, x, nc]
             if t > 0.0 and cover > 1e-6:
                 alpha = 1.0 if cover >= 1.0 - 1e-4 else cover
                 f = t * alpha / cover
                 for c in range(nc):
-                    acc[y, x, c] += f * (run[c] + point[x, c])
+                    acc[y, x, c] += f * layer_buf[y, x, c]
                 acc_a[y, x] += t * alpha
-                t = t * (1.0 - alpha)
-                trans[y, x] = t
-            if t > 0.0:
-                still_open = True
-        row_open[y] = still_open
+                trans[y, x] = t * (1.0 - alpha)
 
 
 def _layer_of(signed_coc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -233,8 +250,49 @@ def _layer_of(signed_coc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lookup[key + len(LAYER_EDGES_PX)], present
 
 
+#: quality name -> smallest CoC (pixels, at the reduced resolution) a blur layer may be computed at.
+#: Layers whose CoC exceeds twice this run at 1/2, 1/4, ... resolution (cost falls with the cube of
+#: the factor); "exact" computes every layer at full resolution.
+QUALITIES = {"exact": math.inf, "high": 16.0, "balanced": 8.0, "fast": 4.0}
+
+
+def _block_mean(a: np.ndarray, s: int) -> np.ndarray:
+    """Mean over s x s blocks; the image is zero-padded to a multiple of s."""
+    h, w = a.shape[:2]
+    hs, ws = -(-h // s), -(-w // s)
+    pad = [(0, hs * s - h), (0, ws * s - w)] + [(0, 0)] * (a.ndim - 2)
+    a = np.pad(a, pad)
+    return a.reshape(hs, s, ws, s, *a.shape[2:]).mean(axis=(1, 3), dtype=np.float32)
+
+
+def _scatter_reduced(lin, radius, member, s, blades, rot):
+    """Scatter one layer at 1/s resolution and return its (H, W, C+1) buffer at full resolution."""
+    h, w, nc = lin.shape
+    m = member.astype(np.float32)
+    m_s = _block_mean(m, s)
+    present = m_s > 0
+    safe = np.where(present, m_s, 1.0)
+    col_s = _block_mean(lin * m[:, :, None], s) / safe[:, :, None]
+    r = _block_mean(radius * m, s) / safe
+    # block averaging and bilinear upsampling widen the blur by about s^2 in variance: take it off
+    r_s = (np.sqrt(np.maximum(r * r - s * s, 0.25 * r * r)) / s).astype(np.float32)
+    inv = _inverse_areas(r_s, blades, rot, _G_TABLE)
+    weight = (m_s * inv).astype(np.float32)
+    ids = np.where(present, 0, 1).astype(np.int32)
+    cols, offsets = _sort_into_layers(ids, 2)
+    hs, ws = m_s.shape
+    rows = np.flatnonzero(present.any(axis=1))
+    r_max = float(r_s[present].max())
+    reach = int(math.ceil(r_max + 0.5))
+    buf = np.zeros((hs, ws, nc + 1), np.float32)
+    _scatter_layer(np.ascontiguousarray(col_s, np.float32), r_s, weight, cols, offsets, 0, r_max,
+                   max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach), blades, rot, _G_TABLE, buf)
+    up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)
+    return np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w])
+
+
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
-                         rotation_deg: float = 0.0) -> tuple[np.ndarray, dict]:
+                         rotation_deg: float = 0.0, quality: str = "balanced") -> tuple[np.ndarray, dict]:
     """Physical depth of field in linear light.
 
     Parameters
@@ -242,23 +300,27 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     lin : (H, W, C) float32, linear radiance
     signed_coc : (H, W) float32, signed circle-of-confusion diameter in pixels (< 0 in front of focus)
     blades, rotation_deg : aperture polygon (0 = disc)
+    quality : a key of :data:`QUALITIES`
 
     Returns
     -------
     (H, W, C) float32 image and an info dict (layers run, pixels blurred).
     """
+    if quality not in QUALITIES:
+        raise InputError(f"quality must be one of {sorted(QUALITIES)}; got {quality!r}")
+    min_reduced = QUALITIES[quality]
     h, w, nc = lin.shape
     coc = np.clip(signed_coc, -MAX_COC_PX, MAX_COC_PX).astype(np.float32)
     radius = (np.abs(coc) * np.float32(0.5)).astype(np.float32)
     layer, keys = _layer_of(coc)
     rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
-    inv_area = _inverse_areas(radius, int(blades), rot)
     cols, offsets = _sort_into_layers(layer, int(keys.size))
+    inv_area = None
 
     acc = np.zeros((h, w, nc), np.float32)
     acc_a = np.zeros((h, w), np.float32)
     trans = np.ones((h, w), np.float32)
-    row_open = np.ones(h, np.bool_)
+    buf = None
     layers_run = []
     for li, key in enumerate(keys):
         if key == 0:  # in focus: an opaque copy, no blur
@@ -267,29 +329,39 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
             acc[m] += t[:, None] * lin[m]
             acc_a[m] += t
             trans[m] = 0.0
-            row_open &= (trans > 0).any(axis=1)
-            layers_run.append({"key": 0, "coc_px": [0.0, 1.0], "pixels": int(m.sum()), "blurred": False})
+            layers_run.append({"key": 0, "coc_px": [0.0, 1.0], "pixels": int(m.sum()), "blurred": False,
+                               "scale": 1})
             continue
         counts = offsets[li * h + 1:(li + 1) * h + 1] - offsets[li * h:(li + 1) * h]
         rows = np.flatnonzero(counts)
-        lo, hi = LAYER_EDGES_PX[abs(key) - 1], LAYER_EDGES_PX[abs(key)]
-        r_max = float(radius[layer == li].max())
+        lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
+        member = layer == li
+        r_max = float(radius[member].max())
         reach = int(math.ceil(r_max + 0.5))
         y_lo, y_hi = max(0, rows[0] - reach), min(h - 1, rows[-1] + reach)
-        _composite_layer(lin, radius, inv_area, cols, offsets, li, r_max, y_lo, y_hi, int(blades), rot,
-                         acc, acc_a, trans, row_open)
-        layers_run.append({"key": int(key), "coc_px": [float(lo), float(min(hi, MAX_COC_PX))],
-                           "pixels": int(counts.sum()), "blurred": True,
-                           "side": "front" if key < 0 else "back"})
+        s = 1
+        while lo / (2 * s) >= min_reduced:
+            s *= 2
+        if s == 1:
+            if inv_area is None:
+                inv_area = _inverse_areas(radius, int(blades), rot, _G_TABLE)
+            if buf is None:
+                buf = np.empty((h, w, nc + 1), np.float32)
+            _scatter_layer(lin, radius, inv_area, cols, offsets, li, r_max, y_lo, y_hi, int(blades), rot, _G_TABLE,
+                           buf)
+            _composite_under(buf, y_lo, y_hi, acc, acc_a, trans)
+        else:
+            layer_buf = _scatter_reduced(lin, radius, member, s, int(blades), rot)
+            _composite_under(layer_buf, y_lo, y_hi, acc, acc_a, trans)
+        layers_run.append({"key": int(key), "coc_px": [lo, hi], "pixels": int(counts.sum()), "blurred": True,
+                           "side": "front" if key < 0 else "back", "scale": s})
     out = np.empty_like(lin)
     ok = acc_a > 1e-6
     out[ok] = acc[ok] / acc_a[ok][:, None]
     out[~ok] = lin[~ok]
-    info = {
-        "layers": layers_run,
-        "foreground_pass": bool((keys < 0).any()),
-        "blurred_pixels": int(np.count_nonzero(layer != np.searchsorted(keys, 0)) if 0 in keys else h * w),
-    }
+    in_focus = sum(l["pixels"] for l in layers_run if not l["blurred"])
+    info = {"layers": layers_run, "foreground_pass": bool((keys < 0).any()), "blurred_pixels": h * w - in_focus,
+            "quality": quality}
     return out, info
 
 
@@ -298,7 +370,7 @@ def _as_channels(color: np.ndarray) -> np.ndarray:
     return color[:, :, None] if color.ndim == 2 else color
 
 
-def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False):
+def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False, quality="balanced"):
     """Thin-lens depth of field (see the module docstring). Returns (image, info)."""
     if not isinstance(lens, ThinLens):
         raise LensError(f"the physical method needs a ThinLens; got {type(lens).__name__}")
@@ -313,7 +385,8 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False)
     src = _as_channels(color)
     lin = to_float(src).copy() if linear else decode_to_linear(src)
     out_lin, info = render_layers_linear(np.ascontiguousarray(lin, np.float32), coc,
-                                         blades=lens.aperture_blades, rotation_deg=lens.aperture_rotation_deg)
+                                         blades=lens.aperture_blades, rotation_deg=lens.aperture_rotation_deg,
+                                         quality=quality)
     if linear:
         out = out_lin if color.dtype.kind == "f" else from_float(out_lin, color.dtype)
         out = out.astype(color.dtype, copy=False)
@@ -332,7 +405,7 @@ def paper_lens_for(lens) -> PaperLens:
     raise LensError(f"lens must be a ThinLens or PaperLens; got {type(lens).__name__}")
 
 
-def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=False):
+def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=False, quality=None):
     """The seed paper's method: Gaussian blur + eq. 2 (or eq. 1) weight + linear blend (eq. 3)."""
     plens = paper_lens_for(lens)
     src = to_float(_as_channels(color))
@@ -351,7 +424,8 @@ def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=Fals
 METHODS = {"physical": render_physical, "paper": render_paper}
 
 
-def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.0, linear=False):
+def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.0, linear=False,
+                 quality="balanced"):
     """Render a registered, hole-free RGB-D pair. Returns (image, info); see :data:`METHODS`."""
     if method not in METHODS:
         raise InputError(f"method must be one of {sorted(METHODS)}; got {method!r}")
@@ -359,4 +433,4 @@ def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.
     depth_m = np.asarray(depth_m, np.float32)
     if depth_m.shape != color.shape[:2]:
         raise InputError(f"depth_m must be (H, W) = {color.shape[:2]}; got {depth_m.shape}")
-    return METHODS[method](color, depth_m, lens, fx=fx, max_range_m=max_range_m, linear=linear)
+    return METHODS[method](color, depth_m, lens, fx=fx, max_range_m=max_range_m, linear=linear, quality=quality)

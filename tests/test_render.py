@@ -72,7 +72,7 @@ class TestPhysical:
         img = np.zeros((h, w, 3), np.float32)
         img[40, 40] = 50.0
         for c in (3.0, 7.5, 15.0, 30.0):
-            out, _ = render_layers_linear(img, np.full((h, w), c, np.float32))
+            out, _ = render_layers_linear(img, np.full((h, w), c, np.float32), quality="exact")
             assert out[..., 0].sum() == pytest.approx(50.0, rel=1e-4)
             lit = out[..., 0] > 1e-6
             ys, xs = np.nonzero(lit)
@@ -85,8 +85,8 @@ class TestPhysical:
         img = np.zeros((h, w, 1), np.float32)
         img[40, 40] = 1.0
         c = 40.0
-        hexagon, _ = render_layers_linear(img, np.full((h, w), c, np.float32), blades=6)
-        disc, _ = render_layers_linear(img, np.full((h, w), c, np.float32))
+        hexagon, _ = render_layers_linear(img, np.full((h, w), c, np.float32), blades=6, quality="exact")
+        disc, _ = render_layers_linear(img, np.full((h, w), c, np.float32), quality="exact")
         assert hexagon.sum() == pytest.approx(1.0, rel=1e-4)
         # a vertex points up at rotation 0: the hexagon reaches the full radius vertically but only
         # sqrt(3)/2 of it horizontally; the disc reaches the radius both ways
@@ -141,6 +141,22 @@ class TestPhysical:
         # soft edge: red fades monotonically across the silhouette
         profile = out[40, 40 - int(c / 2): 40 + int(c / 2), 0]
         assert np.all(np.diff(profile) >= -1e-5)
+
+    @pytest.mark.parametrize("quality", ["high", "balanced", "fast"])
+    def test_reduced_resolution_layers_approximate_the_exact_scatter(self, quality):
+        h, w = 120, 140
+        lin = cv2.GaussianBlur(texture(h, w, seed=5), (0, 0), 2)  # natural images are not white noise
+        coc = np.full((h, w), 40.0, np.float32)
+        exact, _ = render_layers_linear(lin, coc, quality="exact")
+        fast, info = render_layers_linear(lin, coc, quality=quality)
+        assert info["layers"][0]["scale"] > 1  # the reduced path really ran
+        m = 25
+        assert psnr(fast[m:-m, m:-m], exact[m:-m, m:-m]) > 40
+        # a single bright pixel keeps its energy at reduced resolution too
+        img = np.zeros((h, w, 1), np.float32)
+        img[60, 70] = 1.0
+        out, _ = render_layers_linear(img, coc, quality=quality)
+        assert out.sum() == pytest.approx(1.0, rel=1e-3)
 
     def test_light_is_conserved_on_a_plane(self):
         lin = texture(64, 64) * 3

@@ -1,0 +1,197 @@
+"""Time against error on the ray-traced thin-lens ground truth.
+
+For every scene of :data:`pcdof.synth.SCENES` and every lens setting, each method renders the
+sensor's RGB-D frame (noisy depth from the separate depth camera, registered and filled by the
+method itself) and is scored against the ray-traced thin-lens image:
+
+* PSNR and SSIM of the sRGB-encoded result, overall, in the band around depth edges (pixels within
+  max(3, c_max/2) px of a ground-truth depth discontinuity) and in the interior (the rest);
+* median wall time per stage over repeated runs (first run, with JIT compilation, excluded).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import statistics
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..color import linear_to_srgb, to_float
+from ..lens import PaperLens, ThinLens
+from ..metrics import depth_edge_band, psnr, ssim_map
+
+#: f-number multipliers of the scene's own lens: the benchmark's lens settings
+SETTINGS = {"wide": 1.0, "stopped-down": 2.5}
+
+
+@dataclass
+class Method:
+    name: str
+    run: callable  # (synthetic frame, ThinLens) -> (image uint8, {stage: seconds})
+
+
+def _physical(sf, lens):
+    from ..pipeline import run
+
+    res = run(sf.frame, lens)
+    return res.image, {t.name: t.seconds for t in res.trace}
+
+
+def paper_lens_matching(sf, lens: ThinLens) -> PaperLens:
+    """The paper method's blur chosen as the paper says: the blur expected for the farthest points
+    (a Gaussian of sigma c_max/4, which has the variance of a disc of diameter c_max)."""
+    cmax = float(lens.coc_px(sf.depth_color_m, sf.rig.color.fx).max())
+    return PaperLens(lens.focus_distance_m, blur_sigma_px=max(cmax / 4, 0.3))
+
+
+def _paper(sf, lens):
+    from ..pipeline import run
+
+    res = run(sf.frame, paper_lens_matching(sf, lens), method="paper")
+    return res.image, {t.name: t.seconds for t in res.trace}
+
+
+def _baseline(sf, lens):
+    from .baseline import render_baseline
+
+    return render_baseline(sf.frame, lens)
+
+
+METHODS = {
+    "pcdof": Method("pcdof", _physical),
+    "paper": Method("paper", _paper),
+    "baseline": Method("baseline", _baseline),
+}
+
+
+def _gt_cache_path(cache_dir, name, size, depth_size, seed, lens, samples):
+    key = json.dumps([name, size, depth_size, seed, lens.focal_length_mm, lens.f_number, lens.focus_distance_m,
+                      lens.aperture_blades, samples])
+    return os.path.join(cache_dir, f"gt_{name}_{hashlib.sha1(key.encode()).hexdigest()[:12]}.npy")
+
+
+def ground_truth(sf, lens, *, samples, seed, cache_dir=None, name="", size=None, depth_size=None):
+    """Ray-traced linear ground truth, cached on disk when *cache_dir* is given."""
+    from ..synth import render_thin_lens
+
+    path = _gt_cache_path(cache_dir, name, size, depth_size, seed, lens, samples) if cache_dir else None
+    if path and os.path.exists(path):
+        return np.load(path)
+    gt = render_thin_lens(sf, lens, samples=samples, seed=seed + 1)
+    if path:
+        os.makedirs(cache_dir, exist_ok=True)
+        tmp = path + ".tmp.npy"
+        np.save(tmp, gt)
+        os.replace(tmp, path)
+    return gt
+
+
+def score(image, gt_srgb, band) -> dict:
+    img = to_float(image)
+    smap = ssim_map(img, gt_srgb)
+    interior = ~band
+    return {
+        "psnr": psnr(img, gt_srgb), "psnr_edge": psnr(img, gt_srgb, mask=band),
+        "psnr_interior": psnr(img, gt_srgb, mask=interior),
+        "ssim": float(smap.mean()), "ssim_edge": float(smap[band].mean()) if band.any() else float("nan"),
+        "ssim_interior": float(smap[interior].mean()),
+    }
+
+
+def run_dof_bench(*, scenes=None, size=(320, 240), depth_size=(256, 212), settings=None, methods=None,
+                  repeats: int = 5, samples=None, seed: int = 0, cache_dir=None, progress: bool = True) -> list[dict]:
+    """Score every method on every scene and lens setting. Returns one row per (scene, setting, method)."""
+    from tqdm.auto import tqdm
+
+    from ..synth import SCENES, generate_scene
+
+    scenes = list(scenes or SCENES)
+    settings = dict(settings or SETTINGS)
+    methods = [METHODS[m] for m in (methods or METHODS)]
+    rows = []
+    bar = tqdm(total=len(scenes) * len(settings) * len(methods), desc="dof bench", disable=not progress,
+               unit="run")
+    for name in scenes:
+        sf = generate_scene(name, color_size=tuple(size), depth_size=tuple(depth_size), seed=seed)
+        base = sf.default_lens
+        for setting, mult in settings.items():
+            lens = ThinLens(base.focal_length_mm, base.f_number * mult, base.focus_distance_m,
+                            base.aperture_blades, base.aperture_rotation_deg)
+            bar.set_postfix_str(f"{name}/{setting}: ground truth")
+            gt_lin = ground_truth(sf, lens, samples=samples, seed=seed, cache_dir=cache_dir, name=name, size=size,
+                                  depth_size=depth_size)
+            gt = linear_to_srgb(np.clip(gt_lin, 0, 1))
+            cmax = float(lens.coc_px(sf.depth_color_m, sf.rig.color.fx).max())
+            band = depth_edge_band(sf.depth_color_m, max(3, int(round(cmax / 2))))
+            for m in methods:
+                bar.set_postfix_str(f"{name}/{setting}: {m.name}")
+                m.run(sf, lens)  # warm-up (JIT compilation, caches), not timed
+                times = []
+                image = None
+                for _ in range(max(1, repeats)):
+                    t0 = time.perf_counter()
+                    image, stages = m.run(sf, lens)
+                    times.append((time.perf_counter() - t0, stages))
+                med = statistics.median(t for t, _ in times)
+                stage_names = sorted({k for _, s in times for k in s})
+                row = {"scene": name, "setting": setting, "f_number": lens.f_number,
+                       "focus_distance_m": lens.focus_distance_m, "max_coc_px": cmax, "method": m.name,
+                       "ms": med * 1e3,
+                       **{f"ms_{k}": statistics.median(s.get(k, 0.0) for _, s in times) * 1e3 for k in stage_names},
+                       **score(image, gt, band)}
+                rows.append(row)
+                bar.update()
+    bar.close()
+    return rows
+
+
+def summarize(rows: list[dict]) -> list[dict]:
+    """Per method: mean PSNR overall / edge band, mean SSIM, median time, and wins over the others."""
+    out = []
+    for m in dict.fromkeys(r["method"] for r in rows):
+        mine = [r for r in rows if r["method"] == m]
+        out.append({"method": m, "psnr": float(np.mean([r["psnr"] for r in mine])),
+                    "psnr_edge": float(np.nanmean([r["psnr_edge"] for r in mine])),
+                    "ssim": float(np.mean([r["ssim"] for r in mine])),
+                    "ms": float(np.median([r["ms"] for r in mine]))})
+    return out
+
+
+def markdown_table(rows: list[dict]) -> str:
+    head = "| scene | setting | max CoC px | method | PSNR dB | PSNR edge | PSNR interior | SSIM | SSIM edge | ms |"
+    lines = [head, "|" + "---|" * 10]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['setting']} (f/{r['f_number']:g}) | {r['max_coc_px']:.1f} | {r['method']} | "
+                     f"{r['psnr']:.2f} | {r['psnr_edge']:.2f} | {r['psnr_interior']:.2f} | {r['ssim']:.4f} | "
+                     f"{r['ssim_edge']:.4f} | {r['ms']:.1f} |")
+    return "\n".join(lines)
+
+
+def pareto_plot(rows: list[dict], path: str) -> None:
+    """Median time against mean PSNR (overall and edge band) per method, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    summary = summarize(rows)
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
+    for s in summary:
+        ax.scatter(s["ms"], s["psnr"], s=50, label=f"{s['method']} (all)")
+        ax.scatter(s["ms"], s["psnr_edge"], s=50, marker="x", label=f"{s['method']} (edge band)")
+        ax.annotate(s["method"], (s["ms"], s["psnr"]), textcoords="offset points", xytext=(5, 5))
+    ax.set_xscale("log")
+    ax.set_xlabel("median time per frame, ms (log)")
+    ax.set_ylabel("mean PSNR vs ray-traced ground truth, dB")
+    ax.set_title("time against error (higher and further left is better)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    tmp = path + ".tmp.png"
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)

@@ -1,0 +1,134 @@
+"""Speed: the full pipeline against the seed paper's method, and cost against the blurred share.
+
+All times are medians over repeated runs measured side by side in one process (JIT warm-up
+excluded); ratios, not absolute times, are what carries between machines.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import statistics
+import time
+
+import numpy as np
+
+from ..lens import PaperLens, ThinLens
+
+
+def _median_ms(fn, repeats):
+    fn()  # warm-up
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return statistics.median(ts) * 1e3
+
+
+def pipeline_vs_paper(*, sizes=((640, 480), (1920, 1080)), depth_size=(512, 424), scene="portrait",
+                      repeats: int = 7, progress: bool = True) -> list[dict]:
+    """Median ms of pcdof's full pipeline (register + fill + render) and of the paper's method."""
+    from tqdm.auto import tqdm
+
+    from ..pipeline import run
+    from ..synth import generate_scene
+
+    rows = []
+    for size in tqdm(sizes, desc="speed", disable=not progress):
+        sf = generate_scene(scene, color_size=tuple(size), depth_size=tuple(depth_size), seed=0)
+        lens = sf.default_lens
+        cmax = float(lens.coc_px(sf.depth_color_m, sf.rig.color.fx).max())
+        paper = PaperLens(lens.focus_distance_m, blur_sigma_px=max(cmax / 4, 0.3))
+        results = {}
+        stage_ms = {}
+        for name, fn in (("pcdof", lambda: run(sf.frame, lens)), ("paper", lambda: run(sf.frame, paper, method="paper"))):
+            fn()
+            samples = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                res = fn()
+                samples.append((time.perf_counter() - t0, {t.name: t.seconds for t in res.trace}))
+            results[name] = statistics.median(t for t, _ in samples) * 1e3
+            stage_ms[name] = {k: statistics.median(s.get(k, 0) for _, s in samples) * 1e3
+                              for k in samples[0][1]}
+        # the paper's method alone, as the seed implemented it (blur + weight + blend on registered depth)
+        rows.append({"color_size": f"{size[0]}x{size[1]}", "depth_size": f"{depth_size[0]}x{depth_size[1]}",
+                     "scene": scene, "max_coc_px": cmax, "pcdof_ms": results["pcdof"], "paper_ms": results["paper"],
+                     "ratio": results["pcdof"] / results["paper"], "pcdof_stages_ms": stage_ms["pcdof"],
+                     "paper_stages_ms": stage_ms["paper"]})
+    return rows
+
+
+def _share_out_of_focus(lens, depth, fx):
+    return float(np.mean(lens.coc_px(depth, fx) >= 1.0))
+
+
+def lens_for_share(depth_m, fx, share: float, *, focal_length_mm=50.0) -> ThinLens:
+    """A lens that leaves about *share* of the pixels with a CoC of 1 px or more."""
+    z = depth_m[depth_m > 0]
+    if share <= 0:
+        focus = float(np.median(z))
+        # stop down until the largest CoC is under 1 px
+        lo = ThinLens(focal_length_mm, 1.0, focus)
+        cmax = float(lo.coc_px(z, fx).max())
+        return ThinLens(focal_length_mm, max(1.0, cmax * 1.25), focus)
+    if share >= 1:
+        focus = float(z.min()) * 0.5
+        n_lo, n_hi = 0.5, 1e4
+        target = lambda n: float(ThinLens(focal_length_mm, n, focus).coc_px(z, fx).min()) >= 1.0  # noqa: E731
+    else:
+        focus = float(np.quantile(z, share / 2))  # focus inside the range so both sides blur
+        n_lo, n_hi = 0.5, 1e4
+        target = lambda n: _share_out_of_focus(ThinLens(focal_length_mm, n, focus), z, fx) >= share  # noqa: E731
+    for _ in range(60):  # bisection on log N: a larger N gives less blur
+        mid = math.sqrt(n_lo * n_hi)
+        if target(mid):
+            n_lo = mid
+        else:
+            n_hi = mid
+    return ThinLens(focal_length_mm, n_lo, focus)
+
+
+def cost_follows_work(*, size=(640, 480), depth_size=(512, 424), scene="slanted_plane",
+                      shares=(0.0, 0.25, 0.5, 0.75, 1.0), repeats: int = 7, progress: bool = True) -> list[dict]:
+    """Render-stage time as the out-of-focus share of the picture grows (registered, filled depth)."""
+    from tqdm.auto import tqdm
+
+    from ..pipeline import render_from_depth, run
+    from ..synth import generate_scene
+
+    sf = generate_scene(scene, color_size=tuple(size), depth_size=tuple(depth_size), seed=0)
+    filled = run(sf.frame, sf.default_lens).depth_filled_m
+    fx = sf.rig.color.fx
+    rows = []
+    for share in tqdm(shares, desc="cost vs blurred share", disable=not progress):
+        lens = lens_for_share(filled, fx, share)
+        ms = _median_ms(lambda: render_from_depth(sf.frame.color, filled, lens, fx), repeats)
+        _, trace = render_from_depth(sf.frame.color, filled, lens, fx)
+        rows.append({"target_share": share, "share": _share_out_of_focus(lens, filled, fx), "f_number": lens.f_number,
+                     "focus_distance_m": lens.focus_distance_m, "render_ms": ms,
+                     "render_skipped": any(t.skipped for t in trace if t.name == "render")})
+    full = max(r["render_ms"] for r in rows if r["target_share"] == max(shares))
+    for r in rows:
+        r["relative_to_full"] = r["render_ms"] / full
+    return rows
+
+
+def cost_plot(rows: list[dict], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.4), dpi=110)
+    ax.plot([100 * r["share"] for r in rows], [r["render_ms"] for r in rows], "o-")
+    ax.set_xlabel("pixels out of focus (CoC >= 1 px), %")
+    ax.set_ylabel("render time, ms (median)")
+    ax.set_title("cost follows the work")
+    ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    tmp = path + ".tmp.png"
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)

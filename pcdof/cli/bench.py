@@ -1,0 +1,127 @@
+"""`pcdof bench`: time against error on the ray-traced ground truth, plus the speed and peer benchmarks."""
+
+from __future__ import annotations
+
+import csv
+import io as _io
+import json
+import os
+import platform
+
+import click
+
+from ._common import handle_errors
+
+PARTS = ("dof", "speed", "registration", "fill")
+
+
+def versions() -> dict:
+    import cv2
+    import numba
+    import numpy
+    import open3d
+
+    return {"python": platform.python_version(), "numpy": numpy.__version__, "opencv": cv2.__version__,
+            "open3d": open3d.__version__, "numba": numba.__version__, "machine": platform.machine(),
+            "cpus": os.cpu_count()}
+
+
+def _write_text(path: str, text: str) -> None:
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def _write_csv(path: str, rows: list[dict]) -> None:
+    if not rows:
+        return
+    keys = list(dict.fromkeys(k for r in rows for k in r if not isinstance(r[k], (dict, list))))
+    buf = _io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
+    w.writeheader()
+    w.writerows(rows)
+    _write_text(path, buf.getvalue())
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"expected WIDTHxHEIGHT, e.g. 320x240; got {text!r}") from None
+    return w, h
+
+
+@click.command("bench")
+@click.option("-o", "--output", default="out/bench", show_default=True, type=click.Path(file_okay=False))
+@click.option("--quick", is_flag=True, help="Tiny scenes, few repeats: a smoke run for tests.")
+@click.option("--only", default=",".join(PARTS), show_default=True, help="Comma-separated parts to run.")
+@click.option("--size", default="320x240", show_default=True, help="Colour size of the ground-truth scenes.")
+@click.option("--depth-size", default="256x212", show_default=True, help="Depth camera size of the scenes.")
+@click.option("--repeats", type=int, default=5, show_default=True, help="Timed repeats per measurement.")
+@click.option("--samples", type=int, default=None, help="Aperture samples for the ground truth (default: adaptive).")
+@click.option("--scenes", default=None, help="Comma-separated scene names (default: all).")
+@handle_errors
+def command(output, quick, only, size, depth_size, repeats, samples, scenes):
+    """Run the benchmarks and write JSON, CSV, Markdown tables and plots into OUTPUT."""
+    parts = [p.strip() for p in only.split(",") if p.strip()]
+    bad = [p for p in parts if p not in PARTS]
+    if bad:
+        raise click.BadParameter(f"unknown part(s) {bad}; choose from {', '.join(PARTS)}", param_hint="--only")
+    size, depth_size = _parse_size(size), _parse_size(depth_size)
+    scene_list = [s.strip() for s in scenes.split(",")] if scenes else None
+    if quick:
+        size, depth_size, repeats = (96, 72), (80, 66), 1
+        scene_list = scene_list or ["portrait", "slanted_plane"]
+    os.makedirs(output, exist_ok=True)
+    report = {"versions": versions(), "quick": quick}
+    md = [f"# pcdof benchmark\n\nversions: {json.dumps(report['versions'])}\n"]
+
+    if "dof" in parts:
+        from ..bench import dof
+
+        rows = dof.run_dof_bench(scenes=scene_list, size=size, depth_size=depth_size, repeats=repeats,
+                                 samples=samples if not quick else (samples or 64),
+                                 cache_dir=os.path.join(output, "cache"))
+        report["dof"] = rows
+        report["dof_summary"] = dof.summarize(rows)
+        _write_csv(os.path.join(output, "dof.csv"), rows)
+        dof.pareto_plot(rows, os.path.join(output, "pareto.png"))
+        md += ["## Depth of field against the ray-traced ground truth\n", dof.markdown_table(rows), ""]
+        click.echo(dof.markdown_table(rows))
+    if "speed" in parts:
+        from ..bench import speed
+
+        sizes = ((160, 120),) if quick else ((640, 480), (1920, 1080))
+        dsize = (128, 106) if quick else (512, 424)
+        rows = speed.pipeline_vs_paper(sizes=sizes, depth_size=dsize, repeats=repeats)
+        cost = speed.cost_follows_work(size=sizes[0], depth_size=dsize, repeats=repeats)
+        speed.cost_plot(cost, os.path.join(output, "cost.png"))
+        report["speed"], report["cost"] = rows, cost
+        lines = ["| colour | depth | pcdof ms | paper ms | ratio |", "|---|---|---|---|---|"]
+        lines += [f"| {r['color_size']} | {r['depth_size']} | {r['pcdof_ms']:.1f} | {r['paper_ms']:.1f} | "
+                  f"{r['ratio']:.2f} |" for r in rows]
+        lines += ["", "| out of focus | f-number | render ms | relative to 100 % |", "|---|---|---|---|"]
+        lines += [f"| {100 * r['share']:.0f} % | {r['f_number']:.2f} | {r['render_ms']:.2f} | "
+                  f"{r['relative_to_full']:.3f} |" for r in cost]
+        md += ["## Speed\n", *lines, ""]
+        click.echo("\n".join(lines))
+    if "registration" in parts:
+        from ..bench import registration
+
+        rows = registration.run_registration_bench(quick=quick, repeats=repeats)
+        report["registration"] = rows
+        table = registration.markdown_table(rows)
+        md += ["## Registration against OpenCV and Open3D\n", table, ""]
+        click.echo(table)
+    if "fill" in parts:
+        from ..bench import fill
+
+        rows = fill.run_fill_bench(quick=quick)
+        report["fill"] = rows
+        table = fill.markdown_table(rows)
+        md += ["## Hole filling against cv2.inpaint\n", table, ""]
+        click.echo(table)
+    _write_text(os.path.join(output, "report.json"), json.dumps(report, indent=1, default=float))
+    _write_text(os.path.join(output, "report.md"), "\n".join(md))
+    click.echo(f"wrote {output}/report.md and report.json", err=True)

@@ -111,7 +111,8 @@ def fill_stage(depth_m: np.ndarray, color: np.ndarray, trace: list, *, method: s
         return fill_depth(depth_m, color, method=method)
 
 
-def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False):
+def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False,
+                  quality="balanced"):
     """Circle of confusion + render stages on registered, filled depth. Returns (image, coc_px)."""
     coc = None
     if isinstance(lens, ThinLens):
@@ -122,7 +123,7 @@ def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", 
             rec.reason = f"max {rec.detail['max_coc_px']:.2f} px"
     with _Timer(trace, "render") as rec:
         image, info = render_image(color, depth_filled_m, lens, fx=fx, method=method,
-                                   max_range_m=max_range_m, linear=linear)
+                                   max_range_m=max_range_m, linear=linear, quality=quality)
         rec.skipped = bool(info.pop("skipped", False))
         rec.reason = info.pop("reason", method)
         if not rec.skipped and method == "physical":
@@ -150,7 +151,7 @@ def _resolve_lens(lens, focus_at, depth_registered_m, depth_filled_m):
 
 
 def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = "joint-bilateral",
-        focus_at=None, linear: bool = False) -> RenderResult:
+        focus_at=None, linear: bool = False, quality: str = "balanced") -> RenderResult:
     """Register, fill, and render one frame.
 
     Parameters
@@ -161,6 +162,7 @@ def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = 
     fill_method : a key of :data:`pcdof.fill.FILL_METHODS`
     focus_at : optional (x, y) colour pixel; focus at the robust depth around it
     linear : colour holds linear light (float, may exceed 1) instead of sRGB
+    quality : physical method's speed/accuracy trade-off, a key of :data:`pcdof.render.QUALITIES`
     """
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
@@ -173,7 +175,7 @@ def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = 
     filled = fill_stage(registered, frame.color, trace, method=fill_method)
     lens = _resolve_lens(lens, focus_at, registered, filled)
     image, coc = render_stages(frame.color, filled, lens, frame.rig.color.fx, trace, method=method,
-                               max_range_m=frame.rig.max_range_m, linear=linear)
+                               max_range_m=frame.rig.max_range_m, linear=linear, quality=quality)
     return RenderResult(image, registered, filled, coc, lens, trace)
 
 
@@ -186,12 +188,13 @@ def render(frame: RGBDFrame, lens, *, method: str = "physical", **options) -> np
 
 
 def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "physical",
-                      max_range_m: float = 10.0, linear: bool = False):
+                      max_range_m: float = 10.0, linear: bool = False, quality: str = "balanced"):
     """Render from an already registered, hole-free depth (previews, sliders). Returns (image, trace)."""
     color = check_color(color)
     depth = np.asarray(depth_filled_m, np.float32)
     if depth.shape != color.shape[:2]:
         raise InputError(f"depth_filled_m must be (H, W) = {color.shape[:2]}; got {depth.shape}")
     trace: list[StageTrace] = []
-    image, _ = render_stages(color, depth, lens, fx, trace, method=method, max_range_m=max_range_m, linear=linear)
+    image, _ = render_stages(color, depth, lens, fx, trace, method=method, max_range_m=max_range_m, linear=linear,
+                             quality=quality)
     return image, trace

@@ -265,10 +265,43 @@ def _block_mean(a: np.ndarray, s: int) -> np.ndarray:
     return a.reshape(hs, s, ws, s, *a.shape[2:]).mean(axis=(1, 3), dtype=np.float32)
 
 
-def _scatter_reduced(lin, radius, member, s, blades, rot):
-    """Scatter one layer at 1/s resolution and return its (H, W, C+1) buffer at full resolution."""
+def _extend_behind(lin, radius, member, hidden, reach_px):
+    """Extend a layer into the pixels that nearer layers hide, up to *reach_px* from its own pixels.
+
+    One view cannot see behind a foreground edge, but a real lens does (partial occlusion): the
+    hidden part of the background shows through the soft edge of a blurred foreground. The best
+    single-view guess continues each background pixel's nearest visible neighbour in its layer.
+    Returns (lin, radius, mask) with the extension filled in.
+    """
+    dist, labels = cv2.distanceTransformWithLabels((~member).astype(np.uint8), cv2.DIST_L2, 5,
+                                                   labelType=cv2.DIST_LABEL_PIXEL)
+    band = hidden & (dist <= reach_px)
+    if not band.any():
+        return lin, radius, member
+    sources = np.flatnonzero(member.ravel())  # labels number the member pixels in raster order
+    nearest = sources[labels[band] - 1]
+    lin = lin.copy()
+    radius = radius.copy()
+    lin[band] = lin.reshape(-1, lin.shape[2])[nearest]
+    radius[band] = radius.ravel()[nearest]
+    return lin, radius, member | band
+
+
+def _scatter_mask(lin, radius, member, s, blades, rot):
+    """Scatter the pixels of *member* at 1/s resolution; returns their (H, W, C+1) buffer at full size."""
     h, w, nc = lin.shape
     m = member.astype(np.float32)
+    if s == 1:
+        ids = np.where(member, 0, 1).astype(np.int32)
+        cols, offsets = _sort_into_layers(ids, 2)
+        weight = _inverse_areas(radius, blades, rot, _G_TABLE) * m
+        rows = np.flatnonzero(member.any(axis=1))
+        r_max = float(radius[member].max())
+        reach = int(math.ceil(r_max + 0.5))
+        buf = np.zeros((h, w, nc + 1), np.float32)
+        _scatter_layer(lin, radius, weight, cols, offsets, 0, r_max, max(0, rows[0] - reach),
+                       min(h - 1, rows[-1] + reach), blades, rot, _G_TABLE, buf)
+        return buf
     m_s = _block_mean(m, s)
     present = m_s > 0
     safe = np.where(present, m_s, 1.0)
@@ -292,7 +325,8 @@ def _scatter_reduced(lin, radius, member, s, blades, rot):
 
 
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
-                         rotation_deg: float = 0.0, quality: str = "balanced") -> tuple[np.ndarray, dict]:
+                         rotation_deg: float = 0.0, quality: str = "balanced",
+                         extend_behind: bool = True) -> tuple[np.ndarray, dict]:
     """Physical depth of field in linear light.
 
     Parameters
@@ -301,6 +335,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     signed_coc : (H, W) float32, signed circle-of-confusion diameter in pixels (< 0 in front of focus)
     blades, rotation_deg : aperture polygon (0 = disc)
     quality : a key of :data:`QUALITIES`
+    extend_behind : continue each layer behind the soft edges of nearer blurred layers (partial occlusion)
 
     Returns
     -------
@@ -325,11 +360,17 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     for li, key in enumerate(keys):
         if key == 0:  # in focus: an opaque copy, no blur
             m = layer == li
+            src = lin
+            n_members = int(m.sum())
+            hidden = (layer < li) & (trans > 0)
+            if extend_behind and hidden.any():
+                r_front = max(float(radius[layer < li].max()), 1.0)
+                src, _, m = _extend_behind(lin, radius, m, hidden, r_front + 1)
             t = trans[m]
-            acc[m] += t[:, None] * lin[m]
+            acc[m] += t[:, None] * src[m]
             acc_a[m] += t
             trans[m] = 0.0
-            layers_run.append({"key": 0, "coc_px": [0.0, 1.0], "pixels": int(m.sum()), "blurred": False,
+            layers_run.append({"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False,
                                "scale": 1})
             continue
         counts = offsets[li * h + 1:(li + 1) * h + 1] - offsets[li * h:(li + 1) * h]
@@ -338,11 +379,24 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
         member = layer == li
         r_max = float(radius[member].max())
         reach = int(math.ceil(r_max + 0.5))
-        y_lo, y_hi = max(0, rows[0] - reach), min(h - 1, rows[-1] + reach)
         s = 1
         while lo / (2 * s) >= min_reduced:
             s *= 2
-        if s == 1:
+        # pixels of nearer layers that are not yet opaque: this layer may show through there
+        hidden = (layer < li) & (trans > 0)
+        extend = extend_behind and bool(hidden.any())
+        if extend:
+            r_front = max(float(radius[layer < li].max()), 1.0)
+            src_lin, src_radius, src_member = _extend_behind(lin, radius, member, hidden, r_max + r_front + 1)
+            extend = src_member is not member
+        if extend:
+            ext_rows = np.flatnonzero(src_member.any(axis=1))
+            reach = int(math.ceil(float(src_radius[src_member].max()) + 0.5))
+            y_lo, y_hi = max(0, ext_rows[0] - reach), min(h - 1, ext_rows[-1] + reach)
+            layer_buf = _scatter_mask(src_lin, src_radius, src_member, s, int(blades), rot)
+            _composite_under(layer_buf, y_lo, y_hi, acc, acc_a, trans)
+        elif s == 1:
+            y_lo, y_hi = max(0, rows[0] - reach), min(h - 1, rows[-1] + reach)
             if inv_area is None:
                 inv_area = _inverse_areas(radius, int(blades), rot, _G_TABLE)
             if buf is None:
@@ -351,10 +405,11 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
                            buf)
             _composite_under(buf, y_lo, y_hi, acc, acc_a, trans)
         else:
-            layer_buf = _scatter_reduced(lin, radius, member, s, int(blades), rot)
+            y_lo, y_hi = max(0, rows[0] - reach), min(h - 1, rows[-1] + reach)
+            layer_buf = _scatter_mask(lin, radius, member, s, int(blades), rot)
             _composite_under(layer_buf, y_lo, y_hi, acc, acc_a, trans)
         layers_run.append({"key": int(key), "coc_px": [lo, hi], "pixels": int(counts.sum()), "blurred": True,
-                           "side": "front" if key < 0 else "back", "scale": s})
+                           "side": "front" if key < 0 else "back", "scale": s, "extended": bool(extend)})
     out = np.empty_like(lin)
     ok = acc_a > 1e-6
     out[ok] = acc[ok] / acc_a[ok][:, None]

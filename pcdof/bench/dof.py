@@ -34,11 +34,14 @@ class Method:
     run: callable  # (synthetic frame, ThinLens) -> (image uint8, {stage: seconds})
 
 
-def _physical(sf, lens):
-    from ..pipeline import run
+def _physical(quality):
+    def method(sf, lens):
+        from ..pipeline import run
 
-    res = run(sf.frame, lens)
-    return res.image, {t.name: t.seconds for t in res.trace}
+        res = run(sf.frame, lens, quality=quality)
+        return res.image, {t.name: t.seconds for t in res.trace}
+
+    return method
 
 
 def paper_lens_matching(sf, lens: ThinLens) -> PaperLens:
@@ -62,7 +65,7 @@ def _baseline(sf, lens):
 
 
 METHODS = {
-    "pcdof": Method("pcdof", _physical),
+    **{f"pcdof-{q}": Method(f"pcdof-{q}", _physical(q)) for q in ("exact", "high", "balanced", "fast")},
     "paper": Method("paper", _paper),
     "baseline": Method("baseline", _baseline),
 }

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 
 import click
@@ -52,6 +51,8 @@ def lens_options(func):
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output image (.png/.jpg/.tif).")
 @lens_options
 @click.option("--method", type=click.Choice(["physical", "paper"]), default="physical", show_default=True)
+@click.option("--quality", type=click.Choice(["exact", "high", "balanced", "fast"]), default="balanced",
+              show_default=True, help="Physical method: speed/accuracy trade-off for large blur.")
 @click.option("--sigma", "blur_sigma_px", type=float, default=4.0, show_default=True,
               help="Paper method: Gaussian blur sigma in pixels.")
 @click.option("--weight", type=click.Choice(["eq2", "eq1"]), default="eq2", show_default=True,
@@ -66,7 +67,7 @@ def lens_options(func):
 @click.option("--explain", is_flag=True, help="Print each stage's time and what was skipped.")
 @handle_errors
 def command(color, depth, calib, output, focal_length_mm, f_number, focus_distance_m, focus_at, aperture_blades,
-            aperture_rotation_deg, method, blur_sigma_px, weight, weight_sigma, fill_method, depth_scale, linear,
+            aperture_rotation_deg, method, quality, blur_sigma_px, weight, weight_sigma, fill_method, depth_scale, linear,
             save_maps, explain):
     """Render COLOR + DEPTH with a shallow depth of field into OUTPUT."""
     from .. import io, pipeline
@@ -82,7 +83,8 @@ def command(color, depth, calib, output, focal_length_mm, f_number, focus_distan
         lens = ThinLens(focal_length_mm, f_number, provisional, aperture_blades, aperture_rotation_deg)
     if focus_distance_m is None and focus_at is None:
         focus_at = ((frame.rig.color.width - 1) / 2, (frame.rig.color.height - 1) / 2)
-    result = pipeline.run(frame, lens, method=method, fill_method=fill_method, focus_at=focus_at, linear=linear)
+    result = pipeline.run(frame, lens, method=method, fill_method=fill_method, focus_at=focus_at, linear=linear,
+                          quality=quality)
     io.write_image(output, result.image)
     if save_maps:
         write_maps(save_maps, result)

@@ -9,9 +9,13 @@ from .errors import (
     LensError,
     PcdofError,
 )
+from .cloud import colored_points, write_ply
+from .io import load_frame, read_calibration, read_color, read_depth, write_depth, write_image, write_json
 from .lens import PaperLens, ThinLens, focus_depth_at
 
 __all__ = [
     "Intrinsics", "Rig", "RGBDFrame", "ThinLens", "PaperLens", "focus_depth_at",
+    "load_frame", "read_calibration", "read_color", "read_depth", "write_image", "write_depth", "write_json",
+    "colored_points", "write_ply",
     "PcdofError", "InputError", "CalibrationError", "LensError", "ImageReadError", "ImageWriteError",
 ]

@@ -14,13 +14,25 @@ import numpy as np
 from .errors import CalibrationError, InputError
 
 MAX_IMAGE_SIDE = 16384  # larger sides are refused: a guard against absurd sizes / decompression bombs
+#: Largest magnitude a float colour value may have. sRGB floats are nominally in [0, 1] and linear light
+#: rarely exceeds 1e5; beyond this the float32 renderers overflow (x**2.4 of the sRGB decoding, blur sums).
+MAX_FLOAT_COLOR = 1e9
+
+
+def _short(value, limit: int = 80) -> str:
+    """repr(value) on one line, cut to *limit* characters (for error messages)."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _finite_number(name: str, value, *, positive: bool = False) -> float:
+    # bool and str convert with float() but are not numbers here (True would be 1 px, "10" a typo'd file)
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        raise CalibrationError(f"{name} must be a number; got {type(value).__name__} {_short(value)}")
     try:
         out = float(value)
     except (TypeError, ValueError):
-        raise CalibrationError(f"{name} must be a number; got {value!r}") from None
+        raise CalibrationError(f"{name} must be a number; got {_short(value)}") from None
     if not math.isfinite(out):
         raise CalibrationError(f"{name} must be finite; got {value!r}")
     if positive and out <= 0:
@@ -120,9 +132,12 @@ def validate_rigid(T, name: str = "T_color_from_depth") -> np.ndarray:
     Returns it as a read-only (4, 4) float64 array.
     """
     try:
-        M = np.array(T, dtype=np.float64)
+        raw = np.asarray(T)
+        if raw.dtype.kind not in "fiuO":  # complex, bool, str: not a transform (complex would lose its imaginary part)
+            raise TypeError
+        M = np.array(raw, dtype=np.float64)
     except (TypeError, ValueError):
-        raise CalibrationError(f"{name} must be a 4x4 matrix of numbers; got {T!r}") from None
+        raise CalibrationError(f"{name} must be a 4x4 matrix of numbers; got {_short(T)}") from None
     if M.shape != (4, 4):
         raise CalibrationError(f"{name} must be 4x4; got shape {M.shape}")
     if not np.all(np.isfinite(M)):
@@ -191,7 +206,15 @@ class Rig:
             "depth": self.depth.to_dict(),
             "depth_scale": self.depth_scale,
             "T_color_from_depth": np.asarray(self.T_color_from_depth).tolist(),
+            "max_range_m": self.max_range_m,
         }
+
+
+def _as_array(value, name: str) -> np.ndarray:
+    try:
+        return np.asarray(value)
+    except (TypeError, ValueError) as err:  # ragged nested lists
+        raise InputError(f"{name} must be a rectangular numeric array; got {type(value).__name__} ({err})") from None
 
 
 def as_depth_m(depth, shape: tuple[int, int] | None = None, *, name: str = "depth_m") -> tuple[np.ndarray, int]:
@@ -200,14 +223,15 @@ def as_depth_m(depth, shape: tuple[int, int] | None = None, *, name: str = "dept
     NaN, +-inf and negative values are unknown; returns ``(depth_m, n_invalid)`` where
     *n_invalid* counts the values that were turned into 0 for that reason.
     """
-    arr = np.asarray(depth)
+    arr = _as_array(depth, name)
     if arr.ndim != 2:
         raise InputError(f"{name} must be a 2-D (H, W) array; got shape {arr.shape}")
     if shape is not None and arr.shape != tuple(shape):
         raise InputError(f"{name} must be (H, W) = {tuple(shape)}; got {arr.shape}")
     if arr.dtype.kind not in "fiub":
         raise InputError(f"{name} must be numeric; got dtype {arr.dtype}")
-    out = arr.astype(np.float32, copy=True)
+    with np.errstate(over="ignore", invalid="ignore"):  # float64 beyond the float32 range becomes inf: unknown
+        out = arr.astype(np.float32, copy=True)
     bad = ~np.isfinite(out) | (out < 0)
     n_bad = int(bad.sum())
     if n_bad:
@@ -216,8 +240,13 @@ def as_depth_m(depth, shape: tuple[int, int] | None = None, *, name: str = "dept
 
 
 def check_color(color, shape: tuple[int, int] | None = None, *, name: str = "color") -> np.ndarray:
-    """Validate a colour image: (H, W, 3) RGB (or (H, W) grey) of uint8, uint16 or float dtype."""
-    arr = np.asarray(color)
+    """Validate a colour image: (H, W, 3) RGB (or (H, W) grey) of uint8, uint16 or float dtype.
+
+    Float images (float16, float32, float64, ...) must be finite and within +-:data:`MAX_FLOAT_COLOR`;
+    the renderers convert them to float32 internally and return the caller's dtype. Returns the
+    array itself (no copy).
+    """
+    arr = _as_array(color, name)
     if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3):
         raise InputError(f"{name} must be (H, W, 3) RGB or (H, W) grey; got shape {arr.shape}")
     if arr.dtype not in (np.uint8, np.uint16) and arr.dtype.kind != "f":
@@ -226,8 +255,15 @@ def check_color(color, shape: tuple[int, int] | None = None, *, name: str = "col
         raise InputError(f"{name} must be (H, W) = {tuple(shape)}; got {arr.shape[:2]}")
     if arr.shape[0] < 1 or arr.shape[1] < 1:
         raise InputError(f"{name} must not be empty; got shape {arr.shape}")
-    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
-        raise InputError(f"{name} must be finite; got NaN or inf values")
+    if arr.dtype.kind == "f":
+        if not np.all(np.isfinite(arr)):
+            raise InputError(f"{name} must be finite; got NaN or inf values")
+        peak = float(np.abs(arr).max())
+        if peak > MAX_FLOAT_COLOR:
+            raise InputError(
+                f"{name} float values must be within +-{MAX_FLOAT_COLOR:g} (sRGB in [0, 1], or linear light); "
+                f"got a value of magnitude {peak:.3g}"
+            )
     return arr
 
 

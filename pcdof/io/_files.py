@@ -1,0 +1,325 @@
+"""File plumbing shared by the readers and writers: paths, format sniffing, size guards, atomic writes, EXR."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import struct
+import tempfile
+import warnings
+
+# OpenCV reads OPENCV_IO_ENABLE_OPENEXR when it decodes the first EXR; set it before cv2 is used so
+# that an OpenCV built with OpenEXR can serve as the fallback EXR backend.
+os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..camera import MAX_IMAGE_SIDE  # noqa: E402
+from ..errors import ImageReadError, ImageWriteError, InputError  # noqa: E402
+
+#: Largest image the readers decode (pixels); together with ``MAX_IMAGE_SIDE`` per side.
+MAX_PIXELS = 250_000_000
+
+_MAGIC = (
+    (b"\x89PNG\r\n\x1a\n", "png"),
+    (b"\xff\xd8\xff", "jpeg"),
+    (b"II*\x00", "tiff"),
+    (b"MM\x00*", "tiff"),
+    (b"II+\x00", "tiff"),
+    (b"MM\x00+", "tiff"),
+    (b"\x93NUMPY", "npy"),
+    (b"v/1\x01", "exr"),
+    (b"PF", "pfm"),
+    (b"Pf", "pfm"),
+    (b"P5", "pnm"),
+    (b"P6", "pnm"),
+    (b"P2", "pnm"),
+    (b"P3", "pnm"),
+)
+_PNG_IEND = b"IEND\xaeB`\x82"
+
+
+def fspath(path, *, name: str = "path") -> str:
+    """*path* as a str, or InputError naming the argument."""
+    try:
+        out = os.fspath(path)
+    except TypeError:
+        raise InputError(f"{name} must be a file path (str or os.PathLike); got {type(path).__name__}") from None
+    if isinstance(out, bytes):
+        out = os.fsdecode(out)
+    if not out:
+        raise InputError(f"{name} must not be empty")
+    return out
+
+
+def read_bytes(path: str, what: str) -> bytes:
+    """The whole content of *path*; ImageReadError when it is missing, a folder, unreadable or empty."""
+    if not os.path.exists(path):
+        raise ImageReadError(f"{what} file not found: {path}")
+    if os.path.isdir(path):
+        raise ImageReadError(f"{what} path is a folder, expected a file: {path}")
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as err:
+        raise ImageReadError(f"cannot read {what} file {path}: {err.strerror or err}") from None
+    if not data:
+        raise ImageReadError(f"{what} file is empty: {path}")
+    return data
+
+
+def sniff(data: bytes) -> str | None:
+    """The file kind from its first bytes: png, jpeg, tiff, npy, exr, pfm, pnm, or None."""
+    for magic, kind in _MAGIC:
+        if data.startswith(magic):
+            return kind
+    return None
+
+
+def header_size(data: bytes, kind: str | None) -> tuple[int, int] | None:
+    """(width, height) declared by the file header, read without decoding the pixels; None if unknown."""
+    if kind == "png":
+        if len(data) < 24 or data[12:16] != b"IHDR":
+            return None
+        w, h = struct.unpack(">II", data[16:24])
+        return int(w), int(h)
+    if kind == "npy":
+        try:
+            shape = npy_header(data)[0]
+        except ValueError:
+            return None
+        if len(shape) < 2:
+            return None
+        return int(shape[1]), int(shape[0])
+    if kind == "exr":
+        return exr_header_size(data)
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - Pillow comes with matplotlib and imageio
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with Image.open(io.BytesIO(data)) as im:
+                return int(im.size[0]), int(im.size[1])
+    except Image.DecompressionBombError as err:
+        raise ImageReadError(f"image is too large to read: {err}") from None
+    except Exception:  # noqa: BLE001 - Pillow does not know every format OpenCV reads; OpenCV decides
+        return None
+
+
+def check_size(width: int, height: int, path: str, what: str) -> None:
+    """ImageReadError when an image is larger than MAX_IMAGE_SIDE per side or MAX_PIXELS in all."""
+    if width < 1 or height < 1:
+        raise ImageReadError(f"{what} file {path} declares an empty image ({width}x{height})")
+    if width > MAX_IMAGE_SIDE or height > MAX_IMAGE_SIDE or width * height > MAX_PIXELS:
+        raise ImageReadError(
+            f"{what} file {path} is {width}x{height} pixels; the limit is {MAX_IMAGE_SIDE} per side and "
+            f"{MAX_PIXELS / 1e6:.0f} Mpixel in all"
+        )
+
+
+def npy_header(data: bytes) -> tuple[tuple[int, ...], np.dtype, int]:
+    """(shape, dtype, header length in bytes) of an .npy file's content, read from its header only."""
+    buf = io.BytesIO(data)
+    try:
+        version = np.lib.format.read_magic(buf)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(buf)
+        else:
+            shape, _, dtype = np.lib.format.read_array_header_2_0(buf)
+    except Exception as err:  # noqa: BLE001 - any malformed header is the same failure
+        raise ValueError(f"malformed .npy header ({err})") from None
+    return tuple(int(s) for s in shape), dtype, buf.tell()
+
+
+def decode_npy(data: bytes, path: str, what: str) -> np.ndarray:
+    """Load an .npy array (no pickles)."""
+    try:
+        shape, dtype, offset = npy_header(data)
+    except ValueError as err:
+        raise ImageReadError(f"cannot read {what} file {path}: {err}") from None
+    if len(shape) >= 2:
+        check_size(shape[1], shape[0], path, what)
+    expected = int(np.prod(shape)) * dtype.itemsize
+    if len(data) - offset < expected:
+        raise ImageReadError(f"{what} file {path} is truncated: its header declares {shape} {dtype}")
+    try:
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except Exception as err:  # noqa: BLE001
+        raise ImageReadError(f"cannot read {what} file {path}: {err}") from None
+
+
+def decode_pfm(data: bytes, path: str, what: str) -> np.ndarray:
+    """Decode a PFM (portable float map) into float32, top row first.
+
+    The header's scale magnitude is ignored, as by the Middlebury tools (OpenCV divides by it,
+    which turns Middlebury's ``-0.003922`` files into disparities 255 times too large); only its
+    sign, the byte order, is used.
+    """
+    parts = []
+    pos = 0
+    for _ in range(4):  # magic, width, height, scale: whitespace separated
+        while pos < len(data) and data[pos : pos + 1].isspace():
+            pos += 1
+        start = pos
+        while pos < len(data) and not data[pos : pos + 1].isspace():
+            pos += 1
+        parts.append(data[start:pos])
+    pos += 1  # the single whitespace character that ends the header
+    try:
+        channels = {b"Pf": 1, b"PF": 3}[parts[0]]
+        width, height, scale = int(parts[1]), int(parts[2]), float(parts[3])
+    except (KeyError, ValueError):
+        raise ImageReadError(f"cannot read {what} file {path}: malformed PFM header") from None
+    check_size(width, height, path, what)
+    count = width * height * channels
+    if len(data) - pos < 4 * count:
+        raise ImageReadError(f"{what} file {path} is truncated: the PFM header declares {width}x{height}x{channels}")
+    img = np.frombuffer(data, dtype="<f4" if scale < 0 else ">f4", count=count, offset=pos)
+    img = img.reshape(height, width, channels)[::-1].astype(np.float32)  # rows are stored bottom to top
+    return img[:, :, 0] if channels == 1 else img[:, :, ::-1]  # RGB -> OpenCV's BGR, like decode_image
+
+
+def decode_image(data: bytes, kind: str | None, path: str, what: str) -> np.ndarray:
+    """Decode an image file with OpenCV (IMREAD_UNCHANGED: bit depth and channels as stored, BGR order)."""
+    if kind == "pfm":
+        return decode_pfm(data, path, what)
+    size = header_size(data, kind)
+    if size is not None:
+        check_size(size[0], size[1], path, what)
+    if kind == "png" and data.rfind(_PNG_IEND) < 0:
+        # libpng would print its own complaint on stderr and OpenCV return nothing
+        raise ImageReadError(f"{what} file {path} is truncated or corrupt: the PNG has no end chunk")
+    try:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error as err:
+        raise ImageReadError(f"cannot decode {what} file {path}: {err.err}") from None
+    if img is None or img.size == 0:
+        raise ImageReadError(f"cannot decode {what} file {path}: not an image OpenCV can read, or truncated/corrupt")
+    check_size(img.shape[1], img.shape[0], path, what)
+    return img
+
+
+# -- EXR: the OpenEXR package, or OpenCV when it was built with OpenEXR --------------------------------
+
+
+def _openexr():
+    try:
+        import OpenEXR
+    except ImportError:
+        return None
+    return OpenEXR
+
+
+def exr_available() -> bool:
+    """True when EXR files can be read and written (the ``openexr`` package, or an OpenCV with OpenEXR)."""
+    return _openexr() is not None or bool(cv2.haveImageWriter(".exr"))
+
+
+def _exr_missing(path: str) -> str:
+    return f"cannot handle EXR file {path}: install the 'openexr' package (pip install openexr)"
+
+
+def exr_header_size(data: bytes) -> tuple[int, int] | None:
+    OpenEXR = _openexr()
+    if OpenEXR is None:
+        return None
+    try:
+        with OpenEXR.File(io.BytesIO(data), header_only=True) as f:
+            lo, hi = f.header()["dataWindow"]
+    except Exception:  # noqa: BLE001 - a malformed file is reported by the full read
+        return None
+    return int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+
+
+def decode_exr(data: bytes, path: str, what: str) -> dict[str, np.ndarray]:
+    """Channels of an EXR file as a dict name -> (H, W) array (float16/float32/uint32 as stored)."""
+    size = exr_header_size(data)
+    if size is not None:
+        check_size(size[0], size[1], path, what)
+    OpenEXR = _openexr()
+    if OpenEXR is not None:
+        try:
+            with OpenEXR.File(io.BytesIO(data), separate_channels=True) as f:
+                return {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
+        except Exception as err:  # noqa: BLE001
+            raise ImageReadError(f"cannot decode {what} file {path}: truncated or corrupt EXR ({err})") from None
+    if not cv2.haveImageWriter(".exr"):
+        raise ImageReadError(_exr_missing(path))
+    img = decode_image(data, "exr", path, what)
+    if img.ndim == 2:
+        return {"Y": img}
+    names = "BGRA"
+    return {names[i]: img[:, :, i] for i in range(img.shape[2])}
+
+
+def encode_exr(channels: dict[str, np.ndarray], path: str) -> bytes:
+    """EXR file content (ZIP compression, float32) with the given (H, W) channels."""
+    OpenEXR = _openexr()
+    if OpenEXR is not None:
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        buf = io.BytesIO()
+        try:
+            chans = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
+            with OpenEXR.File(header, chans) as f:
+                f.write(buf)
+        except Exception as err:  # noqa: BLE001
+            raise ImageWriteError(f"cannot encode EXR for {path}: {err}") from None
+        return buf.getvalue()
+    if not cv2.haveImageWriter(".exr"):
+        raise ImageWriteError(_exr_missing(path))
+    names = list(channels)
+    if len(names) == 1:
+        img = channels[names[0]]
+    else:
+        img = np.dstack([channels[c] for c in ("B", "G", "R") if c in channels])
+    return encode_cv2(".exr", np.ascontiguousarray(img, dtype=np.float32), path)
+
+
+def encode_cv2(ext: str, img: np.ndarray, path: str, params: list[int] | None = None) -> bytes:
+    """Encode with ``cv2.imencode``; ImageWriteError when OpenCV refuses."""
+    try:
+        ok, buf = cv2.imencode(ext, img, params or [])
+    except cv2.error as err:
+        raise ImageWriteError(f"cannot encode {path} as {ext}: {err.err}") from None
+    if not ok:
+        raise ImageWriteError(f"cannot encode {path} as {ext}: OpenCV's encoder failed")
+    return buf.tobytes()
+
+
+# -- atomic writes -------------------------------------------------------------------------------------
+
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
+
+def atomic_write_bytes(path: str, data: bytes) -> None:
+    """Write *data* to *path* atomically: a temporary file in the same folder, then ``os.replace``.
+
+    On any failure the temporary file is removed and an existing *path* is left as it was.
+    Missing parent folders are created.
+    """
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        raise ImageWriteError(f"cannot write {path}: it is a folder")
+    try:
+        os.makedirs(folder, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
+    except OSError as err:
+        raise ImageWriteError(f"cannot write {path}: {err.strerror or err}") from None
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the usual permissions
+        os.replace(tmp, path)
+    except BaseException as err:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if isinstance(err, OSError):
+            raise ImageWriteError(f"cannot write {path}: {err.strerror or err}") from None
+        raise

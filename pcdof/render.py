@@ -265,13 +265,21 @@ def _block_mean(a: np.ndarray, s: int) -> np.ndarray:
     return a.reshape(hs, s, ws, s, *a.shape[2:]).mean(axis=(1, 3), dtype=np.float32)
 
 
+def _inverse_area(radius: np.ndarray, blades: int, rot: float) -> np.ndarray:
+    """1 / (footprint area) per source, so each source spreads exactly its own energy."""
+    if blades == 0:
+        r2 = radius.astype(np.float64) ** 2
+        return np.divide(1.0, np.pi * r2, out=np.zeros_like(r2), where=r2 > 0).astype(np.float32)
+    return _inverse_areas(radius, blades, rot, _G_TABLE)
+
+
 def _extend_behind(lin, radius, member, hidden, reach_px):
     """Extend a layer into the pixels that nearer layers hide, up to *reach_px* from its own pixels.
 
     One view cannot see behind a foreground edge, but a real lens does (partial occlusion): the
     hidden part of the background shows through the soft edge of a blurred foreground. The best
     single-view guess continues each background pixel's nearest visible neighbour in its layer.
-    Returns (lin, radius, mask) with the extension filled in.
+    Returns (lin, radius, mask) with the extension filled in (copies; inputs are not modified).
     """
     dist, labels = cv2.distanceTransformWithLabels((~member).astype(np.uint8), cv2.DIST_L2, 5,
                                                    labelType=cv2.DIST_LABEL_PIXEL)
@@ -290,38 +298,41 @@ def _extend_behind(lin, radius, member, hidden, reach_px):
 def _scatter_mask(lin, radius, member, s, blades, rot):
     """Scatter the pixels of *member* at 1/s resolution; returns their (H, W, C+1) buffer at full size."""
     h, w, nc = lin.shape
-    m = member.astype(np.float32)
-    if s == 1:
-        ids = np.where(member, 0, 1).astype(np.int32)
-        cols, offsets = _sort_into_layers(ids, 2)
-        weight = _inverse_areas(radius, blades, rot, _G_TABLE) * m
-        rows = np.flatnonzero(member.any(axis=1))
-        r_max = float(radius[member].max())
-        reach = int(math.ceil(r_max + 0.5))
-        buf = np.zeros((h, w, nc + 1), np.float32)
-        _scatter_layer(lin, radius, weight, cols, offsets, 0, r_max, max(0, rows[0] - reach),
-                       min(h - 1, rows[-1] + reach), blades, rot, _G_TABLE, buf)
-        return buf
-    m_s = _block_mean(m, s)
-    present = m_s > 0
-    safe = np.where(present, m_s, 1.0)
-    col_s = _block_mean(lin * m[:, :, None], s) / safe[:, :, None]
-    r = _block_mean(radius * m, s) / safe
-    # block averaging and bilinear upsampling widen the blur by about s^2 in variance: take it off
-    r_s = (np.sqrt(np.maximum(r * r - s * s, 0.25 * r * r)) / s).astype(np.float32)
-    inv = _inverse_areas(r_s, blades, rot, _G_TABLE)
-    weight = (m_s * inv).astype(np.float32)
-    ids = np.where(present, 0, 1).astype(np.int32)
-    cols, offsets = _sort_into_layers(ids, 2)
-    hs, ws = m_s.shape
-    rows = np.flatnonzero(present.any(axis=1))
-    r_max = float(r_s[present].max())
+    if s > 1:
+        m = member.astype(np.float32)
+        m_s = _block_mean(m, s)
+        present = m_s > 0
+        safe = np.where(present, m_s, 1.0)
+        lin = np.ascontiguousarray(_block_mean(lin * m[:, :, None], s) / safe[:, :, None], np.float32)
+        r = _block_mean(radius * m, s) / safe
+        # block averaging and bilinear upsampling widen the blur by about s^2 in variance: take it off
+        radius = (np.sqrt(np.maximum(r * r - s * s, 0.25 * r * r)) / s).astype(np.float32)
+        weight = (m_s * _inverse_area(radius, blades, rot)).astype(np.float32)
+        member = present
+    else:
+        radius = np.ascontiguousarray(radius, np.float32)
+        weight = np.where(member, _inverse_area(radius, blades, rot), 0).astype(np.float32)
+    hs, ws = member.shape
+    cols, offsets = _sort_into_layers(np.where(member, 0, 1).astype(np.int32), 2)
+    rows = np.flatnonzero(member.any(axis=1))
+    r_max = float(radius[member].max())
     reach = int(math.ceil(r_max + 0.5))
     buf = np.zeros((hs, ws, nc + 1), np.float32)
-    _scatter_layer(np.ascontiguousarray(col_s, np.float32), r_s, weight, cols, offsets, 0, r_max,
-                   max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach), blades, rot, _G_TABLE, buf)
+    _scatter_layer(lin, radius, weight, cols, offsets, 0, r_max, max(0, rows[0] - reach),
+                   min(hs - 1, rows[-1] + reach), blades, rot, _G_TABLE, buf)
+    if s == 1:
+        return buf
     up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)
     return np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w])
+
+
+def _bbox(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
+    """Bounding box of *mask*, grown by *margin* pixels and clipped to the image."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    h, w = mask.shape
+    return (slice(max(0, rows[0] - margin), min(h, rows[-1] + margin + 1)),
+            slice(max(0, cols[0] - margin), min(w, cols[-1] + margin + 1)))
 
 
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
@@ -345,71 +356,50 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
         raise InputError(f"quality must be one of {sorted(QUALITIES)}; got {quality!r}")
     min_reduced = QUALITIES[quality]
     h, w, nc = lin.shape
+    lin = np.ascontiguousarray(lin, np.float32)
     coc = np.clip(signed_coc, -MAX_COC_PX, MAX_COC_PX).astype(np.float32)
     radius = (np.abs(coc) * np.float32(0.5)).astype(np.float32)
     layer, keys = _layer_of(coc)
     rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
-    cols, offsets = _sort_into_layers(layer, int(keys.size))
-    inv_area = None
 
     acc = np.zeros((h, w, nc), np.float32)
     acc_a = np.zeros((h, w), np.float32)
     trans = np.ones((h, w), np.float32)
-    buf = None
+    r_front = 0.0  # largest blur radius of the layers composited so far
     layers_run = []
     for li, key in enumerate(keys):
-        if key == 0:  # in focus: an opaque copy, no blur
-            m = layer == li
-            src = lin
-            n_members = int(m.sum())
-            hidden = (layer < li) & (trans > 0)
-            if extend_behind and hidden.any():
-                r_front = max(float(radius[layer < li].max()), 1.0)
-                src, _, m = _extend_behind(lin, radius, m, hidden, r_front + 1)
-            t = trans[m]
-            acc[m] += t[:, None] * src[m]
-            acc_a[m] += t
-            trans[m] = 0.0
-            layers_run.append({"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False,
-                               "scale": 1})
-            continue
-        counts = offsets[li * h + 1:(li + 1) * h + 1] - offsets[li * h:(li + 1) * h]
-        rows = np.flatnonzero(counts)
-        lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
         member = layer == li
+        n_members = int(member.sum())
         r_max = float(radius[member].max())
-        reach = int(math.ceil(r_max + 0.5))
-        s = 1
-        while lo / (2 * s) >= min_reduced:
-            s *= 2
         # pixels of nearer layers that are not yet opaque: this layer may show through there
-        hidden = (layer < li) & (trans > 0)
-        extend = extend_behind and bool(hidden.any())
+        extend = extend_behind and li > 0 and r_front > 0
+        ext_reach = int(math.ceil(r_front + r_max + 1)) if extend else 0
+        box = _bbox(member, ext_reach + int(math.ceil(r_max + 0.5)) + 1)
+        m = member[box]
+        src, src_r = lin[box], radius[box]
         if extend:
-            r_front = max(float(radius[layer < li].max()), 1.0)
-            src_lin, src_radius, src_member = _extend_behind(lin, radius, member, hidden, r_max + r_front + 1)
-            extend = src_member is not member
-        if extend:
-            ext_rows = np.flatnonzero(src_member.any(axis=1))
-            reach = int(math.ceil(float(src_radius[src_member].max()) + 0.5))
-            y_lo, y_hi = max(0, ext_rows[0] - reach), min(h - 1, ext_rows[-1] + reach)
-            layer_buf = _scatter_mask(src_lin, src_radius, src_member, s, int(blades), rot)
-            _composite_under(layer_buf, y_lo, y_hi, acc, acc_a, trans)
-        elif s == 1:
-            y_lo, y_hi = max(0, rows[0] - reach), min(h - 1, rows[-1] + reach)
-            if inv_area is None:
-                inv_area = _inverse_areas(radius, int(blades), rot, _G_TABLE)
-            if buf is None:
-                buf = np.empty((h, w, nc + 1), np.float32)
-            _scatter_layer(lin, radius, inv_area, cols, offsets, li, r_max, y_lo, y_hi, int(blades), rot, _G_TABLE,
-                           buf)
-            _composite_under(buf, y_lo, y_hi, acc, acc_a, trans)
+            hidden = (layer[box] < li) & (trans[box] > 0)
+            if hidden.any():
+                src, src_r, m = _extend_behind(src, src_r, m, hidden, ext_reach)
+        t_box, acc_box, acc_a_box = trans[box], acc[box], acc_a[box]
+        if key == 0:  # in focus: an opaque copy, no blur
+            t = t_box[m]
+            acc_box[m] += t[:, None] * src[m]
+            acc_a_box[m] += t
+            t_box[m] = 0.0
+            layers_run.append({"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1})
         else:
-            y_lo, y_hi = max(0, rows[0] - reach), min(h - 1, rows[-1] + reach)
-            layer_buf = _scatter_mask(lin, radius, member, s, int(blades), rot)
-            _composite_under(layer_buf, y_lo, y_hi, acc, acc_a, trans)
-        layers_run.append({"key": int(key), "coc_px": [lo, hi], "pixels": int(counts.sum()), "blurred": True,
-                           "side": "front" if key < 0 else "back", "scale": s, "extended": bool(extend)})
+            lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
+            s = 1
+            while lo / (2 * s) >= min_reduced:
+                s *= 2
+            layer_buf = _scatter_mask(src, src_r, m, s, int(blades), rot)
+            # composite into the views of the box (numba writes through them)
+            _composite_under(layer_buf, 0, layer_buf.shape[0] - 1, acc_box, acc_a_box, t_box)
+            layers_run.append({"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
+                               "side": "front" if key < 0 else "back", "scale": s,
+                               "extended": bool(m.sum() > n_members)})
+            r_front = max(r_front, r_max)
     out = np.empty_like(lin)
     ok = acc_a > 1e-6
     out[ok] = acc[ok] / acc_a[ok][:, None]

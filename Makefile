@@ -6,7 +6,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-slow bench stress setup sysdeps clean
+.PHONY: demo test test-slow bench stress setup sysdeps chromium clean
 
 setup: sysdeps $(STAMP)
 
@@ -23,6 +23,18 @@ sysdeps:
 	  fi; \
 	fi
 
+# the viewer's HTML export is checked in headless Chromium by the tests (skipped when it is absent)
+chromium:
+	@if ! command -v chromium >/dev/null 2>&1; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing chromium (for the viewer's HTML export test)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null \
+	      || echo "chromium could not be installed; the HTML export test will be skipped"; \
+	  else \
+	    echo "chromium is missing; the HTML export test will be skipped (sudo apt-get install -y chromium)"; \
+	  fi; \
+	fi
+
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
@@ -32,7 +44,7 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(VENV)/bin/pcdof demo -o out/demo
 
-test: setup
+test: setup chromium
 	$(PY) -m pytest -q
 
 test-slow: setup

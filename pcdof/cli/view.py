@@ -1,0 +1,94 @@
+"""`pcdof view`: the focal plane and the depth of field of one frame, in 3-D (PyVista)."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import click
+
+from ..errors import InputError
+from ._common import handle_errors
+from .render import IMAGE_SUFFIXES, lens_options
+
+HTML_SUFFIXES = (".html", ".htm")
+
+
+def parse_size(ctx, param, value):
+    """Click callback: "WxH" -> (int, int)."""
+    if value is None:
+        return None
+    try:
+        w, h = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"expected WIDTHxHEIGHT in pixels (e.g. 1500x750); got {value!r}") from None
+    return w, h
+
+
+def has_display() -> bool:
+    """Whether an interactive window can open (always assumed off Linux)."""
+    if not sys.platform.startswith("linux"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+@click.command("view")
+@click.argument("color", type=click.Path(dir_okay=False))
+@click.argument("depth", type=click.Path(dir_okay=False))
+@click.option("--calib", required=True, type=click.Path(dir_okay=False), help="Calibration file.")
+@lens_options
+@click.option("--coc-limit", "coc_limit_px", type=float, default=1.0, show_default=True,
+              help="Acceptable circle of confusion in pixels: bounds the depth-of-field slab.")
+@click.option("--color-by", type=click.Choice(["rgb", "coc"]), default="rgb", show_default=True,
+              help="Colour the points by their RGB or by their circle of confusion.")
+@click.option("--stride", type=click.IntRange(min=1), default=2, show_default=True,
+              help="Keep every N-th pixel in x and y for the point cloud.")
+@click.option("--fill-method", default="joint-bilateral", show_default=True, help="Depth hole filling method.")
+@click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
+@click.option("--screenshot", type=click.Path(dir_okay=False), default=None,
+              help="Render off screen (no display needed) and write this PNG.")
+@click.option("--html", "html_path", type=click.Path(dir_okay=False), default=None,
+              help="Write a standalone interactive HTML page of the scene (no display needed).")
+@click.option("--window-size", type=str, default="1500x750", show_default=True, callback=parse_size,
+              metavar="WxH", help="Window (and screenshot) size in pixels.")
+@handle_errors
+def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, focus_at, aperture_blades,
+            aperture_rotation_deg, coc_limit_px, color_by, stride, fill_method, depth_scale, screenshot, html_path,
+            window_size):
+    """Inspect the focal plane and depth of field of COLOR + DEPTH in 3-D.
+
+    Opens a window with the point cloud in the colour camera's frame, the camera frustum, the focal
+    plane, the depth-of-field slab and a live preview of the photograph, with sliders for the focus
+    distance and the f-number. Right-click a point (or press p over it) to focus on it, c to colour points by their
+    circle of confusion. With --screenshot or --html nothing opens: the scene is written instead.
+    """
+    from .. import io
+    from ..lens import ThinLens
+    from ..viewer import scene_from_frame
+
+    if screenshot and os.path.splitext(screenshot)[1].lower() not in IMAGE_SUFFIXES:
+        raise InputError(f"--screenshot must end in one of {', '.join(IMAGE_SUFFIXES)}; got {screenshot!r}")
+    if html_path and os.path.splitext(html_path)[1].lower() not in HTML_SUFFIXES:
+        raise InputError(f"--html must end in one of {', '.join(HTML_SUFFIXES)}; got {html_path!r}")
+    off_screen = bool(screenshot or html_path)
+    if not off_screen and not has_display():
+        raise InputError("no display to open a window on (DISPLAY is not set); "
+                         "use --screenshot OUT.png or --html OUT.html")
+    frame = io.load_frame(color, depth, calib, depth_scale=depth_scale)
+    provisional = focus_distance_m if focus_distance_m is not None else 1.0
+    lens = ThinLens(focal_length_mm, f_number, provisional, aperture_blades, aperture_rotation_deg)
+    if focus_distance_m is None and focus_at is None:
+        focus_at = ((frame.rig.color.width - 1) / 2, (frame.rig.color.height - 1) / 2)
+    viewer = scene_from_frame(frame, lens, fill_method=fill_method, focus_at=focus_at, coc_limit_px=coc_limit_px,
+                              stride=stride, color_by=color_by, off_screen=off_screen, window_size=window_size)
+    try:
+        if screenshot:
+            viewer.screenshot(screenshot)
+            click.echo(f"wrote {screenshot}", err=True)
+        if html_path:
+            viewer.export_html(html_path)
+            click.echo(f"wrote {html_path}", err=True)
+        if not off_screen:
+            viewer.show()
+    finally:
+        viewer.close()

@@ -222,19 +222,25 @@ def _scatter_layer(lin, radius, weight, cols, offsets, layer_index, r_max, y_lo,
 
 
 @njit(parallel=True, cache=True)
-def _composite_under(layer_buf, y_lo, y_hi, acc, acc_a, trans):
-    """Composite a scattered layer behind what is already there (front-to-back "over")."""
-    h, w, nc1 = layer_buf.shape
+def _composite_under(layer_buf, y0, x0, acc, acc_a, trans):
+    """Composite a scattered layer (placed at row y0, column x0) behind what is already there.
+
+    Front-to-back "over": the layer's coverage is its opacity, clipped to 1; its colour is
+    normalised by its coverage, so overlapping sources within a layer average.
+    """
+    hb, wb, nc1 = layer_buf.shape
     nc = nc1 - 1
-    for y in prange(y_lo, y_hi + 1):
-        for x in range(w):
+    for yy in prange(hb):
+        y = y0 + yy
+        for xx in range(wb):
+            x = x0 + xx
             t = trans[y, x]
-            cover = layer_buf[y, x, nc]
+            cover = layer_buf[yy, xx, nc]
             if t > 0.0 and cover > 1e-6:
                 alpha = 1.0 if cover >= 1.0 - 1e-4 else cover
                 f = t * alpha / cover
                 for c in range(nc):
-                    acc[y, x, c] += f * layer_buf[y, x, c]
+                    acc[y, x, c] += f * layer_buf[yy, xx, c]
                 acc_a[y, x] += t * alpha
                 trans[y, x] = t * (1.0 - alpha)
 
@@ -394,8 +400,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
             while lo / (2 * s) >= min_reduced:
                 s *= 2
             layer_buf = _scatter_mask(src, src_r, m, s, int(blades), rot)
-            # composite into the views of the box (numba writes through them)
-            _composite_under(layer_buf, 0, layer_buf.shape[0] - 1, acc_box, acc_a_box, t_box)
+            _composite_under(layer_buf, box[0].start, box[1].start, acc, acc_a, trans)
             layers_run.append({"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
                                "side": "front" if key < 0 else "back", "scale": s,
                                "extended": bool(m.sum() > n_members)})

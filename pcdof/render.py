@@ -59,7 +59,7 @@ _U = np.linspace(-1.0, 1.0, _G_SAMPLES + 1)
 _G_TABLE = (_U * np.sqrt(np.maximum(1 - _U * _U, 0)) + np.arcsin(_U)).astype(np.float64)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True, error_model="numpy")
 def _g(u, table):
     f = (u + 1.0) * (0.5 * _G_SAMPLES)
     i = int(f)
@@ -69,7 +69,7 @@ def _g(u, table):
     return table[i] + frac * (table[i + 1] - table[i])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True, error_model="numpy")
 def _disk_strip_area(t0, t1, r, table):
     """Area of the disc of radius r (centred at 0) between heights t0 < t1."""
     lo = max(t0, -r)
@@ -158,65 +158,59 @@ def _sort_into_layers(layer, n_layers):
     return cols, counts
 
 
-@njit(parallel=True, cache=True)
-def _scatter_layer(lin, radius, weight, cols, offsets, layer_index, r_max, y_lo, y_hi, blades, rot, table, out):
-    """Scatter one layer into ``out`` (H, W, C+1: premultiplied colour, coverage), rows y_lo..y_hi.
+@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
+def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blades, rot, table, out):
+    """Scatter packed sources into ``out`` rows y_lo..y_hi (H, W, C+1: premultiplied colour, coverage).
 
-    Each source spreads ``weight`` (its share of the pixel, 1 at full resolution) over its
-    footprint, split exactly into per-row strips; runs as a gather over output rows.
+    Sources are sorted by row: those of row y are ``offsets[y]:offsets[y+1]``, at column ``xs``,
+    with footprint radius ``radius`` and ``values`` = (colour, 1) * weight / footprint area. Each
+    footprint is split exactly into one strip per pixel row, and each strip into two fractional
+    end pixels and a run of whole pixels (kept as a difference array). Runs as a gather over
+    output rows, so rows are independent and parallel.
     """
-    h, w, nc = lin.shape
-    base = layer_index * h
+    h = offsets.size - 1
+    nc1 = values.shape[1]
     reach = int(math.ceil(r_max + 0.5))
     for y in prange(y_lo, y_hi + 1):
-        diff = np.zeros((w + 1, nc + 1), np.float32)
+        diff = np.zeros((width + 1, nc1), np.float32)
         row = out[y]
         row[:] = 0.0
         for ys in range(max(0, y - reach), min(h - 1, y + reach) + 1):
             dy = y - ys
-            for k in range(offsets[base + ys], offsets[base + ys + 1]):
-                xs = cols[k]
-                r = radius[ys, xs]
-                if abs(dy) - 0.5 >= r:
+            gap = abs(dy) - 0.5
+            for k in range(offsets[ys], offsets[ys + 1]):
+                r = radius[k]
+                if gap >= r:
                     continue
                 area, centre = _strip(dy, r, blades, rot, table)
                 if area <= 0.0:
                     continue
-                scale = weight[ys, xs]
-                half = 0.5 * area  # strip height is one row, so its width equals its area
-                a = xs + centre - half
-                b = xs + centre + half
+                a = xs[k] + centre - 0.5 * area  # one row high, so the strip is `area` wide
+                b = a + area
                 ka = int(math.floor(a + 0.5))
                 kb = int(math.floor(b + 0.5))
                 if ka == kb:
-                    if 0 <= ka < w:
-                        f = scale * (b - a)
-                        for c in range(nc):
-                            row[ka, c] += f * lin[ys, xs, c]
-                        row[ka, nc] += f
+                    if 0 <= ka < width:
+                        for c in range(nc1):
+                            row[ka, c] += area * values[k, c]
                     continue
-                if 0 <= ka < w:
-                    f = scale * (ka + 0.5 - a)
-                    for c in range(nc):
-                        row[ka, c] += f * lin[ys, xs, c]
-                    row[ka, nc] += f
-                if 0 <= kb < w:
-                    f = scale * (b - (kb - 0.5))
-                    for c in range(nc):
-                        row[kb, c] += f * lin[ys, xs, c]
-                    row[kb, nc] += f
+                if 0 <= ka < width:
+                    f = ka + 0.5 - a
+                    for c in range(nc1):
+                        row[ka, c] += f * values[k, c]
+                if 0 <= kb < width:
+                    f = b - (kb - 0.5)
+                    for c in range(nc1):
+                        row[kb, c] += f * values[k, c]
                 lo = max(ka + 1, 0)
-                hi = min(kb, w)  # interior pixels ka+1 .. kb-1
+                hi = min(kb, width)  # whole pixels ka+1 .. kb-1
                 if hi > lo:
-                    for c in range(nc):
-                        v = scale * lin[ys, xs, c]
-                        diff[lo, c] += v
-                        diff[hi, c] -= v
-                    diff[lo, nc] += scale
-                    diff[hi, nc] -= scale
-        run = np.zeros(nc + 1, np.float32)
-        for x in range(w):
-            for c in range(nc + 1):
+                    for c in range(nc1):
+                        diff[lo, c] += values[k, c]
+                        diff[hi, c] -= values[k, c]
+        run = np.zeros(nc1, np.float32)
+        for x in range(width):
+            for c in range(nc1):
                 run[c] += diff[x, c]
                 row[x, c] += run[c]
 
@@ -319,13 +313,21 @@ def _scatter_mask(lin, radius, member, s, blades, rot):
         radius = np.ascontiguousarray(radius, np.float32)
         weight = np.where(member, _inverse_area(radius, blades, rot), 0).astype(np.float32)
     hs, ws = member.shape
-    cols, offsets = _sort_into_layers(np.where(member, 0, 1).astype(np.int32), 2)
-    rows = np.flatnonzero(member.any(axis=1))
-    r_max = float(radius[member].max())
+    idx = np.flatnonzero(member.ravel())  # row-major: sorted by row, then column
+    offsets = np.zeros(hs + 1, np.int64)
+    np.cumsum(member.sum(axis=1), out=offsets[1:])
+    xs = (idx % ws).astype(np.float32)
+    src_r = radius.ravel()[idx]
+    values = np.empty((idx.size, nc + 1), np.float32)
+    values[:, :nc] = lin.reshape(-1, nc)[idx]
+    values[:, nc] = 1.0
+    values *= weight.ravel()[idx][:, None]
+    rows = np.flatnonzero(offsets[1:] > offsets[:-1])
+    r_max = float(src_r.max())
     reach = int(math.ceil(r_max + 0.5))
     buf = np.zeros((hs, ws, nc + 1), np.float32)
-    _scatter_layer(lin, radius, weight, cols, offsets, 0, r_max, max(0, rows[0] - reach),
-                   min(hs - 1, rows[-1] + reach), blades, rot, _G_TABLE, buf)
+    _scatter_packed(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach),
+                    blades, rot, _G_TABLE, buf)
     if s == 1:
         return buf
     up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)

@@ -1,0 +1,578 @@
+"""Registration: depth from the depth camera, re-sampled in the colour camera's pixel grid.
+
+Each depth pixel is back-projected along its (undistorted) ray, moved into the colour camera
+with ``rig.T_color_from_depth`` and projected with the colour intrinsics and distortion. The
+depth grid is then drawn as a triangle mesh, two triangles per 2x2 quad of known neighbours,
+with 1/z interpolated linearly in the colour image (perspective-correct for planar triangles)
+and a z-buffer, so the nearest surface wins and a depth grid coarser than the colour grid
+leaves no sampling gaps. Triangles whose corners differ in depth by more than a ratio
+(``max_depth_ratio``) span a depth discontinuity and are dropped, so disocclusions and sensor
+holes stay 0 instead of being bridged.
+
+The mesh only spans the area between pixel centres, but a depth pixel measures the surface
+over its whole footprint. So every known pixel on the edge of the mesh (a corner of a dropped
+triangle or a missing neighbour: silhouettes, isolated pixels, one-pixel-wide structures) is
+also drawn as its own projected footprint (constant depth, reaching half a depth pixel to each
+side except towards a neighbour nearer by more than the discontinuity ratio: that side belongs
+to the occluder), after the triangles, where it fills an empty colour pixel or lies in front of
+what is there by more than the ratio. That carries a foreground out to its silhouette instead
+of leaving a half-pixel band where the background seen by the depth camera shows through, and
+nothing measured is lost. This is close to the Azure Kinect SDK's depth-to-colour
+transformation (which draws every depth pixel as its footprint), with interpolated depth
+inside surfaces.
+
+Drawing keeps 1/z in the output buffer (no division per pixel; the largest value is the
+nearest surface) and converts it to z at the end. The output rows are split into bands, one
+task each, so threads never write the same pixel.
+
+The rasteriser is numba code; :func:`warmup` compiles (or loads from cache) it up front.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .camera import Rig, RGBDFrame
+from .errors import InputError
+from .geometry import dist14, max_radius2, pixel_rays, tilt_matrix
+
+#: Smallest automatic discontinuity ratio: a triangle is dropped when max z > (1 + ratio) * min z
+#: of its corners. At 0.03 a kept triangle never puts depth more than 3 % behind a corner it was built from.
+MIN_DEPTH_RATIO = 0.03
+#: The automatic ratio also keeps planes seen at up to this incidence angle (degrees): across a
+#: triangle's diagonal (sqrt(2) depth pixels) such a plane's depth changes by sqrt(2) tan(angle) / f.
+MAX_INCIDENCE_DEG = 75.0
+#: Triangles or footprints whose bounding box is larger than this many pixels per side are dropped
+#: (a guard against degenerate projections near the colour camera's plane z = 0).
+MAX_PRIMITIVE_PX = 512
+#: Colour-frame z below which a point counts as being on or behind the colour camera.
+_MIN_Z_M = 1e-6
+# Edge-function tolerance: pixels on a shared edge are drawn by both triangles (no cracks).
+_EDGE_EPS = 1e-9
+
+# Fast-math without "nnan"/"ninf": NaN and inf tests (unknown depth, rays without inverse) stay exact.
+_FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
+# Quad split codes: bit 0 = triangle (a, b, d), bit 1 = (a, d, c) [diagonal a-d];
+# bit 2 = (a, b, c), bit 3 = (b, d, c) [diagonal b-c]; a = (i, j), b = (i, j+1), c = (i+1, j), d = (i+1, j+1).
+# Bit 4 is set when both triangles of the split are kept (the quad is whole).
+_WHOLE = 0b10000
+# Primitives whose bounding box holds at most this many pixel centres are drawn by testing each
+# centre; larger ones by scanlines with incremental 1/z.
+_SMALL_BOX_PX = 4
+#: Share of the half pixel that an edge pixel's footprint reaches towards a hole or the border.
+_UNKNOWN_REACH = 1.0
+
+
+def needs_registration(rig: Rig) -> tuple[bool, str]:
+    """Whether depth must be re-projected into the colour camera, and why (for the pipeline trace).
+
+    Parameters
+    ----------
+    rig : Rig
+
+    Returns
+    -------
+    needed : bool
+    reason : str, one line
+    """
+    if not isinstance(rig, Rig):
+        raise InputError(f"rig must be a Rig; got {type(rig).__name__}")
+    if rig.is_registered:
+        return False, "depth is already in the colour camera (identity extrinsics, equal intrinsics)"
+    reasons = []
+    if not np.allclose(rig.T_color_from_depth, np.eye(4), rtol=0, atol=1e-9):
+        reasons.append(f"cameras {rig.baseline_m * 1000:.1f} mm apart" if rig.baseline_m > 0 else "cameras rotated")
+    if not rig.color.same_as(rig.depth):
+        reasons.append(
+            f"depth grid {rig.depth.width}x{rig.depth.height} differs from colour {rig.color.width}x{rig.color.height}"
+            if rig.depth.shape != rig.color.shape
+            else "depth and colour intrinsics differ"
+        )
+    return True, "; ".join(reasons)
+
+
+# ---------------------------------------------------------------------------------------------
+# numba kernels
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _distort(x, y, d, tilt, has_dist, has_tilt):
+    """OpenCV distortion of undistorted normalised (x, y); scalar twin of geometry._distort_normalized."""
+    if not has_dist:
+        return x, y
+    r2 = x * x + y * y
+    num = 1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))
+    den = 1.0 + r2 * (d[5] + r2 * (d[6] + r2 * d[7]))
+    radial = num / den
+    a1 = 2.0 * x * y
+    xd = x * radial + d[2] * a1 + d[3] * (r2 + 2.0 * x * x) + r2 * (d[8] + d[9] * r2)
+    yd = y * radial + d[2] * (r2 + 2.0 * y * y) + d[3] * a1 + r2 * (d[10] + d[11] * r2)
+    if has_tilt:
+        wx = tilt[0, 0] * xd + tilt[0, 1] * yd + tilt[0, 2]
+        wy = tilt[1, 0] * xd + tilt[1, 1] * yd + tilt[1, 2]
+        wz = tilt[2, 0] * xd + tilt[2, 1] * yd + tilt[2, 2]
+        inv = 1.0 / wz if wz != 0.0 else 1.0
+        xd = wx * inv
+        yd = wy * inv
+    return xd, yd
+
+
+@njit(cache=True, parallel=True, fastmath=_FASTMATH)
+def _project_grid(depth, rays_c, t, cam, d, tilt, has_dist, has_tilt, r2_max, foot_v, P, row_lo, row_hi):
+    """Pass 1: project every known depth pixel into the colour image.
+
+    Writes ``P[i, j] = (u, v, 1/z)``: colour pixel position and inverse colour-frame depth
+    (1/z = 0: not projected), and per depth row the range of colour rows its pixels and
+    footprints can touch.
+    """
+    h, w = depth.shape
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
+    tx, ty, tz = t[0], t[1], t[2]
+    for i in prange(h):
+        lo = np.inf
+        hi = -np.inf
+        for j in range(w):
+            P[i, j, 2] = 0.0
+            z = np.float64(depth[i, j])
+            if not (z > 0.0 and z < np.inf):  # 0, negative, NaN and inf are unknown
+                continue
+            Z = z * rays_c[i, j, 2] + tz
+            if not (Z > _MIN_Z_M):  # also false for NaN rays (no inverse of the depth distortion)
+                continue
+            iz = 1.0 / Z
+            x = (z * rays_c[i, j, 0] + tx) * iz
+            y = (z * rays_c[i, j, 1] + ty) * iz
+            if x * x + y * y > r2_max:
+                continue
+            xd, yd = _distort(x, y, d, tilt, has_dist, has_tilt)
+            v = fy * yd + cy
+            P[i, j, 0] = fx * xd + cx
+            P[i, j, 1] = v
+            P[i, j, 2] = iz
+            half = foot_v * z * iz + 1.0
+            lo = min(lo, v - half)
+            hi = max(hi, v + half)
+        row_lo[i] = lo
+        row_hi[i] = hi
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _keep(w0, w1, w2, ratio):
+    """Whether a triangle with inverse corner depths w (0 = unknown) lies on one surface."""
+    if w0 <= 0.0 or w1 <= 0.0 or w2 <= 0.0:
+        return False
+    wmin = min(w0, min(w1, w2))
+    wmax = max(w0, max(w1, w2))
+    return wmax <= wmin * ratio  # zmax / zmin = wmax / wmin
+
+
+@njit(cache=True, parallel=True, fastmath=_FASTMATH)
+def _quad_codes(P, ratio, codes):
+    """Pass 2: choose each quad's diagonal and which of its two triangles to keep.
+
+    ``codes`` is (h + 1, w + 1) with a zero border: quad (i, j) is ``codes[i + 1, j + 1]``, so
+    the four quads around pixel (i, j) are ``codes[i:i + 2, j:j + 2]``.
+    """
+    h = P.shape[0]
+    w = P.shape[1]
+    for i in prange(h - 1):
+        for j in range(w - 1):
+            wa = np.float64(P[i, j, 2])
+            wb = np.float64(P[i, j + 1, 2])
+            wc = np.float64(P[i + 1, j, 2])
+            wd = np.float64(P[i + 1, j + 1, 2])
+            k0 = _keep(wa, wb, wd, ratio)
+            k1 = _keep(wa, wd, wc, ratio)
+            k2 = _keep(wa, wb, wc, ratio)
+            k3 = _keep(wb, wd, wc, ratio)
+            n_ad = int(k0) + int(k1)
+            n_bc = int(k2) + int(k3)
+            use_ad = n_ad > n_bc
+            if n_ad == n_bc:
+                # Both diagonals give the same coverage: cut along the smaller relative depth step.
+                use_ad = abs(wa - wd) * (wb + wc) <= abs(wb - wc) * (wa + wd)
+            if use_ad:
+                code = int(k0) | (int(k1) << 1) | (_WHOLE if n_ad == 2 else 0)
+            else:
+                code = (int(k2) << 2) | (int(k3) << 3) | (_WHOLE if n_bc == 2 else 0)
+            codes[i + 1, j + 1] = np.uint8(code)
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _inside(x, y, u0, v0, w0, u1, v1, w1, u2, v2, w2):
+    """Interpolated 1/z at pixel centre (x, y) if it lies in the triangle (edges included), else -1.
+
+    Barycentrics are the edge functions over the doubled signed area; 1/z is affine in the image
+    for a planar triangle, so interpolating it is perspective-correct.
+    """
+    e0 = (u1 - x) * (v2 - y) - (u2 - x) * (v1 - y)
+    e1 = (u2 - x) * (v0 - y) - (u0 - x) * (v2 - y)
+    e2 = (u0 - x) * (v1 - y) - (u1 - x) * (v0 - y)
+    area = e0 + e1 + e2
+    tol = -_EDGE_EPS * abs(area)
+    if area > 0.0:
+        if e0 < tol or e1 < tol or e2 < tol:
+            return -1.0
+    elif area < 0.0:
+        if e0 > -tol or e1 > -tol or e2 > -tol:
+            return -1.0
+    else:
+        return -1.0
+    return (e0 * w0 + e1 * w1 + e2 * w2) / area
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _box(umin, umax, vmin, vmax, W, y0, y1):
+    """Clamped integer range of pixel centres in a bounding box; empty when xa > xb or ya > yb."""
+    if umax - umin > MAX_PRIMITIVE_PX or vmax - vmin > MAX_PRIMITIVE_PX:
+        return 0, -1, 0, -1
+    xa = max(int(np.ceil(umin)), 0)
+    xb = min(int(np.floor(umax)), W - 1)
+    ya = max(int(np.ceil(vmin)), y0)
+    yb = min(int(np.floor(vmax)), y1 - 1)
+    return xa, xb, ya, yb
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _scan(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
+    """Draw a triangle by scanlines: 1/z is incremented along each row; buf keeps the largest 1/z.
+
+    Each edge's crossing of a row is evaluated from the edge's upper corner with the edge's own
+    slope, so two triangles sharing an edge get bit-identical spans (no cracks).
+    """
+    area = (u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)
+    if abs(area) < 1e-9:
+        return
+    inv_area = 1.0 / area
+    gx = ((w1 - w0) * (v2 - v0) - (w2 - w0) * (v1 - v0)) * inv_area  # d(1/z)/du
+    gy = ((u1 - u0) * (w2 - w0) - (u2 - u0) * (w1 - w0)) * inv_area  # d(1/z)/dv
+    # sort the corners by v: (ua, va) top, (ub, vb) middle, (uc, vc) bottom
+    ua, va, ub, vb, uc, vc = u0, v0, u1, v1, u2, v2
+    if vb < va:
+        ua, va, ub, vb = ub, vb, ua, va
+    if vc < vb:
+        ub, vb, uc, vc = uc, vc, ub, vb
+        if vb < va:
+            ua, va, ub, vb = ub, vb, ua, va
+    if vc - va < 1e-12 or vc - va > MAX_PRIMITIVE_PX:
+        return
+    if max(ua, max(ub, uc)) - min(ua, min(ub, uc)) > MAX_PRIMITIVE_PX:
+        return
+    s_ac = (uc - ua) / (vc - va)
+    s_ab = (ub - ua) / (vb - va) if vb > va else 0.0
+    s_bc = (uc - ub) / (vc - vb) if vc > vb else 0.0
+    W = buf.shape[1]
+    ya = max(int(np.ceil(va)), y0)
+    yb = min(int(np.floor(vc)), y1 - 1)
+    for y in range(ya, yb + 1):
+        # branch-free on purpose: rows are few per triangle, mispredictions would dominate
+        x_long = ua + (y - va) * s_ac
+        x_upper = ua + (y - va) * s_ab
+        x_lower = ub + (y - vb) * s_bc  # = ub when the lower edge is flat (s_bc = 0)
+        x_short = x_upper if y < vb else x_lower
+        xa = max(int(np.ceil(min(x_long, x_short))), 0)
+        xb = min(int(np.floor(max(x_long, x_short))), W - 1)
+        iz = w0 + gx * (xa - u0) + gy * (y - v0)
+        for x in range(xa, xb + 1):
+            if iz > buf[y, x]:
+                buf[y, x] = iz
+            iz += gx
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _triangle(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
+    """Draw one triangle into rows [y0, y1) of the 1/z buffer (largest 1/z = nearest wins)."""
+    xa, xb, ya, yb = _box(min(u0, min(u1, u2)), max(u0, max(u1, u2)), min(v0, min(v1, v2)),
+                          max(v0, max(v1, v2)), buf.shape[1], y0, y1)
+    if xa > xb or ya > yb:
+        return
+    if (xb - xa + 1) * (yb - ya + 1) > _SMALL_BOX_PX:
+        _scan(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2)
+        return
+    for y in range(ya, yb + 1):
+        for x in range(xa, xb + 1):
+            iz = _inside(x, y, u0, v0, w0, u1, v1, w1, u2, v2, w2)
+            if iz > buf[y, x]:
+                buf[y, x] = iz
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _quad(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, diag_ad):
+    """Draw a whole quad (both triangles of its split), sharing one bounding box."""
+    xa, xb, ya, yb = _box(min(min(ua, ub), min(uc, ud)), max(max(ua, ub), max(uc, ud)),
+                          min(min(va, vb), min(vc, vd)), max(max(va, vb), max(vc, vd)), buf.shape[1], y0, y1)
+    if xa > xb or ya > yb:
+        return
+    if (xb - xa + 1) * (yb - ya + 1) > _SMALL_BOX_PX:
+        if diag_ad:
+            _scan(buf, y0, y1, ua, va, wa, ub, vb, wb, ud, vd, wd)
+            _scan(buf, y0, y1, ua, va, wa, ud, vd, wd, uc, vc, wc)
+        else:
+            _scan(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc)
+            _scan(buf, y0, y1, ub, vb, wb, ud, vd, wd, uc, vc, wc)
+        return
+    for y in range(ya, yb + 1):
+        for x in range(xa, xb + 1):
+            if diag_ad:
+                iz = _inside(x, y, ua, va, wa, ub, vb, wb, ud, vd, wd)
+                if iz < 0.0:
+                    iz = _inside(x, y, ua, va, wa, ud, vd, wd, uc, vc, wc)
+            else:
+                iz = _inside(x, y, ua, va, wa, ub, vb, wb, uc, vc, wc)
+                if iz < 0.0:
+                    iz = _inside(x, y, ub, vb, wb, ud, vd, wd, uc, vc, wc)
+            if iz > buf[y, x]:
+                buf[y, x] = iz
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _footprint(buf, y0, y1, u, v, iz, left, right, up, down, ratio):
+    """Draw a known depth pixel as the rectangle [u - left, u + right] x [v - up, v + down] (constant 1/z).
+
+    A colour pixel is written when it is empty or when the pixel is in front of its value by
+    more than the discontinuity ratio (another surface), so footprints never disturb the
+    interpolated depth of the surface they belong to. A rectangle holding no pixel centre
+    draws the pixel that contains (u, v).
+    """
+    H, W = buf.shape
+    if left + right > MAX_PRIMITIVE_PX or up + down > MAX_PRIMITIVE_PX:
+        return
+    xa = int(np.ceil(u - left))
+    xb = int(np.floor(u + right))
+    if xa > xb:
+        xa = int(np.floor(u + 0.5))
+        xb = xa
+    ya = int(np.ceil(v - up))
+    yb = int(np.floor(v + down))
+    if ya > yb:
+        ya = int(np.floor(v + 0.5))
+        yb = ya
+    xa = max(xa, 0)
+    xb = min(xb, W - 1)
+    ya = max(ya, y0)
+    yb = min(yb, y1 - 1)
+    izf = np.float32(iz)
+    for y in range(ya, yb + 1):
+        for x in range(xa, xb + 1):
+            if iz > buf[y, x] * ratio:  # z * ratio < current z; true for empty (0) pixels
+                buf[y, x] = izf
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _reach(P, i, j, wij, ratio, unknown):
+    """How far (share of the half pixel) a footprint reaches towards neighbour (i, j): not at all
+    towards a nearer surface (that side belongs to the occluder), *unknown* towards a hole or the
+    image border, fully otherwise."""
+    if i < 0 or j < 0 or i >= P.shape[0] or j >= P.shape[1]:
+        return unknown
+    wn = np.float64(P[i, j, 2])
+    if not (wn > 0.0):
+        return unknown
+    if wn > wij * ratio:
+        return 0.0
+    return 1.0
+
+
+@njit(cache=True, parallel=True, fastmath=_FASTMATH)
+def _rasterise(depth, P, codes, row_lo, row_hi, foot, ratio, unknown, n_bands, out):
+    """Pass 3: draw kept triangles, then the footprints of the mesh's edge pixels, one band of colour rows per task.
+
+    Drawing keeps 1/z in *out* (0 = empty, largest = nearest, no division per pixel); each band
+    turns its rows into z at the end. Bands own disjoint rows of *out*, so tasks never write the
+    same pixel (no races, no merge); a depth row is visited by every band its projection can touch.
+    """
+    h = P.shape[0]
+    w = P.shape[1]
+    H = out.shape[0]
+    band_h = (H + n_bands - 1) // n_bands
+    for b in prange(n_bands):
+        y0 = b * band_h
+        y1 = min(H, y0 + band_h)
+        for i in range(h - 1):
+            if max(row_hi[i], row_hi[i + 1]) < y0 - 1 or min(row_lo[i], row_lo[i + 1]) > y1 + 1:
+                continue
+            for j in range(w - 1):
+                code = codes[i + 1, j + 1]
+                if code == 0:
+                    continue
+                ua = np.float64(P[i, j, 0])
+                va = np.float64(P[i, j, 1])
+                wa = np.float64(P[i, j, 2])
+                ub = np.float64(P[i, j + 1, 0])
+                vb = np.float64(P[i, j + 1, 1])
+                wb = np.float64(P[i, j + 1, 2])
+                uc = np.float64(P[i + 1, j, 0])
+                vc = np.float64(P[i + 1, j, 1])
+                wc = np.float64(P[i + 1, j, 2])
+                ud = np.float64(P[i + 1, j + 1, 0])
+                vd = np.float64(P[i + 1, j + 1, 1])
+                wd = np.float64(P[i + 1, j + 1, 2])
+                if code & _WHOLE:
+                    _quad(out, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, (code & 1) != 0)
+                elif code == 1:
+                    _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, ud, vd, wd)
+                elif code == 2:
+                    _triangle(out, y0, y1, ua, va, wa, ud, vd, wd, uc, vc, wc)
+                elif code == 4:
+                    _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc)
+                else:
+                    _triangle(out, y0, y1, ub, vb, wb, ud, vd, wd, uc, vc, wc)
+        for i in range(h):
+            if row_hi[i] < y0 - 1 or row_lo[i] > y1 + 1:
+                continue
+            for j in range(w):
+                # interior pixels (all four quads around them whole) are covered by the mesh
+                if codes[i, j] & codes[i, j + 1] & codes[i + 1, j] & codes[i + 1, j + 1] & _WHOLE:
+                    continue
+                wij = np.float64(P[i, j, 2])
+                if not (wij > 0.0):
+                    continue
+                s = depth[i, j] * wij  # depth-camera z / colour-camera z
+                hu = foot[0] * s
+                hv = foot[1] * s
+                _footprint(out, y0, y1, np.float64(P[i, j, 0]), np.float64(P[i, j, 1]), wij,
+                           hu * _reach(P, i, j - 1, wij, ratio, unknown), hu * _reach(P, i, j + 1, wij, ratio, unknown),
+                           hv * _reach(P, i - 1, j, wij, ratio, unknown), hv * _reach(P, i + 1, j, wij, ratio, unknown),
+                           ratio)
+        for y in range(y0, y1):
+            for x in range(out.shape[1]):
+                iz = out[y, x]
+                if iz > 0.0:
+                    out[y, x] = np.float32(1.0) / iz
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=8)
+def _rotated_rays(depth_intr, rotation_bytes: bytes) -> np.ndarray:
+    """(h, w, 3) float32 rays R @ (x, y, 1) of the depth camera's pixels; NaN where undefined."""
+    R = np.frombuffer(rotation_bytes, dtype=np.float64).reshape(3, 3)
+    xy = pixel_rays(depth_intr)
+    rays = xy[..., 0:1] * R[:, 0] + xy[..., 1:2] * R[:, 1] + R[:, 2]
+    rays = np.ascontiguousarray(rays, dtype=np.float32)  # 1e-7 relative: far below a pixel
+    rays.setflags(write=False)
+    return rays
+
+
+def _depth_input(depth_m, shape) -> np.ndarray:
+    """Validated float32 view (a copy only when needed); the kernels treat NaN, inf and z <= 0 as unknown."""
+    arr = np.asarray(depth_m)
+    if arr.ndim != 2:
+        raise InputError(f"depth_m must be a 2-D (H, W) array; got shape {arr.shape}")
+    if arr.shape != tuple(shape):
+        raise InputError(f"depth_m must be (H, W) = {tuple(shape)} (the rig's depth camera); got {arr.shape}")
+    if arr.dtype.kind not in "fiu":
+        raise InputError(f"depth_m must be numeric; got dtype {arr.dtype}")
+    return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+def _n_bands(height: int) -> int:
+    # A few bands per thread balance the load; bands thinner than ~16 rows waste re-visited quads.
+    return int(max(1, min(4 * numba.get_num_threads(), height // 16)))
+
+
+def default_depth_ratio(depth_intrinsics) -> float:
+    """Automatic discontinuity ratio for a depth camera: max(MIN_DEPTH_RATIO, sqrt(2) tan(MAX_INCIDENCE_DEG) / f).
+
+    Coarse depth grids see steep surfaces as large steps between neighbours, so they need a
+    larger ratio (Kinect v1/v2, f = 365..580 px: 0.03; a 64-pixel-wide sensor, f = 45 px: 0.12).
+    """
+    f = min(depth_intrinsics.fx, depth_intrinsics.fy)
+    return max(MIN_DEPTH_RATIO, math.sqrt(2.0) * math.tan(math.radians(MAX_INCIDENCE_DEG)) / f)
+
+
+def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None) -> np.ndarray:
+    """Re-sample a depth map from the depth camera into the colour camera's pixel grid.
+
+    Always does the reprojection (use :func:`register_depth` or :func:`needs_registration`
+    to skip it for a rig whose cameras coincide).
+
+    Parameters
+    ----------
+    depth_m : (h, w) float ndarray, metres, z-depth in the depth camera (``rig.depth`` size);
+        0, NaN, inf and negative values are unknown
+    rig : Rig
+    max_depth_ratio : float > 0 or None; a triangle of neighbouring depth pixels whose corner depths
+        (colour frame) satisfy max z > (1 + max_depth_ratio) * min z spans a discontinuity and
+        is not drawn; None = :func:`default_depth_ratio` of the depth camera
+
+    Returns
+    -------
+    (H, W) float32 ndarray, metres, z-depth in the colour camera (``rig.color`` size), 0 where
+    no measured surface maps (sensor holes, disocclusions, outside the depth camera's view)
+    """
+    if not isinstance(rig, Rig):
+        raise InputError(f"rig must be a Rig; got {type(rig).__name__}")
+    try:
+        ratio = default_depth_ratio(rig.depth) if max_depth_ratio is None else float(max_depth_ratio)
+    except (TypeError, ValueError):
+        raise InputError(f"max_depth_ratio must be a number > 0; got {max_depth_ratio!r}") from None
+    if not np.isfinite(ratio) or ratio <= 0:
+        raise InputError(f"max_depth_ratio must be a finite number > 0; got {max_depth_ratio!r}")
+    depth = _depth_input(depth_m, rig.depth.shape)
+    T = np.asarray(rig.T_color_from_depth, dtype=np.float64)
+    rays_c = _rotated_rays(rig.depth, np.ascontiguousarray(T[:3, :3]).tobytes())
+    color = rig.color
+    d = dist14(color)
+    has_tilt = bool(d[12] != 0.0 or d[13] != 0.0)
+    tilt = tilt_matrix(d[12], d[13]) if has_tilt else np.eye(3)
+    cam = np.array([color.fx, color.fy, color.cx, color.cy])
+    # Half-size, in colour pixels per (depth z / colour z), of a depth pixel's projected footprint.
+    foot = np.array([0.5 * color.fx / rig.depth.fx, 0.5 * color.fy / rig.depth.fy])
+    h, w = depth.shape
+    # (u, v, 1/z) per depth pixel in float32: interleaved, so a quad's corners are two cache lines
+    P = np.empty((h, w, 3), dtype=np.float32)
+    row_lo = np.empty(h)
+    row_hi = np.empty(h)
+    _project_grid(depth, rays_c, np.ascontiguousarray(T[:3, 3]), cam, d, tilt, color.has_distortion, has_tilt,
+                  max_radius2(color), float(foot[1]), P, row_lo, row_hi)
+    codes = np.zeros((h + 1, w + 1), dtype=np.uint8)
+    _quad_codes(P, 1.0 + ratio, codes)
+    out = np.zeros(color.shape, dtype=np.float32)
+    _rasterise(depth, P, codes, row_lo, row_hi, foot, 1.0 + ratio, _UNKNOWN_REACH, _n_bands(color.height), out)
+    return out
+
+
+def register_depth(frame: RGBDFrame, *, max_depth_ratio: float | None = None) -> np.ndarray:
+    """Depth of an RGB-D frame in the colour camera's pixel grid.
+
+    A rig whose cameras coincide (:attr:`Rig.is_registered`) is not re-projected: the result
+    is a copy of the frame's depth. Otherwise see :func:`reproject_depth`.
+
+    Parameters
+    ----------
+    frame : RGBDFrame
+    max_depth_ratio : float or None, discontinuity ratio (None: :func:`default_depth_ratio`);
+        see :func:`reproject_depth`
+
+    Returns
+    -------
+    (H, W) float32 ndarray, metres, z-depth in the colour camera, 0 = unknown
+    """
+    if not isinstance(frame, RGBDFrame):
+        raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
+    needed, _ = needs_registration(frame.rig)
+    if not needed:
+        return np.array(frame.depth_m, dtype=np.float32, copy=True)
+    return reproject_depth(frame.depth_m, frame.rig, max_depth_ratio=max_depth_ratio)
+
+
+def warmup() -> None:
+    """Compile (or load from numba's cache) the registration kernels on a tiny rig."""
+    from .camera import Intrinsics
+
+    depth_intr = Intrinsics(4, 3, 3.0, 3.0, 1.5, 1.0, (0.01, 0.0, 0.0, 0.0, 0.0))
+    tilted = (0.01, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1e-3, 0.0)
+    color_intr = Intrinsics(6, 5, 4.0, 4.0, 2.5, 2.0, tilted)
+    T = np.eye(4)
+    T[0, 3] = 0.01
+    depth = np.full((3, 4), 1.0, dtype=np.float32)
+    depth[0, 0] = 2.0
+    reproject_depth(depth, Rig(color_intr, depth_intr, T))

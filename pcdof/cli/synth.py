@@ -1,0 +1,82 @@
+"""`pcdof synth`: generate a synthetic RGB-D scene and its ray-traced depth-of-field ground truth."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from ._common import handle_errors
+
+
+def _scene_names():
+    from ..synth.scenes import SCENES
+
+    return list(SCENES)
+
+
+class _LazyChoice(click.Choice):
+    """A Choice whose names come from the scene registry (imported only when the command runs)."""
+
+    def __init__(self):
+        super().__init__([])
+
+    def convert(self, value, param, ctx):
+        self.choices = _scene_names()
+        return super().convert(value, param, ctx)
+
+    def get_metavar(self, param, *args, **kwargs):
+        self.choices = _scene_names()
+        return super().get_metavar(param, *args, **kwargs)
+
+
+@click.command("synth")
+@click.argument("name", metavar="NAME", type=_LazyChoice())
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--size", default="640x480", show_default=True, metavar="WxH", help="Colour image size.")
+@click.option("--depth-size", default="512x424", show_default=True, metavar="WxH", help="Depth image size.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Scene layout and sensor noise seed.")
+@click.option("--focal-length", "focal_length_mm", type=float, default=None,
+              help="Ground-truth lens focal length in mm (default: the scene's lens).")
+@click.option("--f-number", type=float, default=None, help="Ground-truth lens f-number (default: the scene's).")
+@click.option("--focus-distance", "focus_distance_m", type=float, default=None,
+              help="Ground-truth focus distance in metres (default: the scene's subject).")
+@click.option("--aperture-blades", type=int, default=None, help="0 = circle, N >= 3 = polygon (default: the scene's).")
+@click.option("--aperture-rotation", "aperture_rotation_deg", type=float, default=None,
+              help="Rotation of the polygonal aperture in degrees (default: the scene's).")
+@click.option("--samples", type=click.IntRange(min=2), default=None,
+              help="Aperture samples per pixel of the ground truth (default: adaptive, until two independent "
+                   "half renders agree to 45 dB).")
+@click.option("--gt/--no-gt", "ground_truth", default=True, show_default=True,
+              help="Render the depth-of-field ground truth (dof_gt.png).")
+@click.option("--linear/--no-linear", default=True, show_default=True,
+              help="Also write the float32 linear-light images (color_linear.npy, dof_gt_linear.npy).")
+@handle_errors
+def command(name, output, size, depth_size, seed, focal_length_mm, f_number, focus_distance_m, aperture_blades,
+            aperture_rotation_deg, samples, ground_truth, linear):
+    """Generate synthetic scene NAME into OUTPUT: colour, sensor depth, exact depths, calibration and lens,
+    and (unless --no-gt) the ray-traced thin-lens ground truth (an unknown NAME lists the scenes).
+    """
+    from ..lens import ThinLens
+    from ..synth import generate_scene, write_scene
+
+    sf = generate_scene(name, color_size=size, depth_size=depth_size, seed=seed)
+    base = sf.default_lens
+    lens = ThinLens(
+        base.focal_length_mm if focal_length_mm is None else focal_length_mm,
+        base.f_number if f_number is None else f_number,
+        base.focus_distance_m if focus_distance_m is None else focus_distance_m,
+        base.aperture_blades if aperture_blades is None else aperture_blades,
+        base.aperture_rotation_deg if aperture_rotation_deg is None else aperture_rotation_deg,
+    )
+    info = write_scene(sf, output, lens=lens, ground_truth=ground_truth, gt_samples=samples, linear=linear,
+                       progress=sys.stderr.isatty())
+    click.echo(f"{name} (seed {seed}): {sf.description}")
+    click.echo(f"lens: {lens.focal_length_mm:g} mm f/{lens.f_number:g}, focus {lens.focus_distance_m:g} m, "
+               f"blades {lens.aperture_blades}")
+    gt = info["ground_truth"]
+    if gt is not None:
+        click.echo(f"ground truth: {gt['samples_per_pixel']} samples/pixel, max CoC {gt['max_coc_px']:.1f} px, "
+                   f"half renders agree to {gt['half_render_psnr_db']:.1f} dB, {gt['seconds']:.1f} s")
+    click.echo(f"wrote {len(info['files'])} files to {output}/")

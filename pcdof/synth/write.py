@@ -1,0 +1,98 @@
+"""Write a synthetic frame (and optionally its depth-of-field ground truth) to a folder."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ..color import encode_from_linear
+from ..errors import ImageWriteError, InputError
+from ..io import write_depth, write_image, write_json
+from ..lens import ThinLens
+from .render import TARGET_PSNR_DB, max_coc_px, render_ground_truth
+
+
+def lens_to_dict(lens: ThinLens) -> dict:
+    """The ``lens.json`` schema."""
+    return {"focal_length_mm": lens.focal_length_mm, "f_number": lens.f_number,
+            "focus_distance_m": lens.focus_distance_m, "aperture_blades": lens.aperture_blades,
+            "aperture_rotation_deg": lens.aperture_rotation_deg}
+
+
+def write_scene(synth_frame, outdir, *, lens: ThinLens | None = None, gt_samples: int | None = None,
+                ground_truth: bool = True, linear: bool = True, gt_seed: int = 0,
+                target_psnr_db: float = TARGET_PSNR_DB, progress: bool = False) -> dict:
+    """Write a synthetic frame's files into *outdir* (each file atomically).
+
+    Files: ``color.png`` (sRGB uint8), ``depth.png`` (16-bit millimetres, the sensor's noisy depth
+    in the depth camera's grid, 0 = hole), ``depth_clean.npy`` (float32 metres, depth grid),
+    ``depth_color_gt.npy`` (float32 metres, exact z-depth in the colour camera), ``calib.json``
+    (``Rig.to_dict()`` plus ``max_range_m``), ``lens.json`` (*lens* or the scene's default lens),
+    ``scene.json`` (name, seed, description, metadata, ground-truth settings); with *linear*:
+    ``color_linear.npy`` (float32 linear radiance). With *lens* given, the ray-traced ground truth:
+    ``dof_gt.png`` (sRGB uint8) and, with *linear*, ``dof_gt_linear.npy``.
+
+    Parameters
+    ----------
+    synth_frame : SyntheticFrame
+    outdir : str or os.PathLike, created if missing
+    lens : ThinLens or None, the lens of ``lens.json`` and of the ground truth (None = the scene's
+        default lens, written to ``lens.json`` without rendering a ground truth)
+    ground_truth : bool, render the ground truth when *lens* is given
+    gt_samples : int or None, aperture samples per pixel (None = adaptive, until two independent
+        half renders agree to *target_psnr_db*; see :func:`render_ground_truth`)
+    linear : bool, also write the float32 linear-light images
+    gt_seed : int, seed of the ground truth's aperture samples
+    target_psnr_db : float, convergence target of the adaptive ground truth
+    progress : bool, show progress bars while rendering the ground truth
+
+    Returns
+    -------
+    dict: ``files`` (list of written paths) and ``ground_truth`` (a :class:`GroundTruth` without its
+    image, as a dict; None without *lens*)
+    """
+    if lens is not None and not isinstance(lens, ThinLens):
+        raise InputError(f"lens must be a ThinLens or None; got {type(lens).__name__}")
+    from .frame import SyntheticFrame
+
+    if not isinstance(synth_frame, SyntheticFrame):
+        raise InputError(f"synth_frame must be a SyntheticFrame; got {type(synth_frame).__name__}")
+    outdir = os.fspath(outdir)
+    try:
+        os.makedirs(outdir, exist_ok=True)
+    except OSError as err:
+        raise ImageWriteError(f"cannot create the output folder {outdir}: {err.strerror or err}") from None
+    sf = synth_frame
+    files = []
+
+    def out(name):
+        p = os.path.join(outdir, name)
+        files.append(p)
+        return p
+
+    write_image(out("color.png"), sf.color)
+    if linear:
+        write_image(out("color_linear.npy"), sf.color_linear.astype(np.float32))
+    write_depth(out("depth.png"), sf.depth_m)
+    write_depth(out("depth_clean.npy"), sf.depth_clean_m)
+    write_depth(out("depth_color_gt.npy"), sf.depth_color_m)
+    write_json(out("calib.json"), {**sf.rig.to_dict(), "max_range_m": sf.rig.max_range_m})
+    write_json(out("lens.json"), lens_to_dict(lens if lens is not None else sf.default_lens))
+    info = {"files": files, "ground_truth": None}
+    scene_info = {"name": sf.name, "seed": sf.seed, "description": sf.description, "metadata": sf.metadata,
+                  "default_lens": lens_to_dict(sf.default_lens)}
+    if lens is not None and ground_truth:
+        gt = render_ground_truth(sf, lens, samples=gt_samples, seed=gt_seed, target_psnr_db=target_psnr_db,
+                                 progress=progress)
+        write_image(out("dof_gt.png"), encode_from_linear(gt.image, np.uint8))
+        if linear:
+            write_image(out("dof_gt_linear.npy"), gt.image.astype(np.float32))
+        record = {"lens": lens_to_dict(lens), "samples_per_pixel": round(2 * gt.samples, 1),
+                  "max_samples_per_pixel": 2 * int(gt.counts.max()), "seed": gt_seed,
+                  "half_render_psnr_db": round(gt.psnr_db, 3), "max_coc_px": round(max_coc_px(sf, lens), 3),
+                  "seconds": round(gt.seconds, 3)}
+        info["ground_truth"] = record
+        scene_info["ground_truth"] = record
+    write_json(out("scene.json"), scene_info)
+    return info

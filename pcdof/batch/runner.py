@@ -1,0 +1,873 @@
+"""Render every frame of a sequence: serially, over local processes, or on a Dask cluster.
+
+Execution model
+---------------
+The lens of every frame is decided first (:mod:`pcdof.batch.schedule`; following a focus point
+needs one cheap serial pass over the depth frames), so a frame's image depends only on that
+frame and its lens, never on which worker renders it or in what order. Each frame is then one
+task, :func:`render_frame`, that reads the frame, runs :func:`pcdof.pipeline.run`, writes its
+outputs atomically (temporary file + ``os.replace``) and returns a JSON-ready record. The
+parent only collects records, drives the progress bar and writes ``report.json``.
+
+Local parallelism uses :class:`concurrent.futures.ProcessPoolExecutor`, not Dask's local
+``processes`` scheduler: its ``initializer`` hands every worker the shared job (the calibrated
+:class:`~pcdof.camera.Rig` and settings) once, so per-rig work cached on the rig's intrinsics
+(undistortion maps, rays) is built once per worker and no calibration is re-read per frame;
+results stream back as they finish (``as_completed``) for the progress bar; a worker that dies
+(out of memory) is detected and its frames retried on a fresh pool; and it needs no scheduler
+process. Workers start with ``forkserver`` (``spawn`` where that is missing) rather than
+``fork``, because forking a parent that already runs numba / OpenCV / Dask threads is unsafe.
+Each worker limits numba and OpenCV to its share of the cores, so N workers do not oversubscribe.
+
+``scheduler=ADDRESS`` sends the same tasks to an existing ``dask.distributed`` cluster. The job
+is scattered to every worker once (``broadcast=True``). Workers read inputs and write outputs
+themselves, so input and output paths must resolve to the same files on every worker (a shared
+filesystem, or a cluster on this machine); only the small per-frame records travel back. Tasks
+run numba and OpenCV single-threaded there: size the cluster's threads to its cores.
+
+Exit status (:func:`exit_code`) -- distinct from :data:`pcdof.errors.EXIT_CODES` (3-8), click's
+usage error (2) and an internal error (1): 0 every frame written (or already there with
+``resume``), 10 some frames failed (partial result; see the report), 11 no frame succeeded.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import logging
+import math
+import multiprocessing
+import os
+import platform
+import socket
+import sys
+import time
+import uuid
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..camera import RGBDFrame, Rig
+from ..errors import ImageWriteError, InputError, PcdofError
+from ..lens import PaperLens, ThinLens, focus_depth_at
+from .inputs import DEFAULT_MAX_DIFFERENCE_S, FramePair, Sequence, discover, load_rig
+from .schedule import LensSchedule, build_schedule, parse_keyframes, smooth_focus_track
+
+log = logging.getLogger("pcdof.batch")
+
+#: Exit status of a batch: every frame written.
+EXIT_OK = 0
+#: Exit status of a batch: some frames failed, the others were written (partial result).
+EXIT_PARTIAL = 10
+#: Exit status of a batch: no frame was written.
+EXIT_ALL_FAILED = 11
+
+REPORT_NAME = "report.json"
+DEPTH_DIR = "depth"
+#: Seconds between progress snapshots of report.json while a batch runs.
+REPORT_INTERVAL_S = 5.0
+#: A frame whose worker process died this many times is recorded as failed.
+MAX_WORKER_DEATHS = 2
+
+#: Default focus-tracking smoothing (see :func:`pcdof.batch.schedule.smooth_focus_track`).
+DEFAULT_SMOOTHING = {"median_window": 5, "min_cutoff_hz": 0.5, "beta": 1.0, "d_cutoff_hz": 1.0}
+
+
+def frame_name(index: int) -> str:
+    """Output file name of frame *index*: ``frame_000000.png``."""
+    return f"frame_{index:06d}.png"
+
+
+@dataclass(frozen=True, eq=False)
+class BatchJob:
+    """What every frame of a batch shares (sent to each worker once).
+
+    Parameters
+    ----------
+    rig : Rig, read once from the calibration
+    output_dir : str, absolute
+    method : str, a key of :data:`pcdof.render.METHODS`
+    fill_method : str, a key of :data:`pcdof.fill.FILL_METHODS`
+    save_depth : bool, also write the registered, filled depth (16-bit PNG via :func:`pcdof.io.write_depth`)
+    threads : int or None, numba / OpenCV threads per task (None = leave the libraries' defaults)
+    """
+
+    rig: Rig
+    output_dir: str
+    method: str = "physical"
+    fill_method: str = "joint-bilateral"
+    save_depth: bool = False
+    threads: int | None = None
+
+
+@dataclass(frozen=True)
+class FrameTask:
+    """One frame to render: its inputs, its lens and where its outputs go (absolute paths)."""
+
+    index: int
+    pair: FramePair
+    lens: object
+    output: str
+    depth_output: str | None = None
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return (self.output,) if self.depth_output is None else (self.output, self.depth_output)
+
+
+# ------------------------------------------------------------------------------------ per frame
+def read_frame(pair: FramePair, rig: Rig) -> RGBDFrame:
+    """Read one colour/depth pair into an :class:`~pcdof.camera.RGBDFrame` of *rig* (no calibration I/O)."""
+    from .. import io
+
+    color = io.read_color(pair.color)
+    depth = io.read_depth(pair.depth, depth_scale=rig.depth_scale)
+    return RGBDFrame(color, depth, rig)
+
+
+def _render(frame: RGBDFrame, lens, job: BatchJob):
+    """The one call into the renderer: register, fill, circle of confusion, render."""
+    from .. import pipeline
+
+    return pipeline.run(frame, lens, method=job.method, fill_method=job.fill_method)
+
+
+def _set_threads(threads: int | None) -> None:
+    if threads is None:
+        return
+    import cv2
+    import numba
+
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    cv2.setNumThreads(max(1, int(threads)))
+
+
+@contextlib.contextmanager
+def _threads_restored():
+    """Undo :func:`_set_threads` on exit, for frames rendered in the caller's own process."""
+    import cv2
+    import numba
+
+    n_numba, n_cv = numba.get_num_threads(), cv2.getNumThreads()
+    try:
+        yield
+    finally:
+        numba.set_num_threads(n_numba)
+        cv2.setNumThreads(n_cv)
+
+
+def _lens_fields(lens) -> dict:
+    return {
+        "focus_distance_m": float(lens.focus_distance_m),
+        "f_number": float(lens.f_number) if isinstance(lens, ThinLens) else None,
+        "focal_length_mm": float(lens.focal_length_mm) if isinstance(lens, ThinLens) else None,
+    }
+
+
+def base_record(task: FrameTask, output_dir: str, root: str | None = None) -> dict:
+    """The report entry of *task* before it runs (paths relative to the input root / output folder)."""
+    rel_in = (lambda p: os.path.relpath(p, root)) if root else (lambda p: p)
+    return {
+        "index": task.index,
+        "key": task.pair.key,
+        "color": rel_in(task.pair.color),
+        "depth": rel_in(task.pair.depth),
+        "color_time": task.pair.color_time,
+        "depth_time": task.pair.depth_time,
+        "output": os.path.relpath(task.output, output_dir),
+        "depth_output": os.path.relpath(task.depth_output, output_dir) if task.depth_output else None,
+        "status": "pending",
+        "skipped": None,
+        "error": None,
+        "seconds": 0.0,
+        "cpu_seconds": 0.0,
+        "stages": {},
+        "skipped_stages": {},
+        **_lens_fields(task.lens),
+        "worker": None,
+    }
+
+
+def render_frame(job: BatchJob, task: FrameTask) -> dict:
+    """Read, render and write one frame; never raises for a bad frame.
+
+    Returns
+    -------
+    dict, the frame's report entry: ``status`` "ok" or "failed", ``error`` (one line, the reason),
+    ``seconds`` (read + render + write wall time), ``cpu_seconds`` (CPU time of the process meanwhile),
+    per-stage ``stages`` seconds, the pipeline's ``skipped_stages`` {name: reason}, the lens actually used.
+    """
+    t0, c0 = time.perf_counter(), time.process_time()
+    rec = base_record(task, job.output_dir)
+    rec["worker"] = f"{socket.gethostname()}:{os.getpid()}"
+    try:
+        _set_threads(job.threads)
+        frame = read_frame(task.pair, job.rig)
+        result = _render(frame, task.lens, job)
+        from .. import io
+
+        if task.depth_output is not None:
+            io.write_depth(task.depth_output, result.depth_filled_m)
+        io.write_image(task.output, result.image)  # last: the image's presence marks a finished frame
+        rec.update(_lens_fields(result.lens))
+        rec["stages"] = {t.name: round(float(t.seconds), 6) for t in result.trace}
+        rec["skipped_stages"] = {t.name: t.reason for t in result.trace if t.skipped}
+        rec["status"] = "ok"
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except PcdofError as err:
+        rec["status"], rec["error"] = "failed", f"{type(err).__name__}: {err}"
+    except MemoryError:
+        rec["status"], rec["error"] = "failed", "MemoryError: out of memory"
+    except Exception as err:  # noqa: BLE001 - one bad frame must not stop the batch
+        rec["status"], rec["error"] = "failed", f"internal error: {type(err).__name__}: {err}"
+    rec["seconds"] = round(time.perf_counter() - t0, 6)
+    rec["cpu_seconds"] = round(time.process_time() - c0, 6)  # CPU time of the whole worker process
+    return rec
+
+
+# Worker-process state for the local pool: the job arrives once, through the initializer.
+_WORKER_JOB: BatchJob | None = None
+
+
+def _init_worker(job: BatchJob) -> None:
+    global _WORKER_JOB
+    _WORKER_JOB = job
+    _set_threads(job.threads)
+
+
+def _render_in_worker(task: FrameTask) -> dict:
+    return render_frame(_WORKER_JOB, task)
+
+
+# ------------------------------------------------------------------------------------ focus pass
+def measure_focus_track(sequence: Sequence, rig: Rig, xy, *, n_frames: int | None = None, radius_px: int = 7,
+                        progress: bool = False) -> tuple[np.ndarray, dict[int, str]]:
+    """Depth at colour pixel *xy* in every frame (registered depth, robust window median).
+
+    Parameters
+    ----------
+    sequence : Sequence
+    rig : Rig
+    xy : (x, y) colour pixel
+    n_frames : int or None, measure the first n frames (None = all)
+    radius_px : int, half-size of the window passed to :func:`pcdof.lens.focus_depth_at`
+    progress : bool, show a progress bar on stderr
+
+    Returns
+    -------
+    raw_m : (n,) float64 ndarray, metres, NaN where the frame has no depth near *xy* or cannot be read
+    problems : {frame index: reason} for the NaN entries
+    """
+    from .. import io
+    from ..register import needs_registration, reproject_depth
+
+    x, y = _check_xy(xy, rig)
+    n = len(sequence) if n_frames is None else min(int(n_frames), len(sequence))
+    registered = not needs_registration(rig)[0]
+    raw = np.full(n, np.nan)
+    problems: dict[int, str] = {}
+    for i in _bar(range(n), progress, desc="focus", unit="frame"):
+        try:
+            depth = io.read_depth(sequence.pairs[i].depth, depth_scale=rig.depth_scale)
+            if depth.shape != rig.depth.shape:
+                raise InputError(f"depth must be (H, W) = {rig.depth.shape}; got {depth.shape}")
+            color_depth = depth if registered else reproject_depth(depth, rig)
+            raw[i] = focus_depth_at(color_depth, x, y, radius_px=radius_px)
+        except PcdofError as err:
+            problems[i] = f"{type(err).__name__}: {err}"
+    return raw, problems
+
+
+def _check_xy(xy, rig: Rig) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in xy)
+    except (TypeError, ValueError):
+        raise InputError(f"focus_at must be an (x, y) pixel; got {xy!r}") from None
+    w, h = rig.color.width, rig.color.height
+    if not (0 <= x <= w - 1 and 0 <= y <= h - 1):
+        raise InputError(f"focus_at ({x:g}, {y:g}) is outside the colour image of size {w}x{h}")
+    return x, y
+
+
+def plan_lens(sequence: Sequence, rig: Rig, template, *, n_frames: int, focus_at=None, focus_keyframes=None,
+              f_number_keyframes=None, easing: str = "linear", rate_hz: float = 30.0, smoothing: dict | None = None,
+              progress: bool = False) -> LensSchedule:
+    """Decide the lens of frames 0..n_frames-1 (runs the focus pass when *focus_at* is given).
+
+    Parameters
+    ----------
+    sequence, rig : the input
+    template : ThinLens or PaperLens, fixed settings (and the focus / f-number where nothing else decides)
+    n_frames : int
+    focus_at : (x, y) colour pixel, "center" (the image centre) or None: focus follows the smoothed depth there
+    focus_keyframes, f_number_keyframes : "FRAME:VALUE,..." strings or sequences of (frame, value), or None
+    easing : "linear" or "smoothstep" (between keyframes)
+    rate_hz : float, frames per second (the focus smoother's time base)
+    smoothing : dict or None, overrides of :data:`DEFAULT_SMOOTHING`
+
+    Returns
+    -------
+    LensSchedule
+    """
+    if isinstance(focus_keyframes, str):
+        focus_keyframes = parse_keyframes(focus_keyframes, name="focus keyframes")
+    if isinstance(f_number_keyframes, str):
+        f_number_keyframes = parse_keyframes(f_number_keyframes, name="f-number keyframes")
+    if focus_at is None:
+        return build_schedule(template, n_frames, focus_keyframes=focus_keyframes,
+                              f_number_keyframes=f_number_keyframes, easing=easing)
+    if focus_keyframes is not None:
+        raise InputError("focus_at and focus keyframes exclude each other; give one")
+    if isinstance(focus_at, str) and focus_at in ("center", "centre"):
+        focus_at = ((rig.color.width - 1) / 2, (rig.color.height - 1) / 2)
+    params = {**DEFAULT_SMOOTHING, **(smoothing or {})}
+    unknown = set(params) - set(DEFAULT_SMOOTHING)
+    if unknown:
+        raise InputError(f"smoothing keys must be among {sorted(DEFAULT_SMOOTHING)}; got {sorted(unknown)}")
+    raw, problems = measure_focus_track(sequence, rig, focus_at, n_frames=n_frames, progress=progress)
+    for i, why in sorted(problems.items())[:5]:
+        log.warning("focus point: frame %d has no depth measurement (%s); focus is held", i, why)
+    track = smooth_focus_track(raw, rate_hz=rate_hz, **params)
+    x, y = _check_xy(focus_at, rig)
+    return build_schedule(template, n_frames, focus_track_m=track, f_number_keyframes=f_number_keyframes,
+                          easing=easing, source=f"focus-at {x:g},{y:g}", raw_focus_m=raw)
+
+
+# ------------------------------------------------------------------------------------ the batch
+def exit_code(report: dict) -> int:
+    """:data:`EXIT_OK`, :data:`EXIT_PARTIAL` or :data:`EXIT_ALL_FAILED` for a finished report."""
+    t = report["totals"]
+    video_failed = bool(report.get("video") and report["video"].get("error"))
+    if t["failed"] == 0 and not video_failed:
+        return EXIT_OK
+    if t["ok"] + t["skipped"] == 0:
+        return EXIT_ALL_FAILED
+    return EXIT_PARTIAL
+
+
+def _bar(iterable=None, progress=True, **kw):
+    from tqdm.auto import tqdm
+
+    return tqdm(iterable, disable=not progress, file=sys.stderr, dynamic_ncols=True, **kw)
+
+
+def _versions() -> dict:
+    from importlib import metadata
+
+    out = {"python": platform.python_version(), "platform": platform.platform()}
+    for name in ("pcdof", "numpy", "opencv-contrib-python-headless", "numba", "dask", "distributed", "imageio",
+                 "imageio-ffmpeg", "tqdm"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    try:
+        import cv2
+
+        out["cv2"] = cv2.__version__
+    except ImportError:  # pragma: no cover
+        pass
+    return out
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _outputs_complete(task: FrameTask) -> bool:
+    # atomic writes: a file that exists under its final name is complete
+    return all(os.path.isfile(p) for p in task.outputs)
+
+
+class _Reporter:
+    """Collects frame records, writes report.json atomically (snapshots while running)."""
+
+    def __init__(self, path: str, header: dict, records: list[dict], progress: bool):
+        self.path, self.header, self.records = path, header, records
+        self.t0 = time.perf_counter()
+        self.last_write = 0.0
+        todo = sum(r["status"] == "pending" for r in records)
+        self.bar = _bar(None, progress, total=todo, desc="render", unit="frame")
+
+    def add(self, rec: dict) -> None:
+        self.records[rec["index"]] = rec
+        if rec["status"] == "failed":
+            log.warning("frame %d (%s) failed: %s", rec["index"], rec["color"], rec["error"])
+        self.bar.update(1)
+        failed = sum(r["status"] == "failed" for r in self.records)
+        if failed:
+            self.bar.set_postfix(failed=failed, refresh=False)
+        if time.perf_counter() - self.last_write > REPORT_INTERVAL_S:
+            self.write("running")
+
+    def report(self, status: str) -> dict:
+        recs = self.records
+        wall = time.perf_counter() - self.t0
+        rendered = [r for r in recs if r["status"] in ("ok", "failed")]
+        totals = {
+            "frames": len(recs),
+            "ok": sum(r["status"] == "ok" for r in recs),
+            "failed": sum(r["status"] == "failed" for r in recs),
+            "skipped": sum(r["status"] == "skipped" for r in recs),
+            "pending": sum(r["status"] == "pending" for r in recs),
+            "wall_seconds": round(wall, 6),
+            "frame_seconds_sum": round(sum(r["seconds"] for r in rendered), 6),
+            "frames_per_second": round(len(rendered) / wall, 4) if wall > 0 and rendered else None,
+        }
+        return {**self.header, "status": status, "finished": _now(), "totals": totals, "frames": recs}
+
+    def write(self, status: str, extra: dict | None = None) -> dict:
+        from .. import io
+
+        rep = self.report(status)
+        if extra:
+            rep.update(extra)
+        io.write_json(self.path, rep)
+        self.last_write = time.perf_counter()
+        return rep
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _settings(sequence: Sequence, rig: Rig, schedule: LensSchedule, job: BatchJob, extra: dict | None) -> dict:
+    return {
+        "input": sequence.root,
+        "layout": sequence.layout,
+        "rig": rig.to_dict(),
+        "method": job.method,
+        "fill_method": job.fill_method,
+        **schedule.describe(),
+        **(extra or {}),
+    }
+
+
+def _check_resume(report_path: str, settings: dict) -> None:
+    import json
+
+    try:
+        with open(report_path, encoding="utf-8") as f:
+            previous = json.load(f).get("settings")
+    except (OSError, ValueError, AttributeError):
+        return
+    if previous is None:
+        return
+    current = json.loads(json.dumps(settings))  # same JSON normalisation as the stored copy
+    differ = sorted(k for k in set(previous) | set(current) if previous.get(k) != current.get(k))
+    if differ:
+        raise InputError(
+            f"--resume: the output folder was rendered with different settings ({', '.join(differ)}); "
+            f"use a new output folder, or run without --resume to render every frame again"
+        )
+
+
+def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, method: str = "physical",
+              fill_method: str = "joint-bilateral", save_depth: bool = False, resume: bool = False,
+              workers: int = 1, scheduler=None, threads: int | None = None, video: str | None = None,
+              fps: float = 30.0, progress: bool = False, settings: dict | None = None) -> dict:
+    """Render frames 0..len(schedule)-1 of *sequence* into *output_dir* and write ``report.json``.
+
+    Parameters
+    ----------
+    sequence : Sequence
+    rig : Rig, read once; every frame and worker uses this object's calibration
+    schedule : LensSchedule, the lens of every frame to render (its length = number of frames)
+    output_dir : str, created if missing; frames go to ``frame_NNNNNN.png``, depth to ``depth/frame_NNNNNN.png``
+    method, fill_method : renderer and hole-filling method
+    save_depth : bool, also write the registered, filled depth
+    resume : bool, keep frames whose outputs already exist (recorded as ``"skipped": "resume"``)
+    workers : int >= 1, local processes (1 = in this process); ignored with *scheduler*
+    scheduler : str, distributed.Client or None, a Dask distributed scheduler address (or client)
+    threads : int or None, numba / OpenCV threads per frame; None = the libraries' default when serial,
+        cores // workers with local processes, 1 on a Dask cluster (its workers' threads are the parallelism)
+    video : str or None, also encode the frames into this .mp4 (H.264, yuv420p)
+    fps : float, video frame rate
+    progress : bool, show a progress bar (frames per second, time left) on stderr
+    settings : dict or None, extra JSON-ready settings recorded in the report (and compared on resume)
+
+    Returns
+    -------
+    dict, the report (also in ``output_dir/report.json``); :func:`exit_code` gives the exit status
+    """
+    from ..render import METHODS
+
+    if not isinstance(sequence, Sequence):
+        raise InputError(f"sequence must be a Sequence; got {type(sequence).__name__}")
+    if not isinstance(rig, Rig):
+        raise InputError(f"rig must be a Rig; got {type(rig).__name__}")
+    if not isinstance(schedule, LensSchedule):
+        raise InputError(f"schedule must be a LensSchedule; got {type(schedule).__name__}")
+    if len(schedule) > len(sequence):
+        raise InputError(f"schedule has {len(schedule)} frames but the sequence only {len(sequence)}")
+    if method not in METHODS:
+        raise InputError(f"method must be one of {sorted(METHODS)}; got {method!r}")
+    if method == "physical" and isinstance(schedule.template, PaperLens):
+        raise InputError("the physical method needs a ThinLens; a PaperLens only works with method='paper'")
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise InputError(f"workers must be an integer >= 1; got {workers!r}")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
+                                or threads < 1):
+        raise InputError(f"threads must be None or an integer >= 1; got {threads!r}")
+    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+        raise InputError(f"fps must be a finite number > 0; got {fps!r}")
+    if video is not None and os.path.splitext(str(video))[1].lower() not in (".mp4", ".m4v", ".mov", ".mkv"):
+        raise InputError(f"video must end in .mp4, .m4v, .mov or .mkv; got {video!r}")
+    output_dir = os.path.abspath(os.fspath(output_dir))
+    try:
+        os.makedirs(output_dir, exist_ok=True)
+        if save_depth:
+            os.makedirs(os.path.join(output_dir, DEPTH_DIR), exist_ok=True)
+    except OSError as err:
+        raise ImageWriteError(f"cannot create output folder {output_dir}: {err.strerror or err}") from None
+
+    if scheduler is not None:
+        backend = {"kind": "dask", "address": scheduler if isinstance(scheduler, str) else str(scheduler)}
+        threads = 1 if threads is None else int(threads)
+    elif workers > 1:
+        backend = {"kind": "processes", "workers": int(workers)}
+        threads = max(1, (os.cpu_count() or 1) // int(workers)) if threads is None else int(threads)
+    else:
+        backend = {"kind": "serial", "workers": 1}
+    backend["threads_per_frame"] = threads
+    job = BatchJob(rig, output_dir, method, fill_method, bool(save_depth), threads)
+    all_settings = _settings(sequence, rig, schedule, job, settings)
+    report_path = os.path.join(output_dir, REPORT_NAME)
+    if resume:
+        _check_resume(report_path, all_settings)
+
+    tasks, records = [], []
+    for i in range(len(schedule)):
+        task = FrameTask(i, sequence.pairs[i], schedule.lens_at(i), os.path.join(output_dir, frame_name(i)),
+                         os.path.join(output_dir, DEPTH_DIR, frame_name(i)) if save_depth else None)
+        rec = base_record(task, output_dir, sequence.root)
+        if schedule.raw_focus_m is not None:
+            raw = float(schedule.raw_focus_m[i])
+            rec["focus_measured_m"] = raw if math.isfinite(raw) else None
+        if resume and _outputs_complete(task):
+            rec["status"], rec["skipped"] = "skipped", "resume"
+        else:
+            tasks.append(task)
+        records.append(rec)
+
+    header = {
+        "report": "pcdof batch",
+        "started": _now(),
+        "input": {"path": sequence.root, "layout": sequence.layout, "pairs": len(sequence),
+                  "unmatched_color": sequence.unmatched_color, "unmatched_depth": sequence.unmatched_depth},
+        "output_dir": output_dir,
+        "save_depth": bool(save_depth),
+        "settings": all_settings,
+        "backend": backend,
+        "exit_codes": {"ok": EXIT_OK, "partial": EXIT_PARTIAL, "all_failed": EXIT_ALL_FAILED},
+        "versions": _versions(),
+    }
+    reporter = _Reporter(report_path, header, records, progress)
+
+    def collect(rec: dict) -> None:
+        i = rec["index"]
+        prev = records[i]
+        rec = {**rec, "color": prev["color"], "depth": prev["depth"]}  # paths relative to the input root
+        if "focus_measured_m" in prev:
+            rec["focus_measured_m"] = prev["focus_measured_m"]
+        reporter.add(rec)
+
+    reporter.write("running")
+    try:
+        if not tasks:
+            pass
+        elif scheduler is not None:
+            _run_dask(job, tasks, scheduler, collect)
+        elif workers > 1 and len(tasks) > 1:
+            _run_processes(job, tasks, int(workers), collect)
+        else:
+            with _threads_restored():
+                for task in tasks:
+                    collect(render_frame(job, task))
+    except BaseException:
+        reporter.close()
+        reporter.write("interrupted")
+        raise
+    reporter.close()
+
+    extra = {}
+    if video is not None:
+        extra["video"] = _make_video(records, output_dir, video, fps)
+    rep = reporter.report("done")
+    rep.update(extra)
+    code = exit_code(rep)
+    rep["status"] = {EXIT_OK: "ok", EXIT_PARTIAL: "partial", EXIT_ALL_FAILED: "failed"}[code]
+    rep["exit_code"] = code
+    from .. import io
+
+    io.write_json(report_path, rep)
+    return rep
+
+
+def _run_processes(job: BatchJob, tasks: list[FrameTask], workers: int, collect) -> None:
+    """Local worker processes (the first frame renders in this process, to warm numba's cache).
+
+    Frames in flight when a worker dies are retried on a fresh pool; a frame in flight at
+    :data:`MAX_WORKER_DEATHS` deaths is recorded as failed. If the pool breaks twice before it
+    finishes any frame (workers cannot start at all, e.g. a main script that cannot be
+    re-imported), the remaining frames are rendered in this process instead.
+    """
+    methods = multiprocessing.get_all_start_methods()
+    if "forkserver" in methods:
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["pcdof.batch.runner", "pcdof.pipeline"])
+    else:
+        ctx = multiprocessing.get_context("spawn")
+    deaths = {t.index: 0 for t in tasks}
+    queue = list(reversed(tasks))  # pop() from the end = frame order
+    if len(queue) > workers:
+        # The first frame renders here: numba compiles (or loads) its kernels once and refreshes its
+        # on-disk cache, so the workers load them instead of all compiling at the same time.
+        with _threads_restored():
+            collect(render_frame(job, queue.pop()))
+    window = 2 * workers
+    barren_pools = 0
+    while queue:
+        if barren_pools >= 2:
+            log.warning("worker processes could not start; rendering the remaining %d frames in this process",
+                        len(queue))
+            with _threads_restored():
+                while queue:
+                    collect(render_frame(job, queue.pop()))
+            return
+        pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx,
+                                   initializer=_init_worker, initargs=(job,))
+        running: dict = {}
+        broken, completed, lost = False, 0, []
+        try:
+            while queue or running:
+                while queue and len(running) < window and not broken:
+                    task = queue.pop()
+                    try:
+                        running[pool.submit(_render_in_worker, task)] = task
+                    except BrokenProcessPool:
+                        queue.append(task)
+                        broken = True
+                if not running:
+                    break
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    task = running.pop(fut)
+                    try:
+                        rec = fut.result()
+                    except BrokenProcessPool:
+                        broken = True
+                        lost.append(task)
+                    else:
+                        completed += 1
+                        collect(rec)
+                if broken and not running:
+                    break
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+        barren_pools = barren_pools + 1 if broken and completed == 0 else 0
+        for task in sorted(lost, key=lambda t: t.index, reverse=True):
+            if barren_pools == 0:  # the pool did work: a frame in flight may have killed it
+                deaths[task.index] += 1
+            if deaths[task.index] >= MAX_WORKER_DEATHS:
+                rec = base_record(task, job.output_dir)
+                rec["status"] = "failed"
+                rec["error"] = "worker process died while rendering this frame (out of memory?)"
+                collect(rec)
+            else:
+                queue.append(task)
+        if broken and queue:
+            log.warning("a worker process died; restarting the pool for %d frames", len(queue))
+
+
+def _run_dask(job: BatchJob, tasks: list[FrameTask], scheduler, collect) -> None:
+    """The same tasks on a Dask distributed cluster (workers write outputs to the shared filesystem)."""
+    try:
+        from distributed import Client, as_completed
+    except ImportError:  # pragma: no cover - a declared dependency
+        raise InputError("--scheduler needs the 'distributed' package (pip install distributed)") from None
+    own = not isinstance(scheduler, Client)
+    try:
+        client = Client(scheduler, timeout="30s") if own else scheduler
+    except (OSError, TimeoutError, ValueError) as err:
+        raise InputError(f"cannot connect to the Dask scheduler at {scheduler!r}: {err}") from None
+    try:
+        job_future = client.scatter(job, broadcast=True, hash=False)
+        token = uuid.uuid4().hex[:8]
+        futures = {}
+        for task in tasks:
+            fut = client.submit(render_frame, job_future, task, key=f"pcdof-frame-{task.index:06d}-{token}",
+                                pure=False)
+            futures[fut] = task
+        for fut in as_completed(futures):
+            task = futures[fut]
+            try:
+                rec = fut.result()
+            except Exception as err:  # noqa: BLE001 - e.g. KilledWorker: record it and go on
+                rec = base_record(task, job.output_dir)
+                rec["status"], rec["error"] = "failed", f"worker failed: {type(err).__name__}: {err}"
+            collect(rec)
+            fut.release()
+    finally:
+        if own:
+            client.close()
+
+
+# ------------------------------------------------------------------------------------ video
+def _even_pad(image: np.ndarray) -> np.ndarray:
+    h, w = image.shape[:2]
+    ph, pw = h % 2, w % 2
+    if ph or pw:  # yuv420p needs even sides: repeat the last row / column
+        image = np.pad(image, ((0, ph), (0, pw), (0, 0)), mode="edge")
+    return image
+
+
+def _to_rgb8(image: np.ndarray) -> np.ndarray:
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype.kind == "f":
+        image = np.clip(np.rint(image * 255), 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(image.astype(np.uint8, copy=False))
+
+
+def write_video(images, path: str, *, fps: float = 30.0, quality: float = 8.0) -> dict:
+    """Encode RGB frames into an H.264 (libx264, yuv420p) video, atomically.
+
+    Parameters
+    ----------
+    images : iterable of (H, W, 3) ndarray (uint8, uint16 or float in [0, 1]), all the same size;
+        odd sides are padded by one repeated row / column (yuv420p needs even sides)
+    path : str, .mp4 / .m4v / .mov / .mkv
+    fps : float, frames per second
+    quality : float, imageio-ffmpeg quality 0-10 (10 = best)
+
+    Returns
+    -------
+    dict with path, frames, width, height, fps
+    """
+    import imageio_ffmpeg
+
+    path = os.path.abspath(os.fspath(path))
+    folder, base = os.path.split(path)
+    stem, ext = os.path.splitext(base)
+    tmp = os.path.join(folder, f".{stem}.{uuid.uuid4().hex[:8]}.partial{ext}")
+    writer = None
+    n, size = 0, None
+    try:
+        os.makedirs(folder, exist_ok=True)
+        for image in images:
+            frame = _even_pad(_to_rgb8(np.asarray(image)))
+            if size is None:
+                size = (frame.shape[1], frame.shape[0])
+                writer = imageio_ffmpeg.write_frames(tmp, size, fps=fps, codec="libx264", pix_fmt_in="rgb24",
+                                                     pix_fmt_out="yuv420p", quality=quality, macro_block_size=2,
+                                                     ffmpeg_log_level="error")
+                writer.send(None)
+            elif (frame.shape[1], frame.shape[0]) != size:
+                raise InputError(f"video frames must all be {size[0]}x{size[1]}; frame {n} is "
+                                 f"{frame.shape[1]}x{frame.shape[0]}")
+            writer.send(frame)
+            n += 1
+        if writer is None:
+            raise InputError("no frames to write into the video")
+        writer.close()
+        writer = None
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as err:
+        raise ImageWriteError(f"cannot write video {path}: {err}") from None
+    finally:
+        if writer is not None:
+            try:
+                writer.close()
+            except Exception:  # noqa: BLE001 - already failing
+                pass
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return {"path": path, "frames": n, "width": size[0], "height": size[1], "fps": fps}
+
+
+def _make_video(records: list[dict], output_dir: str, video: str, fps: float) -> dict:
+    """Video of the batch's frames in order; a frame that failed repeats the previous good one."""
+    from .. import io
+
+    held: list[int] = []
+
+    def frames():
+        last = None
+        for rec in records:
+            path = os.path.join(output_dir, rec["output"])
+            if rec["status"] in ("ok", "skipped") and os.path.isfile(path):
+                last = io.read_color(path)
+            else:
+                held.append(rec["index"])
+            if last is not None:
+                yield last
+
+    try:
+        info = write_video(frames(), video, fps=fps)
+    except PcdofError as err:
+        log.warning("video not written: %s", err)
+        return {"path": os.path.abspath(video), "error": f"{type(err).__name__}: {err}"}
+    info["held_frames"] = held
+    return info
+
+
+# ------------------------------------------------------------------------------------ front door
+def render_sequence(input_path: str, output_dir: str, *, lens, calib: str | None = None, focus_at=None,
+                    focus_keyframes=None, f_number_keyframes=None, easing: str = "linear",
+                    smoothing: dict | None = None, method: str = "physical", fill_method: str = "joint-bilateral",
+                    depth_scale: float | None = None, max_difference: float = DEFAULT_MAX_DIFFERENCE_S,
+                    save_depth: bool = False, video: str | None = None, fps: float = 30.0, resume: bool = False,
+                    workers: int = 1, scheduler=None, threads: int | None = None, limit: int | None = None,
+                    progress: bool = False) -> dict:
+    """Discover a sequence, read its calibration once, plan the lens, render every frame.
+
+    Parameters
+    ----------
+    input_path : str, folder or list file (see :mod:`pcdof.batch.inputs`)
+    output_dir : str
+    lens : ThinLens or PaperLens, the fixed settings (focus / f-number unless keyframed or followed)
+    calib : str or None, calibration file (None = calib.json etc. in the input folder)
+    focus_at : (x, y) colour pixel, "center" or None, focus follows the smoothed depth there
+    focus_keyframes, f_number_keyframes : "FRAME:VALUE,..." or None
+    easing : "linear" or "smoothstep"
+    smoothing : dict or None, focus-follow smoothing overrides (:data:`DEFAULT_SMOOTHING`)
+    method, fill_method : renderer and hole-filling method
+    depth_scale : float or None, metres per depth unit (overrides calibration and layout)
+    max_difference : float, seconds, TUM colour/depth pairing tolerance
+    save_depth, video, fps, resume, workers, scheduler, threads, progress : see :func:`run_batch`
+    limit : int or None, render only the first *limit* frames
+
+    Returns
+    -------
+    dict, the report (see :func:`run_batch`)
+    """
+    sequence = discover(input_path, max_difference=max_difference)
+    rig = load_rig(sequence, calib, depth_scale=depth_scale)
+    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, np.integer)) or limit < 1):
+        raise InputError(f"limit must be an integer >= 1; got {limit!r}")
+    n = len(sequence) if limit is None else min(int(limit), len(sequence))
+    schedule = plan_lens(sequence, rig, lens, n_frames=n, focus_at=focus_at, focus_keyframes=focus_keyframes,
+                         f_number_keyframes=f_number_keyframes, easing=easing, rate_hz=fps, smoothing=smoothing,
+                         progress=progress)
+    if isinstance(focus_keyframes, str):
+        focus_keyframes = parse_keyframes(focus_keyframes, name="focus keyframes")
+    if isinstance(f_number_keyframes, str):
+        f_number_keyframes = parse_keyframes(f_number_keyframes, name="f-number keyframes")
+    settings = {
+        "focus_keyframes": None if focus_keyframes is None else [list(k) for k in focus_keyframes],
+        "f_number_keyframes": None if f_number_keyframes is None else [list(k) for k in f_number_keyframes],
+        "easing": easing,
+        "focus_at": focus_at if focus_at is None or isinstance(focus_at, str) else [float(v) for v in focus_at],
+        "smoothing": {**DEFAULT_SMOOTHING, **(smoothing or {})} if focus_at is not None else None,
+        "rate_hz": fps if focus_at is not None else None,
+        "depth_scale": rig.depth_scale,
+        "max_difference_s": max_difference if sequence.layout == "tum" else None,
+    }
+    return run_batch(sequence, rig, schedule, output_dir, method=method, fill_method=fill_method,
+                     save_depth=save_depth, resume=resume, workers=workers, scheduler=scheduler, threads=threads,
+                     video=video, fps=fps, progress=progress, settings=settings)

@@ -1,0 +1,117 @@
+"""`pcdof batch`: render every frame of an RGB-D sequence (a thin shell over :mod:`pcdof.batch`)."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from ..errors import InputError
+from ..fill import FILL_METHODS
+from ..render import METHODS
+from ._common import handle_errors
+from .render import lens_options
+
+EPILOG = """\b
+INPUT is one of:
+  a folder with color/ (or rgb/) and depth/ holding files with the same stem or number
+  a folder of NAME_color.* + NAME_depth.* files
+  a TUM RGB-D folder with rgb.txt and depth.txt (paired by timestamp; depth 5000 units/m)
+  a text file with one "color_path depth_path" line per frame (relative to the file)
+\b
+Outputs: OUTDIR/frame_000000.png ..., OUTDIR/depth/frame_000000.png (--save-depth, 16-bit mm),
+OUTDIR/report.json (per frame: inputs, output, seconds, skipped stages, focus, f-number, error).
+\b
+Exit status: 0 all frames written; 10 some frames failed, or the video could not be written
+(partial; see report.json); 11 no frame written; 3-8 an input, calibration, lens or write error
+before rendering began; 2 usage error; 130 interrupted (report.json says "interrupted").
+"""
+
+
+def _resolve_workers(ctx, param, value):
+    if value is None:
+        import os
+
+        return max(1, os.cpu_count() or 1)
+    if value < 1:
+        raise click.BadParameter(f"must be >= 1; got {value}")
+    return value
+
+
+@click.command("batch", epilog=EPILOG)
+@click.argument("input_path", metavar="INPUT", type=click.Path(exists=True))
+@click.option("--calib", type=click.Path(dir_okay=False), default=None,
+              help="Calibration file (default: calib.json etc. in the INPUT folder).")
+@click.option("-o", "--output", "output_dir", required=True, type=click.Path(file_okay=False),
+              help="Output folder.")
+@lens_options
+@click.option("--focus-keyframes", default=None, metavar="F:M,...",
+              help="Focus pull: frame:metres keyframes, e.g. '0:1.2,50:3.0' (held before/after).")
+@click.option("--f-number-keyframes", default=None, metavar="F:N,...",
+              help="Aperture change: frame:f-number keyframes, e.g. '0:1.4,50:8'.")
+@click.option("--easing", type=click.Choice(["linear", "smoothstep"]), default="linear", show_default=True,
+              help="Interpolation between keyframes.")
+@click.option("--focus-window", type=int, default=5, show_default=True,
+              help="--focus-at: running-median window in frames (spikes, dropouts).")
+@click.option("--focus-min-cutoff", type=float, default=0.5, show_default=True,
+              help="--focus-at: one-euro cut-off in Hz when the subject is still (lower = steadier).")
+@click.option("--focus-beta", type=float, default=1.0, show_default=True,
+              help="--focus-at: one-euro speed coefficient (higher = follows motion faster).")
+@click.option("--method", type=click.Choice(list(METHODS)), default="physical", show_default=True)
+@click.option("--fill-method", type=click.Choice(list(FILL_METHODS)), default="joint-bilateral", show_default=True,
+              help="Depth hole filling method.")
+@click.option("--depth-scale", type=float, default=None,
+              help="Metres per depth unit (overrides the calibration; TUM default 0.0002).")
+@click.option("--max-time-difference", "max_difference", type=float, default=0.02, show_default=True,
+              help="TUM: largest colour/depth timestamp difference for a pair, seconds.")
+@click.option("--save-depth", is_flag=True, help="Also write the registered, filled depth (16-bit mm PNG).")
+@click.option("--video", type=click.Path(dir_okay=False), default=None, help="Also encode an H.264 .mp4.")
+@click.option("--fps", type=float, default=30.0, show_default=True,
+              help="Video frame rate, and the time base of --focus-at smoothing.")
+@click.option("--resume", is_flag=True, help="Keep frames whose outputs already exist; render the rest.")
+@click.option("--workers", type=int, default=None, callback=_resolve_workers,
+              help="Local worker processes [default: number of CPU cores]; 1 = no subprocesses.")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Run on an existing Dask distributed cluster (e.g. tcp://10.0.0.5:8786); "
+                   "paths must be on a filesystem shared with its workers.")
+@click.option("--threads", type=click.IntRange(min=1), default=None,
+              help="numba/OpenCV threads per frame [default: cores / workers; 1 on a Dask cluster].")
+@click.option("--limit", type=click.IntRange(min=1), default=None, help="Render only the first N frames.")
+@click.option("--progress/--no-progress", default=True, show_default=True, help="Progress bar on stderr.")
+@handle_errors
+def command(input_path, calib, output_dir, focal_length_mm, f_number, focus_distance_m, focus_at, aperture_blades,
+            aperture_rotation_deg, focus_keyframes, f_number_keyframes, easing, focus_window, focus_min_cutoff,
+            focus_beta, method, fill_method, depth_scale, max_difference, save_depth, video, fps, resume, workers,
+            scheduler, threads, limit, progress):
+    """Render every frame of the RGB-D sequence INPUT with a shallow depth of field into OUTDIR."""
+    from ..batch import exit_code, render_sequence
+    from ..lens import PaperLens, ThinLens
+
+    given = [name for name, v in (("--focus-distance", focus_distance_m), ("--focus-at", focus_at),
+                                  ("--focus-keyframes", focus_keyframes)) if v is not None]
+    if len(given) > 1:
+        raise InputError(f"{' and '.join(given)} exclude each other; give one")
+    if not given:  # like `pcdof render`: focus on the depth at the image centre (followed over time)
+        focus_at = "center"
+    provisional = focus_distance_m if focus_distance_m is not None else 1.0
+    if method == "paper":
+        lens = PaperLens(provisional)
+    else:
+        lens = ThinLens(focal_length_mm, f_number, provisional, aperture_blades, aperture_rotation_deg)
+    report = render_sequence(
+        input_path, output_dir, lens=lens, calib=calib, focus_at=focus_at, focus_keyframes=focus_keyframes,
+        f_number_keyframes=f_number_keyframes, easing=easing,
+        smoothing={"median_window": focus_window, "min_cutoff_hz": focus_min_cutoff, "beta": focus_beta},
+        method=method, fill_method=fill_method, depth_scale=depth_scale, max_difference=max_difference,
+        save_depth=save_depth, video=video, fps=fps, resume=resume, workers=workers, scheduler=scheduler,
+        threads=threads, limit=limit, progress=progress)
+    t = report["totals"]
+    fps_txt = f", {t['frames_per_second']:.2f} frames/s" if t["frames_per_second"] else ""
+    click.echo(f"pcdof: {t['ok']} written, {t['skipped']} kept (resume), {t['failed']} failed of {t['frames']} "
+               f"frames in {t['wall_seconds']:.1f} s{fps_txt}; report: {output_dir}/report.json", err=True)
+    for rec in report["frames"]:
+        if rec["status"] == "failed":
+            click.echo(f"pcdof: frame {rec['index']} ({rec['color']}): {rec['error']}", err=True)
+    if report.get("video", {}).get("error"):
+        click.echo(f"pcdof: video: {report['video']['error']}", err=True)
+    sys.exit(exit_code(report))

@@ -17,10 +17,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError, LensError
+from .errors import CalibrationError, InputError, LensError
 
 #: Largest circle of confusion (pixels) the renderers compute; larger ones are clamped with a warning.
 MAX_COC_PX = 256.0
+
+_F32_MAX = float(np.finfo(np.float32).max)
 
 
 def _positive(name: str, value) -> float:
@@ -30,6 +32,19 @@ def _positive(name: str, value) -> float:
         raise LensError(f"{name} must be a number; got {value!r}") from None
     if not math.isfinite(v) or v <= 0:
         raise LensError(f"{name} must be a finite number > 0; got {value!r}")
+    return v
+
+
+def _focal_px(fx) -> float:
+    """The colour camera's focal length in pixels, checked (it comes from the calibration)."""
+    if isinstance(fx, (bool, np.bool_, str, bytes)):
+        raise CalibrationError(f"fx (colour focal length, pixels) must be a number; got {fx!r}")
+    try:
+        v = float(fx)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"fx (colour focal length, pixels) must be a number; got {fx!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise CalibrationError(f"fx (colour focal length, pixels) must be a finite number > 0; got {fx!r}")
     return v
 
 
@@ -75,19 +90,34 @@ class ThinLens:
                         self.aperture_rotation_deg)
 
     def signed_coc_px(self, depth_m, fx: float) -> np.ndarray:
-        """Signed circle-of-confusion diameter, pixels: A*fx*(1/d_f - 1/z); 0 where depth is 0.
+        """Signed circle-of-confusion diameter, pixels: A*fx*(1/d_f - 1/z); 0 where depth is unknown.
 
         Parameters
         ----------
-        depth_m : (H, W) float ndarray, metres, 0 = unknown
-        fx : float, colour camera focal length in pixels
+        depth_m : (H, W) (or any shape) float ndarray, metres; 0, NaN and negative values are unknown
+        fx : float, colour camera focal length in pixels (> 0)
+
+        Returns
+        -------
+        float32 ndarray of *depth_m*'s shape, pixels: always finite (0 at the focus plane and where
+        depth is unknown; values beyond the float32 range saturate at its limits)
+
+        Raises
+        ------
+        CalibrationError
+            *fx* is not a finite number > 0.
         """
-        z = np.asarray(depth_m, dtype=np.float32)
-        scale = np.float32(self.aperture_m * float(fx))
-        inv = np.divide(np.float32(1.0), z, out=np.zeros_like(z), where=z > 0)
-        out = scale * (np.float32(1.0 / self.focus_distance_m) - inv)
-        out[~(z > 0)] = 0.0
-        return out
+        scale = self.aperture_m * _focal_px(fx)
+        # float64: a subnormal float32 depth or an extreme aperture must not overflow into inf * 0 = NaN
+        z = np.asarray(depth_m, dtype=np.float64)
+        known = z > 0
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            inv_z = np.divide(1.0, z, out=np.zeros_like(z), where=known)
+            term = 1.0 / self.focus_distance_m - inv_z
+            out = scale * term
+        out[(term == 0) | ~known] = 0.0  # exactly in focus (also for an infinite scale) or unknown
+        out = np.nan_to_num(out, nan=0.0, posinf=_F32_MAX, neginf=-_F32_MAX)
+        return np.clip(out, -_F32_MAX, _F32_MAX).astype(np.float32)
 
     def coc_px(self, depth_m, fx: float) -> np.ndarray:
         """Circle-of-confusion diameter c(z) = A*fx*|1/d_f - 1/z|, pixels (0 where depth is 0)."""
@@ -96,7 +126,8 @@ class ThinLens:
     def dof_limits_m(self, fx: float, coc_limit_px: float = 1.0) -> tuple[float, float]:
         """(near, far) depths in metres where c(z) equals *coc_limit_px*; far is inf past the hyperfocal."""
         limit = _positive("coc_limit_px", coc_limit_px)
-        k = limit / (self.aperture_m * _positive("fx", fx))
+        reach = self.aperture_m * _focal_px(fx)
+        k = limit / reach if reach > 0 else math.inf  # an aperture that underflows to 0 is a pinhole
         inv_f = 1.0 / self.focus_distance_m
         near = 1.0 / (inv_f + k)
         far = 1.0 / (inv_f - k) if inv_f > k else math.inf
@@ -135,22 +166,33 @@ class PaperLens:
             object.__setattr__(self, "max_range_m", _positive("max_range_m", self.max_range_m))
 
     def alpha(self, depth_m, max_range_m: float) -> np.ndarray:
-        """Blend weight in [0, 1] of the blurred image (eq. 3's alpha), (H, W) float32."""
+        """Blend weight in [0, 1] of the blurred image (eq. 3's alpha), (H, W) float32.
+
+        NaN depth is unknown and weighs like 0 (as in :func:`pcdof.camera.as_depth_m`); +inf is
+        infinitely far. The result is always finite.
+        """
         rng = self.max_range_m or _positive("max_range_m", max_range_m)
-        return PAPER_WEIGHTS[self.weight](np.asarray(depth_m, np.float32), self, rng)
+        z = np.asarray(depth_m, np.float32)
+        z = np.where(np.isnan(z), np.float32(0), z)
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):  # tiny z: d_f / z -> inf, clipped
+            return PAPER_WEIGHTS[self.weight](z, self, rng)
 
 
 def _alpha_eq2(z: np.ndarray, lens: PaperLens, max_range_m: float) -> np.ndarray:
     # eq. 2: f = 1 - exp(-(d - d_f)^2 / (2 sigma^2)), d and d_f as fractions of the max range
-    d = np.clip(z / np.float32(max_range_m), 0, 1)
+    d = np.clip(z / np.float32(min(max_range_m, _F32_MAX)), 0, 1)
     df = min(lens.focus_distance_m / max_range_m, 1.0)
-    return (1.0 - np.exp(-((d - df) ** 2) / np.float32(2 * lens.sigma**2))).astype(np.float32)
+    two_var = np.float32(min(2.0 * np.float64(lens.sigma) ** 2, _F32_MAX))  # no Python OverflowError for huge sigma
+    f = 1.0 - np.exp(-((d - df) ** 2) / two_var)
+    return np.nan_to_num(f, nan=0.0).astype(np.float32)  # 0 / 0 at d = d_f when sigma^2 underflows: in focus
 
 
 def _alpha_eq1(z: np.ndarray, lens: PaperLens, max_range_m: float) -> np.ndarray:
-    # eq. 1: C = A |d - d_f| / d, used directly as a weight, clipped to [0, 1]
-    c = np.divide(np.abs(z - lens.focus_distance_m), z, out=np.zeros_like(z), where=z > 0)
-    return np.clip(np.float32(lens.eq1_aperture) * c, 0, 1).astype(np.float32)
+    # eq. 1: C = A |d - d_f| / d = A |1 - d_f / d| (finite for d = inf), as a weight clipped to [0, 1];
+    # float64 so that neither d_f / d nor A * C becomes inf * 0
+    ratio = np.divide(lens.focus_distance_m, z.astype(np.float64), out=np.ones(z.shape), where=z > 0)
+    c = np.abs(1.0 - ratio)
+    return np.clip(np.nan_to_num(lens.eq1_aperture * c, nan=0.0), 0, 1).astype(np.float32)
 
 
 PAPER_WEIGHTS = {"eq2": _alpha_eq2, "eq1": _alpha_eq1}

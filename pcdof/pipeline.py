@@ -14,7 +14,7 @@ import numpy as np
 from .camera import RGBDFrame, check_color
 from .errors import InputError, LensError
 from .lens import PaperLens, ThinLens, focus_depth_at
-from .render import METHODS, render_image
+from .renderer import METHODS, render_image
 
 
 @dataclass
@@ -158,11 +158,11 @@ def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = 
     ----------
     frame : RGBDFrame
     lens : ThinLens (physical or paper method) or PaperLens (paper method)
-    method : a key of :data:`pcdof.render.METHODS`
+    method : a key of :data:`pcdof.renderer.METHODS`
     fill_method : a key of :data:`pcdof.fill.FILL_METHODS`
     focus_at : optional (x, y) colour pixel; focus at the robust depth around it
     linear : colour holds linear light (float, may exceed 1) instead of sRGB
-    quality : physical method's speed/accuracy trade-off, a key of :data:`pcdof.render.QUALITIES`
+    quality : physical method's speed/accuracy trade-off, a key of :data:`pcdof.renderer.QUALITIES`
     """
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")

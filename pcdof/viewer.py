@@ -688,7 +688,7 @@ def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *
     off_screen : bool, render without a window (screenshots, HTML export, tests)
     window_size : (width, height) pixels
     preview_max_side : int, largest side of the downscaled preview, pixels
-    preview_method : a key of :data:`pcdof.render.METHODS` for the preview
+    preview_method : a key of :data:`pcdof.renderer.METHODS` for the preview
     widgets : bool, add the sliders, the checkbox, the key binding and point picking
 
     Returns

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-import pcdof.render as render_module
+import pcdof.renderer as render_module
 from pcdof.camera import Intrinsics, RGBDFrame, Rig
 from pcdof.errors import InputError, LensError
 from pcdof.lens import PaperLens, ThinLens

@@ -29,7 +29,7 @@ from pcdof.errors import CalibrationError, InputError, LensError, PcdofError
 from pcdof.lens import MAX_COC_PX, PaperLens, ThinLens
 from pcdof.pipeline import render_from_depth, run
 from pcdof.register import register_depth
-from pcdof.render import QUALITIES, render_image, render_layers_linear
+from pcdof.renderer import QUALITIES, render_image, render_layers_linear
 
 
 def _load_stress_script():

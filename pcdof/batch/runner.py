@@ -88,7 +88,7 @@ class BatchJob:
     ----------
     rig : Rig, read once from the calibration
     output_dir : str, absolute
-    method : str, a key of :data:`pcdof.render.METHODS`
+    method : str, a key of :data:`pcdof.renderer.METHODS`
     fill_method : str, a key of :data:`pcdof.fill.FILL_METHODS`
     save_depth : bool, also write the registered, filled depth (16-bit PNG via :func:`pcdof.io.write_depth`)
     threads : int or None, numba / OpenCV threads per task (None = leave the libraries' defaults)
@@ -492,7 +492,7 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     -------
     dict, the report (also in ``output_dir/report.json``); :func:`exit_code` gives the exit status
     """
-    from ..render import METHODS
+    from ..renderer import METHODS
 
     if not isinstance(sequence, Sequence):
         raise InputError(f"sequence must be a Sequence; got {type(sequence).__name__}")

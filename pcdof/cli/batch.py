@@ -8,7 +8,7 @@ import click
 
 from ..errors import InputError
 from ..fill import FILL_METHODS
-from ..render import METHODS
+from ..renderer import METHODS
 from ._common import handle_errors
 from .render import lens_options
 

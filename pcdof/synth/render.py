@@ -172,7 +172,7 @@ def _map_points(uv, blades, rotation_rad):
 def aperture_vertex_angle_rad(lens: ThinLens) -> float:
     """Angle of the polygonal aperture's first vertex from +x, radians (x right, y down).
 
-    At ``aperture_rotation_deg = 0`` a vertex points up (-y), as in :mod:`pcdof.render`; positive
+    At ``aperture_rotation_deg = 0`` a vertex points up (-y), as in :mod:`pcdof.renderer`; positive
     rotations turn the polygon clockwise on screen.
     """
     return math.radians(lens.aperture_rotation_deg) - math.pi / 2

@@ -9,6 +9,7 @@ import json
 import os
 import struct
 import warnings
+import zlib
 
 import cv2
 import numpy as np
@@ -80,6 +81,30 @@ def png_bytes(array) -> bytes:
     ok, buf = cv2.imencode(".png", array)
     assert ok
     return buf.tobytes()
+
+
+def png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def png_from_rows(width, height, idat: bytes, *, bit_depth=8, colour_type=2, interlace=0, before_idat=b"") -> bytes:
+    """A PNG with valid chunk CRCs around the given IDAT payload (which need not be valid)."""
+    ihdr = struct.pack(">IIBBBBB", width, height, bit_depth, colour_type, 0, 0, interlace)
+    return (b"\x89PNG\r\n\x1a\n" + png_chunk(b"IHDR", ihdr) + before_idat + png_chunk(b"IDAT", idat)
+            + png_chunk(b"IEND", b""))
+
+
+def adam7_png(image: np.ndarray) -> bytes:
+    """An interlaced (Adam7) 8-bit RGB or 16-bit grey PNG of *image*, every row with filter type 0."""
+    rows = []
+    for x0, y0, dx, dy in ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2),
+                           (0, 1, 1, 2)):
+        sub = image[y0::dy, x0::dx]
+        if sub.size:
+            rows += [b"\0" + row.astype(">u2" if image.dtype == np.uint16 else np.uint8).tobytes() for row in sub]
+    grey16 = image.dtype == np.uint16
+    return png_from_rows(image.shape[1], image.shape[0], zlib.compress(b"".join(rows)),
+                         bit_depth=16 if grey16 else 8, colour_type=0 if grey16 else 2, interlace=1)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -505,6 +530,46 @@ class TestReadColor:
         (tmp_path / "t.jpg").write_bytes(jpg.tobytes()[: len(jpg) // 2])
         with pytest.raises(ImageReadError, match="t.jpg"):
             read_color(tmp_path / "t.jpg")
+
+    @pytest.mark.parametrize("mode", ["1", "P", "L", "LA", "RGBA", "I;16"])
+    def test_png_kinds_equal_pillow(self, tmp_path, mode):
+        rgb = np.random.default_rng(3).integers(0, 256, (13, 17, 3), dtype=np.uint8)
+        im = Image.fromarray(rgb).convert("I").convert(mode) if mode == "I;16" else Image.fromarray(rgb).convert(mode)
+        im.save(tmp_path / "k.png")
+        expected = np.asarray(Image.open(tmp_path / "k.png").convert("RGB"))
+        if mode == "I;16":
+            expected = np.repeat(np.asarray(Image.open(tmp_path / "k.png"))[:, :, None], 3, axis=2)
+        np.testing.assert_array_equal(read_color(tmp_path / "k.png"), expected)
+
+    @pytest.mark.parametrize("size", [(1, 1), (5, 3), (9, 9), (13, 17)])
+    def test_interlaced_png(self, tmp_path, size):
+        rng = np.random.default_rng(4)
+        rgb = rng.integers(0, 256, (*size, 3), dtype=np.uint8)
+        (tmp_path / "i.png").write_bytes(adam7_png(rgb))
+        np.testing.assert_array_equal(read_color(tmp_path / "i.png"), rgb)
+        raw = rng.integers(1, 65536, size, dtype=np.uint16)
+        (tmp_path / "d.png").write_bytes(adam7_png(raw))
+        np.testing.assert_allclose(read_depth(tmp_path / "d.png", 0.001), raw * np.float32(0.001), rtol=1e-6)
+
+    @pytest.mark.parametrize("name, data, match", [
+        ("bad_crc", png_bytes(np.zeros((6, 8, 3), np.uint8))[:29] + b"\0\0\0\0"
+         + png_bytes(np.zeros((6, 8, 3), np.uint8))[33:], "IHDR chunk .* CRC"),
+        ("not_zlib", png_from_rows(8, 6, b"\0" * 40), "compressed pixel data"),
+        ("too_little", png_from_rows(8, 6, zlib.compress(b"\0" * 10)), "holds 10 of the 150 bytes"),
+        ("too_much", png_from_rows(8, 6, zlib.compress(b"\0" * 500)), "longer than its 8x6 header"),
+        ("extra_data", png_from_rows(8, 6, zlib.compress(b"\0" * 150) + b"xyz"), "after the end"),
+        ("no_stream_end", png_from_rows(8, 6, zlib.compressobj().compress(b"\0" * 150)), "truncated or corrupt"),
+        ("bad_filter", png_from_rows(8, 6, zlib.compress(bytes([9] + [0] * 24) * 6)), "filter type"),
+        ("bad_bit_depth", png_from_rows(8, 6, zlib.compress(b"\0" * 150), bit_depth=3), "bit depth 3"),
+        ("no_palette", png_from_rows(8, 6, zlib.compress(b"\0" * 54), colour_type=3), "PLTE"),
+        ("critical_chunk", png_from_rows(8, 6, zlib.compress(b"\0" * 150), before_idat=png_chunk(b"CgBI", b"")),
+         "critical"),
+    ])
+    def test_corrupt_png_refused_without_libpng_chatter(self, tmp_path, capfd, name, data, match):
+        (tmp_path / f"{name}.png").write_bytes(data)
+        with pytest.raises(ImageReadError, match=f"{name}.png .*{match}"):
+            read_color(tmp_path / f"{name}.png")
+        assert capfd.readouterr().err == ""
 
     def test_absurd_size_refused_from_header(self, tmp_path):
         data = bytearray(png_bytes(np.zeros((2, 2, 3), np.uint8)))

@@ -352,7 +352,7 @@ def states_depth_scale(calib_path: str) -> bool:
         try:
             with open(calib_path, encoding="utf-8") as f:
                 data = json.load(f)
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):
             return False
         return isinstance(data, dict) and "depth_scale" in data
     if ext in (".yaml", ".yml", ".xml"):

@@ -451,7 +451,7 @@ def _check_resume(report_path: str, settings: dict) -> None:
     try:
         with open(report_path, encoding="utf-8") as f:
             previous = json.load(f).get("settings")
-    except (OSError, ValueError, AttributeError):
+    except (OSError, ValueError, AttributeError, RecursionError):
         return
     if previous is None:
         return

@@ -1,15 +1,21 @@
-"""Shared CLI plumbing: logging set-up, one-line errors with distinct exit codes, common options."""
+"""Shared CLI plumbing: logging set-up, one-line errors with distinct exit codes, common options, output checks.
+
+Path options are plain ``click.Path()`` values: a folder given where a file belongs (or a file where a
+folder belongs) is reported by pcdof's readers or by the checks below, as one of pcdof's errors with
+its own exit code, not as a click usage error.
+"""
 
 from __future__ import annotations
 
 import functools
 import logging
+import os
 import sys
 import warnings
 
 import click
 
-from ..errors import PcdofError, exit_code_for
+from ..errors import ImageWriteError, PcdofError, exit_code_for
 
 log = logging.getLogger("pcdof")
 
@@ -60,3 +66,41 @@ def _debug() -> bool:
             return True
         ctx = ctx.parent
     return False
+
+
+
+def check_output_file(path: str, name: str = "output") -> None:
+    """ImageWriteError, before any work is done, when *path* cannot be written as a file.
+
+    Refused: *path* is a folder, or the nearest existing one of its parent folders is not a folder.
+    """
+    if os.path.isdir(path):
+        raise ImageWriteError(f"{name} {path} is a folder; expected a file name")
+    _check_parents(path, name)
+
+
+def check_output_folder(path: str, name: str) -> None:
+    """ImageWriteError, before any work is done, when *path* cannot be (or become) a folder.
+
+    Refused: *path* exists and is not a folder, or the nearest existing one of its parents is not a folder.
+    """
+    if os.path.lexists(path) and not os.path.isdir(path):
+        raise ImageWriteError(f"{name} {path} is a file; expected a folder")
+    _check_parents(path, name)
+
+
+def make_output_folder(path: str, name: str) -> None:
+    """Create the folder *path* (and its parents) if missing; ImageWriteError when it cannot be."""
+    check_output_folder(path, name)
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as err:
+        raise ImageWriteError(f"cannot create {name} folder {path}: {err.strerror or err}") from None
+
+
+def _check_parents(path: str, name: str) -> None:
+    folder = os.path.dirname(os.path.abspath(path))
+    while not os.path.lexists(folder):  # ends at the root at the latest
+        folder = os.path.dirname(folder)
+    if not os.path.isdir(folder):
+        raise ImageWriteError(f"cannot write {name} {path}: {folder} is not a folder")

@@ -9,7 +9,7 @@ import click
 from ..errors import InputError
 from ..fill import FILL_METHODS
 from ..renderer import METHODS
-from ._common import handle_errors
+from ._common import check_output_file, check_output_folder, handle_errors
 from .render import lens_options
 
 EPILOG = """\b
@@ -39,10 +39,10 @@ def _resolve_workers(ctx, param, value):
 
 
 @click.command("batch", epilog=EPILOG)
-@click.argument("input_path", metavar="INPUT", type=click.Path(exists=True))
-@click.option("--calib", type=click.Path(dir_okay=False), default=None,
+@click.argument("input_path", metavar="INPUT", type=click.Path())
+@click.option("--calib", type=click.Path(), default=None,
               help="Calibration file (default: calib.json etc. in the INPUT folder).")
-@click.option("-o", "--output", "output_dir", required=True, type=click.Path(file_okay=False),
+@click.option("-o", "--output", "output_dir", required=True, type=click.Path(),
               help="Output folder.")
 @lens_options
 @click.option("--focus-keyframes", default=None, metavar="F:M,...",
@@ -65,7 +65,7 @@ def _resolve_workers(ctx, param, value):
 @click.option("--max-time-difference", "max_difference", type=float, default=0.02, show_default=True,
               help="TUM: largest colour/depth timestamp difference for a pair, seconds.")
 @click.option("--save-depth", is_flag=True, help="Also write the registered, filled depth (16-bit mm PNG).")
-@click.option("--video", type=click.Path(dir_okay=False), default=None, help="Also encode an H.264 .mp4.")
+@click.option("--video", type=click.Path(), default=None, help="Also encode an H.264 .mp4.")
 @click.option("--fps", type=float, default=30.0, show_default=True,
               help="Video frame rate, and the time base of --focus-at smoothing.")
 @click.option("--resume", is_flag=True, help="Keep frames whose outputs already exist; render the rest.")
@@ -87,6 +87,9 @@ def command(input_path, calib, output_dir, focal_length_mm, f_number, focus_dist
     from ..batch import exit_code, render_sequence
     from ..lens import PaperLens, ThinLens
 
+    check_output_folder(output_dir, "output")
+    if video is not None:
+        check_output_file(video, "--video")
     given = [name for name, v in (("--focus-distance", focus_distance_m), ("--focus-at", focus_at),
                                   ("--focus-keyframes", focus_keyframes)) if v is not None]
     if len(given) > 1:

@@ -10,7 +10,7 @@ import platform
 
 import click
 
-from ._common import handle_errors
+from ._common import handle_errors, make_output_folder
 
 PARTS = ("dof", "speed", "registration", "fill")
 
@@ -53,7 +53,7 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 
 @click.command("bench")
-@click.option("-o", "--output", default="out/bench", show_default=True, type=click.Path(file_okay=False))
+@click.option("-o", "--output", default="out/bench", show_default=True, type=click.Path())
 @click.option("--quick", is_flag=True, help="Tiny scenes, few repeats: a smoke run for tests.")
 @click.option("--only", default=",".join(PARTS), show_default=True, help="Comma-separated parts to run.")
 @click.option("--size", default="320x240", show_default=True, help="Colour size of the ground-truth scenes.")
@@ -73,7 +73,7 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes):
     if quick:
         size, depth_size, repeats = (96, 72), (80, 66), 1
         scene_list = scene_list or ["portrait", "slanted_plane"]
-    os.makedirs(output, exist_ok=True)
+    make_output_folder(output, "output")
     report = {"versions": versions(), "quick": quick}
     md = [f"# pcdof benchmark\n\nversions: {json.dumps(report['versions'])}\n"]
 

@@ -5,15 +5,15 @@ from __future__ import annotations
 import click
 
 from ..fill import FILL_METHODS, fill_depth
-from ._common import handle_errors
+from ._common import check_output_file, handle_errors
 
 
 @click.command("cloud")
-@click.argument("color", type=click.Path(dir_okay=False))
-@click.argument("depth", type=click.Path(dir_okay=False))
-@click.option("--calib", required=True, type=click.Path(dir_okay=False),
+@click.argument("color", type=click.Path())
+@click.argument("depth", type=click.Path())
+@click.option("--calib", required=True, type=click.Path(),
               help="Calibration: calib.json, OpenCV .yml/.xml, or Open3D intrinsic JSON.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output point cloud (.ply).")
+@click.option("-o", "--output", required=True, type=click.Path(), help="Output point cloud (.ply).")
 @click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
 @click.option("--no-fill", is_flag=True, help="Keep only measured depth (no hole filling).")
 @click.option("--fill-method", type=click.Choice(list(FILL_METHODS)), default="joint-bilateral", show_default=True,
@@ -27,6 +27,7 @@ def command(color, depth, calib, output, depth_scale, no_fill, fill_method, stri
     from ..io import load_frame, output_format
     from ..register import register_depth
 
+    check_output_file(output)
     output_format(output, (".ply",), name="output")
     frame = load_frame(color, depth, calib, depth_scale=depth_scale)
     depth_m = register_depth(frame)

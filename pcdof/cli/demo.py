@@ -8,13 +8,13 @@ import os
 import click
 import numpy as np
 
-from ._common import handle_errors
+from ._common import handle_errors, make_output_folder
 
 DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "data")
 
 
 @click.command("demo")
-@click.option("-o", "--output", default="out/demo", show_default=True, type=click.Path(file_okay=False))
+@click.option("-o", "--output", default="out/demo", show_default=True, type=click.Path())
 @click.option("--data", "data_dir", default=DATA, show_default=False, type=click.Path(file_okay=False),
               help="The repository's data folder.")
 @handle_errors
@@ -26,7 +26,7 @@ def command(output, data_dir):
     from ..metrics import psnr
     from .render import write_maps
 
-    os.makedirs(output, exist_ok=True)
+    make_output_folder(output, "output")
     sample = os.path.join(data_dir, "sample")
     with open(os.path.join(sample, "lens.json")) as f:
         spec = json.load(f)

@@ -5,15 +5,15 @@ from __future__ import annotations
 import click
 
 from ..fill import FILL_METHODS, fill_depth
-from ._common import handle_errors
+from ._common import check_output_file, handle_errors
 
 
 @click.command("register")
-@click.argument("color", type=click.Path(dir_okay=False))
-@click.argument("depth", type=click.Path(dir_okay=False))
-@click.option("--calib", required=True, type=click.Path(dir_okay=False),
+@click.argument("color", type=click.Path())
+@click.argument("depth", type=click.Path())
+@click.option("--calib", required=True, type=click.Path(),
               help="Calibration: calib.json, OpenCV .yml/.xml, or Open3D intrinsic JSON.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="Output depth: .png = uint16 millimetres (0 = unknown); .npy/.tiff/.exr = float32 metres.")
 @click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
 @click.option("--fill", is_flag=True, help="Also fill the holes of the registered depth.")
@@ -25,6 +25,7 @@ def command(color, depth, calib, output, depth_scale, fill, fill_method):
     from ..io import DEPTH_FORMATS, load_frame, output_format, write_depth
     from ..register import register_depth
 
+    check_output_file(output)
     output_format(output, DEPTH_FORMATS, name="output")
     frame = load_frame(color, depth, calib, depth_scale=depth_scale)
     depth_m = register_depth(frame)

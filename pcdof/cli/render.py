@@ -8,7 +8,7 @@ import click
 import numpy as np
 
 from ..errors import InputError
-from ._common import handle_errors
+from ._common import check_output_file, check_output_folder, handle_errors, make_output_folder
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 
@@ -45,10 +45,10 @@ def lens_options(func):
 
 
 @click.command("render")
-@click.argument("color", type=click.Path(dir_okay=False))
-@click.argument("depth", type=click.Path(dir_okay=False))
-@click.option("--calib", required=True, type=click.Path(dir_okay=False), help="Calibration file.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output image (.png/.jpg/.tif).")
+@click.argument("color", type=click.Path())
+@click.argument("depth", type=click.Path())
+@click.option("--calib", required=True, type=click.Path(), help="Calibration file.")
+@click.option("-o", "--output", required=True, type=click.Path(), help="Output image (.png/.jpg/.tif).")
 @lens_options
 @click.option("--method", type=click.Choice(["physical", "paper"]), default="physical", show_default=True)
 @click.option("--quality", type=click.Choice(["exact", "high", "balanced", "fast"]), default="balanced",
@@ -62,7 +62,7 @@ def lens_options(func):
 @click.option("--fill-method", default="joint-bilateral", show_default=True, help="Depth hole filling method.")
 @click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
 @click.option("--linear", is_flag=True, help="Colour is linear light (float EXR/TIFF/NPY), not sRGB.")
-@click.option("--save-maps", type=click.Path(file_okay=False), default=None,
+@click.option("--save-maps", type=click.Path(), default=None,
               help="Also write registered depth, filled depth and the CoC map into this folder.")
 @click.option("--explain", is_flag=True, help="Print each stage's time and what was skipped.")
 @handle_errors
@@ -73,8 +73,11 @@ def command(color, depth, calib, output, focal_length_mm, f_number, focus_distan
     from .. import io, pipeline
     from ..lens import PaperLens, ThinLens
 
+    check_output_file(output)
     if os.path.splitext(output)[1].lower() not in IMAGE_SUFFIXES:
         raise InputError(f"output must end in one of {', '.join(IMAGE_SUFFIXES)}; got {output!r}")
+    if save_maps:
+        check_output_folder(save_maps, "--save-maps")
     frame = io.load_frame(color, depth, calib, depth_scale=depth_scale)
     provisional = focus_distance_m if focus_distance_m is not None else 1.0
     if method == "paper":
@@ -85,6 +88,8 @@ def command(color, depth, calib, output, focal_length_mm, f_number, focus_distan
         focus_at = ((frame.rig.color.width - 1) / 2, (frame.rig.color.height - 1) / 2)
     result = pipeline.run(frame, lens, method=method, fill_method=fill_method, focus_at=focus_at, linear=linear,
                           quality=quality)
+    if save_maps:
+        make_output_folder(save_maps, "--save-maps")
     io.write_image(output, result.image)
     if save_maps:
         write_maps(save_maps, result)
@@ -97,7 +102,7 @@ def write_maps(folder: str, result) -> None:
     """Registered depth (16-bit mm PNG), filled depth (float32 .npy), CoC (.npy + colour-mapped PNG)."""
     from .. import io
 
-    os.makedirs(folder, exist_ok=True)
+    make_output_folder(folder, "maps")
     io.write_depth(os.path.join(folder, "depth_registered.png"), result.depth_registered_m)
     io.write_depth(os.path.join(folder, "depth_filled.npy"), result.depth_filled_m)
     io.write_depth(os.path.join(folder, "depth_filled.png"), result.depth_filled_m)

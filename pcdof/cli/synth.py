@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from ._common import handle_errors
+from ._common import check_output_folder, handle_errors
 
 
 def _scene_names():
@@ -32,7 +32,7 @@ class _LazyChoice(click.Choice):
 
 @click.command("synth")
 @click.argument("name", metavar="NAME", type=_LazyChoice())
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("-o", "--output", required=True, type=click.Path(), help="Output folder.")
 @click.option("--size", default="640x480", show_default=True, metavar="WxH", help="Colour image size.")
 @click.option("--depth-size", default="512x424", show_default=True, metavar="WxH", help="Depth image size.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
@@ -61,6 +61,7 @@ def command(name, output, size, depth_size, seed, focal_length_mm, f_number, foc
     from ..lens import ThinLens
     from ..synth import generate_scene, write_scene
 
+    check_output_folder(output, "output")
     sf = generate_scene(name, color_size=size, depth_size=depth_size, seed=seed)
     base = sf.default_lens
     lens = ThinLens(

@@ -8,7 +8,7 @@ import sys
 import click
 
 from ..errors import InputError
-from ._common import handle_errors
+from ._common import check_output_file, handle_errors
 from .render import IMAGE_SUFFIXES, lens_options
 
 HTML_SUFFIXES = (".html", ".htm")
@@ -33,9 +33,9 @@ def has_display() -> bool:
 
 
 @click.command("view")
-@click.argument("color", type=click.Path(dir_okay=False))
-@click.argument("depth", type=click.Path(dir_okay=False))
-@click.option("--calib", required=True, type=click.Path(dir_okay=False), help="Calibration file.")
+@click.argument("color", type=click.Path())
+@click.argument("depth", type=click.Path())
+@click.option("--calib", required=True, type=click.Path(), help="Calibration file.")
 @lens_options
 @click.option("--coc-limit", "coc_limit_px", type=float, default=1.0, show_default=True,
               help="Acceptable circle of confusion in pixels: bounds the depth-of-field slab.")
@@ -45,9 +45,9 @@ def has_display() -> bool:
               help="Keep every N-th pixel in x and y for the point cloud.")
 @click.option("--fill-method", default="joint-bilateral", show_default=True, help="Depth hole filling method.")
 @click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
-@click.option("--screenshot", type=click.Path(dir_okay=False), default=None,
+@click.option("--screenshot", type=click.Path(), default=None,
               help="Render off screen (no display needed) and write this PNG.")
-@click.option("--html", "html_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--html", "html_path", type=click.Path(), default=None,
               help="Write a standalone interactive HTML page of the scene (no display needed).")
 @click.option("--window-size", type=str, default="1500x750", show_default=True, callback=parse_size,
               metavar="WxH", help="Window (and screenshot) size in pixels.")
@@ -66,6 +66,10 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
     from ..lens import ThinLens
     from ..viewer import scene_from_frame
 
+    if screenshot:
+        check_output_file(screenshot, "--screenshot")
+    if html_path:
+        check_output_file(html_path, "--html")
     if screenshot and os.path.splitext(screenshot)[1].lower() not in IMAGE_SUFFIXES:
         raise InputError(f"--screenshot must end in one of {', '.join(IMAGE_SUFFIXES)}; got {screenshot!r}")
     if html_path and os.path.splitext(html_path)[1].lower() not in HTML_SUFFIXES:

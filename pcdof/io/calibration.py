@@ -162,6 +162,8 @@ def _detect(path: str, data: bytes) -> tuple[str, dict | None]:
             raise CalibrationError("not a text file (expected JSON, YAML or XML)") from None
         except json.JSONDecodeError as err:
             raise CalibrationError(f"is not valid JSON: {err}") from None
+        except RecursionError:
+            raise CalibrationError("is not a calibration: its JSON is nested too deeply to be read") from None
         if not isinstance(obj, dict):
             raise CalibrationError(f"must hold a JSON object; got {type(obj).__name__}")
         if "intrinsic_matrix" in obj:
@@ -340,7 +342,10 @@ def _read_filestorage(path: str) -> dict:
         root = fs.root()
         if not root.isMap():
             raise CalibrationError("must hold a map of named entries (cameraMatrix1, ..., R, T)")
-        return {key: _node_value(root.getNode(key), key) for key in root.keys()}
+        try:
+            return {key: _node_value(root.getNode(key), key) for key in root.keys()}
+        except RecursionError:
+            raise CalibrationError("is not a calibration: its entries are nested too deeply to be read") from None
     finally:
         fs.release()
 

@@ -13,7 +13,8 @@ import numpy as np
 
 from ..camera import RGBDFrame, as_depth_m
 from ..errors import ImageReadError, InputError
-from ._files import MAX_PIXELS, decode_exr, decode_image, decode_npy, fspath, read_bytes, sniff
+from ._files import (MAX_PIXELS, check_size, decode_exr, decode_image, decode_npy, fspath, header_size, read_bytes,
+                     sniff)
 from .calibration import _scale_argument, read_calibration
 
 #: What a depth file may be, for error messages.
@@ -22,10 +23,19 @@ DEPTH_FORMATS_TEXT = (
 )
 
 
-def _decode(path: str, what: str) -> tuple[np.ndarray | dict, str | None]:
-    """(array in OpenCV channel order, or a dict of EXR channels; file kind)."""
+def _decode(path: str, what: str, expect=None) -> tuple[np.ndarray | dict, str | None]:
+    """(array in OpenCV channel order, or a dict of EXR channels; file kind).
+
+    *expect*, if given, is called with the (width, height) the header of a compressed image declares
+    (after the size limits are checked), so that it can refuse the file before its pixels are decoded.
+    """
     data = read_bytes(path, what)
     kind = sniff(data)
+    if expect is not None and kind != "npy":  # .npy is not compressed, and a (3, H, W) one is named by the reader
+        size = header_size(data, kind)
+        if size is not None:
+            check_size(size[0], size[1], path, what)
+            expect(size)
     if kind == "npy":
         return decode_npy(data, path, what), kind
     if kind == "exr":
@@ -54,8 +64,12 @@ def read_color(path) -> np.ndarray:
         Missing, unreadable, truncated or corrupt file, an unsupported pixel type, NaN or inf
         values, or an image larger than the size limits.
     """
+    return _read_color(path)
+
+
+def _read_color(path, expect=None) -> np.ndarray:
     path = fspath(path, name="color path")
-    img, kind = _decode(path, "colour")
+    img, kind = _decode(path, "colour", expect)
     if isinstance(img, dict):  # EXR channels
         img = _exr_color(img, path)
     elif kind != "npy" and img.ndim == 3:
@@ -98,12 +112,12 @@ def _exr_depth(channels: dict, path: str) -> np.ndarray:
     raise ImageReadError(f"depth EXR {path} needs a Z (or Y) channel; got channels {sorted(channels)}")
 
 
-def _read_depth(path, depth_scale) -> tuple[np.ndarray, int]:
+def _read_depth(path, depth_scale, expect=None) -> tuple[np.ndarray, int]:
     """(depth in metres as float32 with unknowns = 0, number of NaN/inf/negative values set to 0)."""
     path = fspath(path, name="depth path")
     if depth_scale is not None:
         depth_scale = _scale_argument(depth_scale)
-    raw, kind = _decode(path, "depth")
+    raw, kind = _decode(path, "depth", expect)
     if isinstance(raw, dict):
         raw = _exr_depth(raw, path)
     if raw.ndim == 3 and raw.shape[2] == 1:
@@ -182,22 +196,28 @@ def load_frame(color_path, depth_path, calib_path, *, depth_scale: float | None 
     ------
     InputError
         An image's size differs from the calibration's (the message gives both, as width x height).
+        Where the file's header declares its size, this is checked before the pixels are decoded.
     CalibrationError, ImageReadError
         From the readers.
     """
     rig = read_calibration(calib_path, depth_scale=depth_scale)
-    color = read_color(color_path)
-    _check_size(color, rig.color, "colour image", color_path, calib_path)
-    depth, n_bad = _read_depth(depth_path, rig.depth_scale)
-    _check_size(depth, rig.depth, "depth image", depth_path, calib_path)
+
+    def expect(intr, label, path):
+        return lambda size: _check_size(size, intr, label, path, calib_path)
+
+    color = _read_color(color_path, expect(rig.color, "colour image", color_path))
+    _check_size(color.shape[1::-1], rig.color, "colour image", color_path, calib_path)
+    depth, n_bad = _read_depth(depth_path, rig.depth_scale, expect(rig.depth, "depth image", depth_path))
+    _check_size(depth.shape[1::-1], rig.depth, "depth image", depth_path, calib_path)
     if n_bad:
         warnings.warn(f"{fspath(depth_path)}: {n_bad} depth values were NaN, inf or negative; they are treated "
                       "as unknown (0)", stacklevel=2)
     return RGBDFrame(color, depth, rig, n_invalid_depth=n_bad)
 
 
-def _check_size(img: np.ndarray, intr, label: str, path, calib_path) -> None:
-    h, w = img.shape[:2]
+def _check_size(size: tuple[int, int], intr, label: str, path, calib_path) -> None:
+    """InputError when an image's (width, height) differs from the calibration's *intr*."""
+    w, h = size
     if (w, h) != (intr.width, intr.height):
         raise InputError(
             f"{label} {fspath(path)} is {w}x{h} but the calibration {fspath(calib_path)} expects "

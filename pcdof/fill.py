@@ -516,10 +516,13 @@ def _prepare(depth_m, color, *, need_color):
 
 def _color_for_kernel(color) -> tuple[np.ndarray, float]:
     """(H, W, 3) colour image (grey repeated: same distances as an RGB grey) and the factor that
-    scales its values to [0, 1]."""
+    scales its values to [0, 1]. Floats other than float32 and float64 (which the kernels cannot
+    index) are converted: float16 exactly to float32, longer ones to float64."""
     c = np.asarray(color)
     if c.ndim == 2:
         c = np.repeat(c[:, :, None], 3, axis=2)
+    if c.dtype.kind == "f" and c.dtype not in (np.float32, np.float64):
+        c = c.astype(np.float32 if c.dtype.itemsize < 4 else np.float64)
     c = np.ascontiguousarray(c)
     if c.dtype == np.uint8:
         return c, 1.0 / 255.0
@@ -620,6 +623,22 @@ def fill_nearest_background(depth_m, color, *, edge_ratio: float = DEFAULT_EDGE_
                              sigma_color=DEFAULT_SIGMA_COLOR, background_bias=DEFAULT_BACKGROUND_BIAS)
 
 
+def _inpaint_telea(codes: np.ndarray, holes: np.ndarray, radius_px: float) -> np.ndarray:
+    """cv2.inpaint (Telea) of uint16 *codes* at *holes*, deterministic for images one pixel thin.
+
+    On an image one pixel high or wide, OpenCV 5.0's Telea result depends on what the heap held before
+    (memory it reads but never initialised), so it changes from run to run; such an image is inpainted with its one row (column) repeated on both
+    sides, and the middle row (column) is the answer. Other images go to cv2.inpaint as they are.
+    """
+    pad_y = 1 if codes.shape[0] == 1 else 0
+    pad_x = 1 if codes.shape[1] == 1 else 0
+    if pad_y or pad_x:
+        width = ((pad_y, pad_y), (pad_x, pad_x))
+        codes, holes = np.pad(codes, width, mode="edge"), np.pad(holes, width, mode="edge")
+    out = cv2.inpaint(codes, holes.view(np.uint8), radius_px, cv2.INPAINT_TELEA)
+    return out[pad_y: out.shape[0] - pad_y, pad_x: out.shape[1] - pad_x]
+
+
 def fill_telea(depth_m, color, *, radius_px: float = DEFAULT_TELEA_RADIUS_PX) -> np.ndarray:
     """OpenCV's Telea inpainting of the depth map (the baseline), clamped to the known range.
 
@@ -644,7 +663,7 @@ def fill_telea(depth_m, color, *, radius_px: float = DEFAULT_TELEA_RADIUS_PX) ->
     # a constant image), which in metres is useless: inpaint 16-bit codes spanning [zmin, zmax].
     scale = 65534.0 / (zmax - zmin) if zmax > zmin else 0.0
     codes = np.where(known, np.rint((depth - zmin) * scale) + 1.0, 0.0).astype(np.uint16)
-    filled = cv2.inpaint(codes, holes.view(np.uint8), radius_px, cv2.INPAINT_TELEA)[holes].astype(np.float64)
+    filled = _inpaint_telea(codes, holes, radius_px)[holes].astype(np.float64)
     out = depth.copy()
     out[holes] = np.clip(zmin + (filled - 1.0) / scale, zmin, zmax) if scale > 0 else zmin
     return out

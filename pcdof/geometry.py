@@ -97,20 +97,25 @@ def max_radius2(intrinsics: Intrinsics) -> float:
 
 
 def _distort_normalized(x: np.ndarray, y: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Apply OpenCV distortion to undistorted normalised coordinates (x/z, y/z)."""
-    r2 = x * x + y * y
-    num, den = _radial(r2, d)
-    radial = num / den
-    a1 = 2.0 * x * y
-    xd = x * radial + d[2] * a1 + d[3] * (r2 + 2.0 * x * x) + r2 * (d[8] + d[9] * r2)
-    yd = y * radial + d[2] * (r2 + 2.0 * y * y) + d[3] * a1 + r2 * (d[10] + d[11] * r2)
-    if d[12] != 0.0 or d[13] != 0.0:
-        m = tilt_matrix(d[12], d[13])
-        wx = m[0, 0] * xd + m[0, 1] * yd + m[0, 2]
-        wy = m[1, 0] * xd + m[1, 1] * yd + m[1, 2]
-        wz = m[2, 0] * xd + m[2, 1] * yd + m[2, 2]
-        inv = np.where(wz != 0.0, 1.0 / np.where(wz != 0.0, wz, 1.0), 1.0)
-        xd, yd = wx * inv, wy * inv
+    """Apply OpenCV distortion to undistorted normalised coordinates (x/z, y/z).
+
+    Far outside the model's valid radius (:func:`max_radius2`) the polynomials overflow; such
+    points come back as inf or NaN, silently: callers treat non-finite results as invalid.
+    """
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        r2 = x * x + y * y
+        num, den = _radial(r2, d)
+        radial = num / den
+        a1 = 2.0 * x * y
+        xd = x * radial + d[2] * a1 + d[3] * (r2 + 2.0 * x * x) + r2 * (d[8] + d[9] * r2)
+        yd = y * radial + d[2] * (r2 + 2.0 * y * y) + d[3] * a1 + r2 * (d[10] + d[11] * r2)
+        if d[12] != 0.0 or d[13] != 0.0:
+            m = tilt_matrix(d[12], d[13])
+            wx = m[0, 0] * xd + m[0, 1] * yd + m[0, 2]
+            wy = m[1, 0] * xd + m[1, 1] * yd + m[1, 2]
+            wz = m[2, 0] * xd + m[2, 1] * yd + m[2, 2]
+            inv = np.where(wz != 0.0, 1.0 / np.where(wz != 0.0, wz, 1.0), 1.0)
+            xd, yd = wx * inv, wy * inv
     return xd, yd
 
 
@@ -160,34 +165,45 @@ def undistort_pixels(uv, intrinsics: Intrinsics, *, max_iter: int = 30) -> np.nd
     x, y = xy[:, 0].copy(), xy[:, 1].copy()
     fx, fy = intr.fx, intr.fy
     # Residual in pixels; Jacobian by central differences (the residual itself is exact).
+    # A pixel whose iterate is not finite (a Newton step thrown far outside the model's valid
+    # radius, where the polynomials overflow) has no inverse: it leaves the iteration, as failed.
     h = 1e-7
-    active = np.ones(len(x), dtype=bool)
-    for _ in range(max_iter):
-        xs, ys = x[active], y[active]
-        xd, yd = _distort_normalized(xs, ys, d)
-        ru = fx * xd + intr.cx - uv[active, 0]
-        rv = fy * yd + intr.cy - uv[active, 1]
-        done = (np.abs(ru) < UNDISTORT_TOL_PX) & (np.abs(rv) < UNDISTORT_TOL_PX)
-        idx = np.flatnonzero(active)
-        active[idx[done]] = False
-        if not active.any():
-            break
-        keep = ~done
-        xs, ys, ru, rv = xs[keep], ys[keep], ru[keep], rv[keep]
-        xp, yp = _distort_normalized(xs + h, ys, d)
-        xm, ym = _distort_normalized(xs - h, ys, d)
-        j11, j21 = fx * (xp - xm) / (2 * h), fy * (yp - ym) / (2 * h)
-        xp, yp = _distort_normalized(xs, ys + h, d)
-        xm, ym = _distort_normalized(xs, ys - h, d)
-        j12, j22 = fx * (xp - xm) / (2 * h), fy * (yp - ym) / (2 * h)
-        det = j11 * j22 - j12 * j21
-        with np.errstate(divide="ignore", invalid="ignore"):
+    active = np.isfinite(x) & np.isfinite(y)
+    diverged = ~active
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        for _ in range(max_iter):
+            if not active.any():
+                break
+            xs, ys = x[active], y[active]
+            xd, yd = _distort_normalized(xs, ys, d)
+            ru = fx * xd + intr.cx - uv[active, 0]
+            rv = fy * yd + intr.cy - uv[active, 1]
+            done = (np.abs(ru) < UNDISTORT_TOL_PX) & (np.abs(rv) < UNDISTORT_TOL_PX)
+            lost = ~(np.isfinite(ru) & np.isfinite(rv))
+            idx = np.flatnonzero(active)
+            active[idx[done | lost]] = False
+            diverged[idx[lost]] = True
+            if not active.any():
+                break
+            keep = ~(done | lost)
+            xs, ys, ru, rv = xs[keep], ys[keep], ru[keep], rv[keep]
+            xp, yp = _distort_normalized(xs + h, ys, d)
+            xm, ym = _distort_normalized(xs - h, ys, d)
+            j11, j21 = fx * (xp - xm) / (2 * h), fy * (yp - ym) / (2 * h)
+            xp, yp = _distort_normalized(xs, ys + h, d)
+            xm, ym = _distort_normalized(xs, ys - h, d)
+            j12, j22 = fx * (xp - xm) / (2 * h), fy * (yp - ym) / (2 * h)
+            det = j11 * j22 - j12 * j21
             dx = (j22 * ru - j12 * rv) / det
             dy = (-j21 * ru + j11 * rv) / det
-        sel = idx[keep]
-        x[sel] = xs - dx
-        y[sel] = ys - dy
-    failed = active | ~np.isfinite(x) | ~np.isfinite(y) | (x * x + y * y > max_radius2(intr))
+            sel = idx[keep]
+            x[sel] = xs - dx
+            y[sel] = ys - dy
+            step_lost = ~(np.isfinite(x[sel]) & np.isfinite(y[sel]))
+            active[sel[step_lost]] = False
+            diverged[sel[step_lost]] = True
+        r2 = x * x + y * y
+    failed = active | diverged | ~np.isfinite(r2) | (r2 > max_radius2(intr))
     x[failed] = np.nan
     y[failed] = np.nan
     return np.stack([x, y], axis=-1)

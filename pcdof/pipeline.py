@@ -14,7 +14,7 @@ import numpy as np
 from .camera import RGBDFrame, check_color
 from .errors import InputError, LensError
 from .lens import PaperLens, ThinLens, focus_depth_at
-from .renderer import METHODS, render_image
+from .renderer import METHODS, check_quality, render_image
 
 
 @dataclass
@@ -150,6 +150,13 @@ def _resolve_lens(lens, focus_at, depth_registered_m, depth_filled_m):
     return PaperLens(d, lens.sigma, lens.blur_sigma_px, lens.weight, lens.eq1_aperture, lens.max_range_m)
 
 
+def _check_fill_method(fill_method) -> None:
+    from .fill import FILL_METHODS
+
+    if not isinstance(fill_method, str) or fill_method not in FILL_METHODS:
+        raise InputError(f"fill_method must be one of {sorted(FILL_METHODS)}; got {fill_method!r}")
+
+
 def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = "joint-bilateral",
         focus_at=None, linear: bool = False, quality: str = "balanced") -> RenderResult:
     """Register, fill, and render one frame.
@@ -170,6 +177,9 @@ def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = 
         raise InputError(f"method must be one of {sorted(METHODS)}; got {method!r}")
     if method == "physical" and isinstance(lens, PaperLens):
         raise LensError("the physical method needs a ThinLens; a PaperLens only works with method='paper'")
+    # checked here, not when the stage runs: a stage with nothing to do must not hide a bad name
+    _check_fill_method(fill_method)
+    check_quality(quality)
     trace: list[StageTrace] = []
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=fill_method)

@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
+from .camera import check_color
 from .color import decode_to_linear, encode_from_linear, from_float, to_float
 from .errors import InputError, LensError
 from .lens import MAX_COC_PX, PaperLens, ThinLens
@@ -49,6 +50,11 @@ LAYER_EDGES_PX = np.array([1, 1.5, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 91, 12
 
 #: Below this largest CoC (pixels) the renderer returns the input unchanged.
 SHARP_COC_PX = 0.5
+
+#: Smallest footprint radius (pixels) a scattered source is given: a blur layer's sources have
+#: |c| >= 1 px (radius >= 0.5), and a disc smaller than a pixel lands in one pixel anyway. Keeps
+#: 1 / (pi r^2) finite for the pixels around a layer whose circle of confusion is tiny.
+MIN_SOURCE_RADIUS_PX = 0.5
 
 
 # ----------------------------------------------------------------------------- aperture spans
@@ -256,6 +262,13 @@ def _layer_of(signed_coc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 QUALITIES = {"exact": math.inf, "high": 16.0, "balanced": 8.0, "fast": 4.0}
 
 
+def check_quality(quality) -> str:
+    """*quality* itself if it is a key of :data:`QUALITIES`; else an :class:`InputError`."""
+    if not isinstance(quality, str) or quality not in QUALITIES:
+        raise InputError(f"quality must be one of {sorted(QUALITIES)}; got {quality!r}")
+    return quality
+
+
 def _block_mean(a: np.ndarray, s: int) -> np.ndarray:
     """Mean over s x s blocks; the image is zero-padded to a multiple of s."""
     h, w = a.shape[:2]
@@ -266,10 +279,15 @@ def _block_mean(a: np.ndarray, s: int) -> np.ndarray:
 
 
 def _inverse_area(radius: np.ndarray, blades: int, rot: float) -> np.ndarray:
-    """1 / (footprint area) per source, so each source spreads exactly its own energy."""
+    """1 / (footprint area) per source, so each source spreads exactly its own energy.
+
+    Radii are taken as at least :data:`MIN_SOURCE_RADIUS_PX` (as :func:`_scatter_mask` scatters
+    them), so the result is finite and fits float32 for any radius.
+    """
+    radius = np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX)).astype(np.float32)
     if blades == 0:
         r2 = radius.astype(np.float64) ** 2
-        return np.divide(1.0, np.pi * r2, out=np.zeros_like(r2), where=r2 > 0).astype(np.float32)
+        return (1.0 / (np.pi * r2)).astype(np.float32)
     return _inverse_areas(radius, blades, rot, _G_TABLE)
 
 
@@ -307,10 +325,11 @@ def _scatter_mask(lin, radius, member, s, blades, rot):
         r = _block_mean(radius * m, s) / safe
         # block averaging and bilinear upsampling widen the blur by about s^2 in variance: take it off
         radius = (np.sqrt(np.maximum(r * r - s * s, 0.25 * r * r)) / s).astype(np.float32)
+        radius = np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX))
         weight = (m_s * _inverse_area(radius, blades, rot)).astype(np.float32)
         member = present
     else:
-        radius = np.ascontiguousarray(radius, np.float32)
+        radius = np.ascontiguousarray(np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX)), np.float32)
         weight = np.where(member, _inverse_area(radius, blades, rot), 0).astype(np.float32)
     hs, ws = member.shape
     idx = np.flatnonzero(member.ravel())  # row-major: sorted by row, then column
@@ -351,7 +370,8 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     Parameters
     ----------
     lin : (H, W, C) float32, linear radiance
-    signed_coc : (H, W) float32, signed circle-of-confusion diameter in pixels (< 0 in front of focus)
+    signed_coc : (H, W) float32, signed circle-of-confusion diameter in pixels (< 0 in front of focus);
+        NaN is unknown and, like unknown depth in :meth:`pcdof.lens.ThinLens.signed_coc_px`, in focus (0)
     blades, rotation_deg : aperture polygon (0 = disc)
     quality : a key of :data:`QUALITIES`
     extend_behind : continue each layer behind the soft edges of nearer blurred layers (partial occlusion)
@@ -360,12 +380,12 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     -------
     (H, W, C) float32 image and an info dict (layers run, pixels blurred).
     """
-    if quality not in QUALITIES:
-        raise InputError(f"quality must be one of {sorted(QUALITIES)}; got {quality!r}")
+    check_quality(quality)
     min_reduced = QUALITIES[quality]
     h, w, nc = lin.shape
     lin = np.ascontiguousarray(lin, np.float32)
-    coc = np.clip(signed_coc, -MAX_COC_PX, MAX_COC_PX).astype(np.float32)
+    coc = np.asarray(signed_coc, np.float32)
+    coc = np.clip(np.where(np.isnan(coc), np.float32(0), coc), -MAX_COC_PX, MAX_COC_PX).astype(np.float32)
     radius = (np.abs(coc) * np.float32(0.5)).astype(np.float32)
     layer, keys = _layer_of(coc)
     rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
@@ -469,7 +489,10 @@ def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=Fals
     out = blurred * alpha + src * (1.0 - alpha)  # eq. 3
     info = {"skipped": False, "blur_sigma_px": plens.blur_sigma_px, "weight": plens.weight,
             "mean_alpha": float(alpha.mean())}
-    return from_float(out, color.dtype).reshape(color.shape), info
+    # where nothing is blended in the pixel is the input, bit for bit (float64 would otherwise be
+    # rounded through the float32 computation)
+    out = np.where(alpha == 0, _as_channels(color), from_float(out, color.dtype))
+    return out.reshape(color.shape), info
 
 
 #: method name -> renderer, all with one signature
@@ -478,10 +501,18 @@ METHODS = {"physical": render_physical, "paper": render_paper}
 
 def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.0, linear=False,
                  quality="balanced"):
-    """Render a registered, hole-free RGB-D pair. Returns (image, info); see :data:`METHODS`."""
+    """Render a registered, hole-free RGB-D pair. Returns (image, info); see :data:`METHODS`.
+
+    Raises
+    ------
+    InputError
+        an unknown *method* or *quality*, a colour image that :func:`pcdof.camera.check_color`
+        refuses, or a depth map of another size than the colour image
+    """
     if method not in METHODS:
         raise InputError(f"method must be one of {sorted(METHODS)}; got {method!r}")
-    color = np.asarray(color)
+    check_quality(quality)
+    color = check_color(color)
     depth_m = np.asarray(depth_m, np.float32)
     if depth_m.shape != color.shape[:2]:
         raise InputError(f"depth_m must be (H, W) = {color.shape[:2]}; got {depth_m.shape}")

@@ -10,7 +10,6 @@ aperture never sharpens a defocused texture. The randomised generator of ``scrip
 
 from __future__ import annotations
 
-import functools
 import importlib.machinery
 import importlib.util
 import math
@@ -93,25 +92,7 @@ def texture(rng, h, w, *, cell=2):
 def run_quiet(frame, lens, **options):
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="circle of confusion")
-        if frame.color.dtype == np.float16 and fill_rejects_float16():
-            options.setdefault("fill_method", "telea")  # see TestOpenBugs.test_fill_with_float16_colour
         return run(frame, lens, **options)
-
-
-@functools.cache
-def fill_rejects_float16() -> bool:
-    """True while the open bug of TestOpenBugs.test_fill_with_float16_colour is there.
-
-    The properties then fill float16 frames with another method, and cover the default one again
-    as soon as the bug is fixed.
-    """
-    from pcdof.fill import fill_depth
-
-    try:
-        fill_depth(np.array([[1.0, 0.0]], np.float32), np.zeros((1, 2, 3), np.float16))
-    except Exception:  # noqa: BLE001 - numba's TypingError
-        return True
-    return False
 
 
 # ----------------------------------------------------------------------------------------- strategies
@@ -274,8 +255,6 @@ class TestLimits:
     @given(h=sides, w=sides, dtype=st.sampled_from(DTYPES), method=st.sampled_from(METHODS), seed=seeds,
            z=st.floats(0.0625, 100.0, width=32), via_pixel=st.booleans(), n=f_numbers)
     def test_focused_plane_is_sharp(self, h, w, dtype, method, seed, z, via_pixel, n):
-        if method == "paper" and dtype == "float64":
-            return  # see test_paper_float64_focused_plane_is_exact (a known bug)
         rng = np.random.default_rng(seed)
         color = colour(rng, h, w, dtype)
         frame = RGBDFrame(color, np.full((h, w), z, np.float32), registered_rig(h, w))
@@ -286,9 +265,8 @@ class TestLimits:
             res = run(frame, ThinLens(50.0, n, z), method=method)
         np.testing.assert_array_equal(res.image, color)
 
-    @pytest.mark.xfail(strict=True, reason="bug: render_paper rounds float64 colour through float32 even where "
-                                           "alpha = 0 (render.py render_paper: to_float + from_float)")
     def test_paper_float64_focused_plane_is_exact(self):
+        # regression: render_paper rounded float64 colour through float32 even where alpha = 0
         color = np.random.default_rng(3).random((12, 10, 3))
         frame = RGBDFrame(color, np.full((12, 10), 2.0, np.float32), registered_rig(12, 10))
         np.testing.assert_array_equal(run(frame, PaperLens(2.0), method="paper").image, color)
@@ -647,59 +625,78 @@ class TestDegenerateCalibration:
         assert exit_code_for(info.value) == 4
 
 
-# ----------------------------------------------------------------------------------------- known bugs elsewhere
-class TestOpenBugs:
-    """Regression tests of bugs in modules owned elsewhere; strict xfail until fixed."""
+# ----------------------------------------------------------------------------------------- found bugs
+class TestFoundBugs:
+    """Regression tests of bugs the stress tests found in other modules (each fixed)."""
 
-    @pytest.mark.xfail(strict=True, reason="bug: pipeline.run accepts an unknown fill_method when the depth has no "
-                                           "holes (fill_stage skips before fill_depth validates the name)")
     def test_unknown_fill_method_without_holes(self):
+        # pipeline.run skipped the fill stage before fill_depth could check the name
         frame, _ = small_frame(np.full((4, 5), 2.0, np.float32))
         with pytest.raises(InputError, match="method"):
             run(frame, ThinLens(50, 1.4, 1.0), fill_method="magic")
 
-    @pytest.mark.xfail(strict=True, reason="bug: render.render_image does not validate colour (check_color): an "
-                                           "(H, W, 4) image is rendered as if it had 4 colour channels")
     def test_render_image_rejects_rgba(self):
+        # render_image did not check the colour: an (H, W, 4) image was rendered with 4 channels
         with pytest.raises(InputError, match="color"):
             render_image(np.zeros((4, 5, 4), np.uint8), np.full((4, 5), 2.0, np.float32), ThinLens(50, 1.4, 1.0),
                          fx=10.0)
 
-    @pytest.mark.xfail(strict=True, reason="bug: render_layers_linear with a NaN circle of confusion raises "
-                                           "IndexError (render.py _layer_of/LAYER_EDGES_PX[abs(key)])")
     def test_render_layers_linear_nan_coc(self):
+        # a NaN circle of confusion raised IndexError (_layer_of / LAYER_EDGES_PX[abs(key)]); it is unknown,
+        # and in focus like the circle of confusion of unknown depth (ThinLens.signed_coc_px)
         lin = np.random.default_rng(10).random((6, 6, 3)).astype(np.float32)
         coc = np.full((6, 6), 3.0, np.float32)
         coc[2, 2] = np.nan
-        try:
-            out, _ = render_layers_linear(lin, coc)
-        except PcdofError:
-            return
+        out, _ = render_layers_linear(lin, coc)
         assert np.all(np.isfinite(out))
+        coc[2, 2] = 0.0
+        expected, _ = render_layers_linear(lin, coc)
+        np.testing.assert_array_equal(out, expected)
 
-    @pytest.mark.xfail(strict=True, reason="bug: pipeline.run accepts an unknown quality when the physical renderer "
-                                           "has nothing to blur or the method is 'paper' (only render_layers_linear "
-                                           "checks the name)")
     @pytest.mark.parametrize("method,f_number", [("physical", 1e9), ("paper", 1.4)])
     def test_unknown_quality(self, method, f_number):
+        # only render_layers_linear checked the name: nothing to blur, or the paper method, hid it
         frame, _ = small_frame(np.full((4, 5), 2.0, np.float32))
         with pytest.raises(InputError, match="quality"):
             run(frame, ThinLens(50, f_number, 1.0), method=method, quality="ultra")
+        with pytest.raises(InputError, match="quality"):
+            render_from_depth(frame.color, frame.depth_m, ThinLens(50, f_number, 1.0), 10.0, method=method,
+                              quality="ultra")
 
-    @pytest.mark.xfail(strict=True, reason="bug: fill_depth(method='joint-bilateral') raises numba TypingError on "
-                                           "float16 colour (fill.py _combine indexes the colour in nopython code)")
     def test_fill_with_float16_colour(self):
+        # fill_depth(method='joint-bilateral') raised numba's TypingError on float16 colour
         from pcdof.fill import fill_depth
 
         depth = np.array([[1.0, 0.0, 2.0], [1.0, 0.0, 2.0]], np.float32)
         filled = fill_depth(depth, np.zeros((2, 3, 3), np.float16), method="joint-bilateral")
         assert np.all(filled > 0)
+        color = np.random.default_rng(4).random((2, 3, 3)).astype(np.float16)
+        np.testing.assert_array_equal(fill_depth(depth, color), fill_depth(depth, color.astype(np.float32)))
 
-    @pytest.mark.xfail(strict=True, reason="bug: geometry.pixel_rays emits RuntimeWarnings (overflow in _radial, "
-                                           "invalid divide in _distort_normalized) for a strong rational distortion; "
-                                           "the CLI prints them as 'pcdof: warning: overflow encountered in multiply'")
+    @pytest.mark.parametrize("shape", [(1, 18), (1, 21), (1, 24), (1, 30), (33, 1)])
+    def test_telea_fill_of_a_one_pixel_thin_image_is_deterministic(self, shape):
+        # cv2.inpaint (Telea) read uninitialised memory on images one pixel high or wide: the filled
+        # depth changed from run to run (found comparing runs of scripts/stress in separate processes)
+        from pcdof.fill import fill_depth
+
+        rng = np.random.default_rng(5)
+        depth = rng.uniform(0.5, 5.0, shape).astype(np.float32)
+        holes = rng.random(shape) < 0.4
+        holes.flat[0] = False
+        depth[holes] = 0.0
+        results = set()
+        for j in range(8):
+            junk = [np.full((k + j, 3), 0xABCD + 7 * j, np.uint16) for k in range(1, 60)]  # other heap contents
+            filled = fill_depth(depth, None, method="telea")
+            results.add(filled.tobytes())
+            del junk
+        assert len(results) == 1
+        assert np.all(filled > 0) and np.array_equal(filled[~holes], depth[~holes])
+
     def test_strong_distortion_without_runtime_warnings(self):
-        from pcdof.geometry import pixel_rays
+        # pixel_rays emitted RuntimeWarnings (overflow in _radial, invalid divide in _distort_normalized),
+        # which the CLI printed as 'pcdof: warning: overflow encountered in multiply'
+        from pcdof.geometry import UNDISTORT_TOL_PX, max_radius2, normalized_to_pixels, pixel_rays
 
         intr = Intrinsics(22, 33, 9.619036326638007, 8.321342166180141, 9.777671564550388, 18.4373752866266,
                           (0.9370224512653407, -0.7714797382130356, -0.042190252836811694, 0.014224590130978473,
@@ -708,12 +705,19 @@ class TestOpenBugs:
             warnings.simplefilter("error", RuntimeWarning)
             rays = pixel_rays(intr)
         assert rays.shape[:2] == (33, 22)
+        # the rays that have an inverse are exact and within the valid radius; the others are NaN
+        valid = np.isfinite(rays).all(axis=2)
+        assert valid.any() and (~valid).any()
+        assert np.all(np.isnan(rays[~valid]))
+        assert np.all((rays[valid] ** 2).sum(axis=1) <= max_radius2(intr))
+        vv, uu = np.mgrid[0:33, 0:22]
+        back = normalized_to_pixels(rays[valid], intr)
+        np.testing.assert_allclose(back, np.stack([uu[valid], vv[valid]], axis=-1), rtol=0,
+                                   atol=UNDISTORT_TOL_PX)
 
-    @pytest.mark.xfail(strict=True, reason="bug: render._inverse_area computes 1 / (pi r^2) for every pixel in "
-                                           "float64 and casts it to float32, which overflows (RuntimeWarning, "
-                                           "printed by the CLI) for a circle of confusion of ~1e-33 px next to a "
-                                           "blurred layer (render.py _inverse_area / _scatter_mask)")
     def test_tiny_circle_of_confusion_without_runtime_warnings(self):
+        # _inverse_area computed 1 / (pi r^2) for every pixel in float64 and cast it to float32, which
+        # overflowed for a circle of confusion of ~1e-33 px next to a blurred layer
         color = np.array([[[10, 20, 30], [200, 100, 50]]], np.uint8)
         depth = np.array([[1e-3, 1e30]], np.float32)  # c = -2.4 px and c = 2.4e-33 px
         with warnings.catch_warnings():

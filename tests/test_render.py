@@ -120,7 +120,8 @@ class TestPhysical:
         # while the background right next to it is blurred (stripes averaged)
         assert 0.2 < out[40, 20, 0] < 0.8
 
-    def test_blurred_foreground_spreads_over_sharp_background(self):
+    @pytest.mark.parametrize("quality", ["exact", "balanced"])
+    def test_blurred_foreground_spreads_over_sharp_background(self, quality):
         h, w = 80, 120
         lin = np.zeros((h, w, 3), np.float32)
         lin[..., 2] = 1.0  # blue background, in focus at 3 m
@@ -131,19 +132,22 @@ class TestPhysical:
         coc = lens.signed_coc_px(depth, FX)
         c = float(-coc.min())
         assert c > 10
-        out, _ = render_layers_linear(lin, coc)
+        out, info = render_layers_linear(lin, coc, quality=quality)
         # red light reaches outside the silhouette, up to about c/2, and fades with distance
         outside = out[40, 40 - int(c / 4), 0]
         assert outside > 0.1
-        assert out[40, 40 - int(c / 2) - 2, 0] < 1e-6
+        # a layer computed at 1/s resolution is upsampled bilinearly: its edge may soften by s pixels
+        s = max(layer["scale"] for layer in info["layers"])
+        assert (s == 1) == (quality == "exact")
+        assert out[40, 40 - int(c / 2) - 2 - s * (s > 1), 0] < 1e-6
         # the background far from the foreground is untouched
         np.testing.assert_allclose(out[5, 5], [0, 0, 1], atol=1e-6)
         # soft edge: red fades monotonically across the silhouette
         profile = out[40, 40 - int(c / 2): 40 + int(c / 2), 0]
         assert np.all(np.diff(profile) >= -1e-5)
 
-    @pytest.mark.parametrize("quality", ["high", "balanced", "fast"])
-    def test_reduced_resolution_layers_approximate_the_exact_scatter(self, quality):
+    @pytest.mark.parametrize("quality, min_psnr_db", [("high", 50), ("balanced", 42), ("fast", 33)])
+    def test_reduced_resolution_layers_approximate_the_exact_scatter(self, quality, min_psnr_db):
         h, w = 120, 140
         lin = cv2.GaussianBlur(texture(h, w, seed=5), (0, 0), 2)  # natural images are not white noise
         coc = np.full((h, w), 40.0, np.float32)
@@ -151,7 +155,7 @@ class TestPhysical:
         fast, info = render_layers_linear(lin, coc, quality=quality)
         assert info["layers"][0]["scale"] > 1  # the reduced path really ran
         m = 25
-        assert psnr(fast[m:-m, m:-m], exact[m:-m, m:-m]) > 40
+        assert psnr(fast[m:-m, m:-m], exact[m:-m, m:-m]) > min_psnr_db
         # a single bright pixel keeps its energy at reduced resolution too
         img = np.zeros((h, w, 1), np.float32)
         img[60, 70] = 1.0

@@ -64,30 +64,24 @@ def _share_out_of_focus(lens, depth, fx):
     return float(np.mean(lens.coc_px(depth, fx) >= 1.0))
 
 
-def lens_for_share(depth_m, fx, share: float, *, focal_length_mm=50.0) -> ThinLens:
-    """A lens that leaves about *share* of the pixels with a CoC of 1 px or more."""
-    z = depth_m[depth_m > 0]
+def lens_for_share(depth_m, fx, share: float, *, focal_length_mm=50.0, focus_beyond: float = 1.25) -> ThinLens:
+    """A lens that leaves *share* of the known pixels with a CoC of 1 px or more.
+
+    The focus stays fixed behind the farthest surface (``focus_beyond`` times its depth) and only
+    the f-number changes, so the sweep is one scene seen through one lens stopped up or down:
+    c(z) = A*fx*(1/z - 1/d_f) falls with z, and the aperture is solved in closed form so that the
+    ``share`` quantile of the depths has c = 1 px (share 0: the nearest surface has c = 0.45 px,
+    under the renderer's sharp limit).
+    """
+    z = np.sort(np.asarray(depth_m, np.float64)[np.asarray(depth_m) > 0])
+    focus = float(z[-1]) * focus_beyond
     if share <= 0:
-        focus = float(np.median(z))
-        # stop down until the largest CoC is under 1 px
-        lo = ThinLens(focal_length_mm, 1.0, focus)
-        cmax = float(lo.coc_px(z, fx).max())
-        return ThinLens(focal_length_mm, max(1.0, cmax * 1.25), focus)
-    if share >= 1:
-        focus = float(z.min()) * 0.5
-        n_lo, n_hi = 0.5, 1e4
-        target = lambda n: float(ThinLens(focal_length_mm, n, focus).coc_px(z, fx).min()) >= 1.0  # noqa: E731
+        z_edge, c_edge = z[0], 0.45
     else:
-        focus = float(np.quantile(z, share / 2))  # focus inside the range so both sides blur
-        n_lo, n_hi = 0.5, 1e4
-        target = lambda n: _share_out_of_focus(ThinLens(focal_length_mm, n, focus), z, fx) >= share  # noqa: E731
-    for _ in range(60):  # bisection on log N: a larger N gives less blur
-        mid = math.sqrt(n_lo * n_hi)
-        if target(mid):
-            n_lo = mid
-        else:
-            n_hi = mid
-    return ThinLens(focal_length_mm, n_lo, focus)
+        # c falls with z: the nearest share of the pixels, up to this depth, get c >= 1 px
+        z_edge, c_edge = z[min(len(z) - 1, int(math.ceil(share * len(z))) - 1)], 1.0
+    aperture_m = c_edge / (fx * (1.0 / z_edge - 1.0 / focus))
+    return ThinLens(focal_length_mm, focal_length_mm * 1e-3 / aperture_m, focus)
 
 
 def cost_follows_work(*, size=(640, 480), depth_size=(512, 424), scene="slanted_plane",

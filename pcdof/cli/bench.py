@@ -77,6 +77,10 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes):
     report = {"versions": versions(), "quick": quick}
     md = [f"# pcdof benchmark\n\nversions: {json.dumps(report['versions'])}\n"]
 
+    def save():
+        _write_text(os.path.join(output, "report.json"), json.dumps(report, indent=1, default=float))
+        _write_text(os.path.join(output, "report.md"), "\n".join(md))
+
     if "dof" in parts:
         from ..bench import dof
 
@@ -89,6 +93,7 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes):
         dof.pareto_plot(rows, os.path.join(output, "pareto.png"))
         md += ["## Depth of field against the ray-traced ground truth\n", dof.markdown_table(rows), ""]
         click.echo(dof.markdown_table(rows))
+        save()
     if "speed" in parts:
         from ..bench import speed
 
@@ -106,14 +111,16 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes):
                   f"{r['relative_to_full']:.3f} |" for r in cost]
         md += ["## Speed\n", *lines, ""]
         click.echo("\n".join(lines))
+        save()
     if "registration" in parts:
         from ..bench import registration
 
         rows = registration.run_registration_bench(quick=quick, repeats=repeats)
         report["registration"] = rows
-        table = registration.markdown_table(rows)
+        table = registration.format_registration_table(rows)
         md += ["## Registration against OpenCV and Open3D\n", table, ""]
         click.echo(table)
+        save()
     if "fill" in parts:
         from ..bench import fill
 
@@ -122,6 +129,6 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes):
         table = fill.markdown_table(rows)
         md += ["## Hole filling against cv2.inpaint\n", table, ""]
         click.echo(table)
-    _write_text(os.path.join(output, "report.json"), json.dumps(report, indent=1, default=float))
-    _write_text(os.path.join(output, "report.md"), "\n".join(md))
+        save()
+    save()
     click.echo(f"wrote {output}/report.md and report.json", err=True)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from numba import njit, prange
 
@@ -54,7 +55,8 @@ def decode_to_linear(image: np.ndarray) -> np.ndarray:
     if image.dtype == np.uint8:
         if _LUT8 is None:
             _LUT8 = srgb_to_linear(np.arange(256, dtype=np.float32) / 255)
-        return _LUT8[image]
+        flat = np.ascontiguousarray(image).reshape(-1, 1)  # cv2.LUT takes at most 4 channels
+        return cv2.LUT(flat, _LUT8).reshape(image.shape)
     return srgb_to_linear(to_float(image))
 
 

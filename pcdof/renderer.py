@@ -330,18 +330,109 @@ def _normalise(acc, acc_a, lin, out):
                     out[y, x, c] = lin[y, x, c]
 
 
+@njit(cache=True)
+def _classify(coc, edges):
+    """Layer id per pixel, numbering the signed layer keys present from near to far.
+
+    The signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k]
+    (negative in front of focus). Returns ((H, W) int32 layer ids, the keys present, ascending).
+    """
+    h, w = coc.shape
+    n = edges.size
+    # every finite edge is a multiple of 1/2 px: the layer is constant on [i/2, (i+1)/2)
+    n_half = int(2 * edges[n - 2]) + 1
+    by_half = np.empty(n_half, np.int32)
+    for i in range(n_half):
+        j = 0
+        while j < n and 0.5 * i >= edges[j]:
+            j += 1
+        by_half[i] = j
+    shifted = np.empty((h, w), np.int32)
+    seen = np.zeros(2 * n + 1, np.bool_)
+    for y in range(h):
+        for x in range(w):
+            c = coc[y, x]
+            a = abs(c)
+            i = int(2.0 * a) if a < 0.5 * (n_half - 1) else n_half - 1
+            j = by_half[i]
+            k = n + (-j if c < 0 else j)
+            shifted[y, x] = k
+            seen[k] = True
+    lookup = np.full(2 * n + 1, -1, np.int32)
+    keys = np.empty(int(seen.sum()), np.int64)
+    i = 0
+    for k in range(2 * n + 1):  # ascending signed CoC = near to far (c is monotone in z)
+        if seen[k]:
+            lookup[k] = i
+            keys[i] = k - n
+            i += 1
+    for y in range(h):
+        for x in range(w):
+            shifted[y, x] = lookup[shifted[y, x]]
+    return shifted, keys
+
+
+@njit(cache=True)
+def _layer_stats(layer, radius, n_layers):
+    """Per layer id: pixel count, largest radius and bounding box (row0, row1, col0, col1; inclusive)."""
+    h, w = layer.shape
+    count = np.zeros(n_layers, np.int64)
+    r_max = np.zeros(n_layers, np.float32)
+    box = np.empty((n_layers, 4), np.int64)
+    box[:, 0] = h
+    box[:, 1] = -1
+    box[:, 2] = w
+    box[:, 3] = -1
+    for y in range(h):
+        for x in range(w):
+            i = layer[y, x]
+            count[i] += 1
+            r_max[i] = max(r_max[i], radius[y, x])
+            box[i, 0] = min(box[i, 0], y)
+            box[i, 1] = max(box[i, 1], y)
+            box[i, 2] = min(box[i, 2], x)
+            box[i, 3] = max(box[i, 3], x)
+    return count, r_max, box
+
+
 def _layer_of(signed_coc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Layer id per pixel (0 = nearest present) and the signed layer keys in near-to-far order."""
-    mag = np.abs(signed_coc)
-    j = np.searchsorted(LAYER_EDGES_PX, mag, side="right").astype(np.int32)  # 0 = in focus
-    key = np.where(signed_coc < 0, -j, j)
-    n = len(LAYER_EDGES_PX)
-    shifted = (key + n).astype(np.intp)
-    # ascending signed CoC = near to far (c is monotone in z); a histogram, not a sort
-    present = np.flatnonzero(np.bincount(shifted.ravel(), minlength=2 * n + 1)) - n
-    lookup = np.full(2 * n + 1, -1, np.int32)
-    lookup[present + n] = np.arange(present.size, dtype=np.int32)
-    return lookup[shifted], present
+    return _classify(np.ascontiguousarray(signed_coc, np.float32), LAYER_EDGES_PX)
+
+
+@njit(cache=True)
+def _reduce_cells(lin, radius, member, hidden, has_hidden, s):
+    """Block means over s x s cells (zero-padded): member-weighted colour and radius, member share
+    and hidden share. Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s, hid_s) as float32."""
+    h, w, nc = lin.shape
+    hs, ws = (h + s - 1) // s, (w + s - 1) // s
+    lin_s = np.zeros((hs, ws, nc), np.float32)
+    r_s = np.zeros((hs, ws), np.float32)
+    m_s = np.zeros((hs, ws), np.float32)
+    hid_s = np.zeros((hs, ws), np.float32)
+    for y in range(h):
+        cy = y // s
+        for x in range(w):
+            cx = x // s
+            if member[y, x]:
+                m_s[cy, cx] += 1.0
+                r_s[cy, cx] += radius[y, x]
+                for c in range(nc):
+                    lin_s[cy, cx, c] += lin[y, x, c]
+            elif has_hidden and hidden[y, x]:
+                hid_s[cy, cx] += 1.0
+    inv_area = 1.0 / (s * s)
+    for cy in range(hs):
+        for cx in range(ws):
+            m = m_s[cy, cx]
+            if m > 0:
+                inv = 1.0 / m
+                r_s[cy, cx] *= inv
+                for c in range(nc):
+                    lin_s[cy, cx, c] *= inv
+            m_s[cy, cx] = m * inv_area
+            hid_s[cy, cx] *= inv_area
+    return lin_s, r_s, m_s, hid_s
 
 
 #: quality name -> smallest CoC (pixels, at the reduced resolution) a blur layer may be computed at.
@@ -407,16 +498,33 @@ def _extend_behind(lin, radius, member, hidden, reach_px):
     return lin, radius, member | band
 
 
-def _scatter_mask(lin, radius, member, s, blades, rot):
-    """Scatter the pixels of *member* at 1/s resolution; returns their (H, W, C+1) buffer at full size."""
+def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0):
+    """Scatter the pixels of *member* at 1/s resolution.
+
+    Returns their (H, W, C+1) buffer at full size (premultiplied colour, coverage) and whether the
+    layer was extended.
+
+    With *hidden* (pixels of nearer, not yet opaque layers) the layer is first extended behind them
+    up to *reach_px* (:func:`_extend_behind`), on the 1/s grid when s > 1 (s^2 times less work).
+    """
     h, w, nc = lin.shape
+    n_members = int(np.count_nonzero(member))
+    if s == 1 and hidden is not None:
+        lin, radius, member = _extend_behind(lin, radius, member, hidden, reach_px)
+    extended = s == 1 and int(np.count_nonzero(member)) > n_members
     if s > 1:
-        m = member.astype(np.float32)
-        m_s = _block_mean(m, s)
+        lin, r, m_s, hid_s = _reduce_cells(np.ascontiguousarray(lin, np.float32),
+                                           np.ascontiguousarray(radius, np.float32), np.ascontiguousarray(member),
+                                           np.ascontiguousarray(member if hidden is None else hidden),
+                                           hidden is not None, s)
         present = m_s > 0
-        safe = np.where(present, m_s, 1.0)
-        lin = np.ascontiguousarray(_block_mean(lin * m[:, :, None], s) / safe[:, :, None], np.float32)
-        r = _block_mean(radius * m, s) / safe
+        if hidden is not None:
+            # a cell's hidden share is continued with the layer's nearest cell (its own, if present)
+            lin, r, grown = _extend_behind(lin, r, present, hid_s > 0,
+                                           int(math.ceil(reach_px / s)))
+            extended = bool((grown & ~present).any())
+            m_s = np.where(grown, m_s + hid_s, 0).astype(np.float32)
+            present = grown
         # block averaging and bilinear upsampling widen the blur by about s^2 in variance: take it off
         radius = (np.sqrt(np.maximum(r * r - s * s, 0.25 * r * r)) / s).astype(np.float32)
         radius = np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX))
@@ -443,18 +551,9 @@ def _scatter_mask(lin, radius, member, s, blades, rot):
     kernel(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach),
                     blades, rot, _G_TABLE, buf)
     if s == 1:
-        return buf
+        return buf, extended
     up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)
-    return np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w])
-
-
-def _bbox(mask: np.ndarray, margin: int) -> tuple[slice, slice]:
-    """Bounding box of *mask*, grown by *margin* pixels and clipped to the image."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    h, w = mask.shape
-    return (slice(max(0, rows[0] - margin), min(h, rows[-1] + margin + 1)),
-            slice(max(0, cols[0] - margin), min(w, cols[-1] + margin + 1)))
+    return np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w]), extended
 
 
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
@@ -490,20 +589,30 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     trans = np.ones((h, w), np.float32)
     r_front = 0.0  # largest blur radius of the layers composited so far
     layers_run = []
+    counts, r_maxes, boxes = _layer_stats(layer, radius, len(keys))
     for li, key in enumerate(keys):
-        member = layer == li
-        n_members = int(member.sum())
-        r_max = float(radius[member].max())
+        n_members = int(counts[li])
+        r_max = float(r_maxes[li])
         # pixels of nearer layers that are not yet opaque: this layer may show through there
         extend = extend_behind and li > 0 and r_front > 0
         ext_reach = int(math.ceil(r_front + r_max + 1)) if extend else 0
-        box = _bbox(member, ext_reach + int(math.ceil(r_max + 0.5)) + 1)
-        m = member[box]
+        margin = ext_reach + int(math.ceil(r_max + 0.5)) + 1
+        y0, y1, x0, x1 = (int(v) for v in boxes[li])
+        box = (slice(max(0, y0 - margin), min(h, y1 + margin + 1)), slice(max(0, x0 - margin), min(w, x1 + margin + 1)))
+        m = layer[box] == li
         src, src_r = lin[box], radius[box]
+        hidden = None
         if extend:
             hidden = (layer[box] < li) & (trans[box] > 0)
-            if hidden.any():
-                src, src_r, m = _extend_behind(src, src_r, m, hidden, ext_reach)
+            if not hidden.any():
+                hidden = None
+        s = 1
+        if key != 0:
+            lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
+            while lo / (2 * s) >= min_reduced:
+                s *= 2
+        if hidden is not None and key == 0:
+            src, src_r, m = _extend_behind(src, src_r, m, hidden, ext_reach)
         t_box, acc_box, acc_a_box = trans[box], acc[box], acc_a[box]
         if key == 0:  # in focus: an opaque copy, no blur
             t = t_box[m]
@@ -512,15 +621,11 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
             t_box[m] = 0.0
             layers_run.append({"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1})
         else:
-            lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
-            s = 1
-            while lo / (2 * s) >= min_reduced:
-                s *= 2
-            layer_buf = _scatter_mask(src, src_r, m, s, int(blades), rot)
+            layer_buf, extended = _scatter_mask(src, src_r, m, s, int(blades), rot, hidden, ext_reach)
             _composite_under(layer_buf, box[0].start, box[1].start, acc, acc_a, trans)
             layers_run.append({"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
                                "side": "front" if key < 0 else "back", "scale": s,
-                               "extended": bool(m.sum() > n_members)})
+                               "extended": extended})
             r_front = max(r_front, r_max)
     out = np.empty_like(lin)
     _normalise(acc, acc_a, lin, out)

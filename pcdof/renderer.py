@@ -67,81 +67,79 @@ _G_TABLE = (_U * np.sqrt(np.maximum(1 - _U * _U, 0)) + np.arcsin(_U)).astype(np.
 
 
 @njit(cache=True, inline="always", fastmath=True, error_model="numpy")
-def _g(u, table):
+def _g(u, table, row):
     f = (u + 1.0) * (0.5 * _G_SAMPLES)
     i = int(f)
     if i >= _G_SAMPLES:
-        return table[_G_SAMPLES]
+        return table[row, _G_SAMPLES]
     frac = f - i
-    return table[i] + frac * (table[i + 1] - table[i])
+    return table[row, i] + frac * (table[row, i + 1] - table[row, i])
+
+
+def aperture_table(blades: int, rotation_rad: float) -> np.ndarray:
+    """Cumulative area and first moment of the unit aperture below each height, (2, _G_SAMPLES + 1).
+
+    Row 0 is G(u) = integral over v < u of the aperture's width at height v, row 1 is M(u), the
+    same integral of width * mid-point x; u runs over [-1, 1] (circumradius 1). The strip of an
+    aperture of radius r between heights t0 < t1 then has area r^2 (G(t1/r) - G(t0/r)) and its
+    centre at r (M(t1/r) - M(t0/r)) / (G(t1/r) - G(t0/r)). A disc (blades = 0) uses the closed form
+    u sqrt(1 - u^2) + asin(u) and has M = 0; a regular polygon (vertex angles rotation + 2 pi i / N)
+    is integrated numerically on a 64x finer grid.
+    """
+    if blades == 0:
+        return np.stack([_G_TABLE, np.zeros_like(_G_TABLE)])
+    fine = 64 * _G_SAMPLES
+    v = np.linspace(-1.0, 1.0, fine + 1)
+    v = 0.5 * (v[1:] + v[:-1])  # mid-points of the fine steps
+    angles = rotation_rad + 2.0 * np.pi * np.arange(blades + 1) / blades
+    px, py = np.cos(angles), np.sin(angles)
+    lo = np.full(v.shape, np.inf)
+    hi = np.full(v.shape, -np.inf)
+    for i in range(blades):  # each edge crossing height v bounds the polygon's span there
+        y0, y1 = py[i], py[i + 1]
+        if y0 == y1:
+            continue
+        t = (v - y0) / (y1 - y0)
+        on = (t >= 0) & (t < 1)
+        x = px[i] + t * (px[i + 1] - px[i])
+        lo = np.where(on, np.minimum(lo, x), lo)
+        hi = np.where(on, np.maximum(hi, x), hi)
+    inside = hi > lo
+    width = np.zeros_like(v)
+    mid = np.zeros_like(v)
+    width[inside] = hi[inside] - lo[inside]
+    mid[inside] = 0.5 * (hi[inside] + lo[inside])
+    step = 2.0 / fine
+    g = np.concatenate([[0.0], np.cumsum(width * step)])[::64]
+    m = np.concatenate([[0.0], np.cumsum(width * mid * step)])[::64]
+    return np.stack([g, m])
+
+
+_APERTURE_TABLES: dict = {}
+
+
+def _aperture(blades: int, rotation_rad: float) -> np.ndarray:
+    key = (int(blades), float(rotation_rad))
+    if key not in _APERTURE_TABLES:
+        if len(_APERTURE_TABLES) > 64:
+            _APERTURE_TABLES.clear()
+        _APERTURE_TABLES[key] = aperture_table(*key)
+    return _APERTURE_TABLES[key]
 
 
 @njit(cache=True, inline="always", fastmath=True, error_model="numpy")
-def _disk_strip_area(t0, t1, r, table):
-    """Area of the disc of radius r (centred at 0) between heights t0 < t1."""
-    lo = max(t0, -r)
-    hi = min(t1, r)
-    if hi <= lo:
-        return 0.0
-    return r * r * (_g(hi / r, table) - _g(lo / r, table))
-
-
-_SUBROWS = 8
-
-
-@njit(cache=True)
-def _polygon_strip(t0, t1, r, blades, rot):
-    """(area, centre x) of the strip t0 <= y < t1 of a regular polygon with circumradius r."""
-    area = 0.0
-    csum = 0.0
-    nhit = 0
-    for j in range(_SUBROWS):
-        t = t0 + (j + 0.5) * (t1 - t0) / _SUBROWS
-        xmin = 1e30
-        xmax = -1e30
-        for i in range(blades):
-            a0 = rot + 2.0 * math.pi * i / blades
-            a1 = rot + 2.0 * math.pi * (i + 1) / blades
-            px, py = r * math.cos(a0), r * math.sin(a0)
-            qx, qy = r * math.cos(a1), r * math.sin(a1)
-            if (py <= t < qy) or (qy <= t < py):
-                x = px + (t - py) * (qx - px) / (qy - py)
-                xmin = min(xmin, x)
-                xmax = max(xmax, x)
-        if xmax > xmin:
-            area += (xmax - xmin) * (t1 - t0) / _SUBROWS
-            csum += 0.5 * (xmin + xmax)
-            nhit += 1
-    if nhit == 0:
-        return 0.0, 0.0
-    return area, csum / nhit
-
-
-@njit(cache=True, inline="always")
-def _strip(dy, r, blades, rot, table):
+def _strip(dy, r, blades, table):
     """(area, centre offset) of the aperture's footprint on the pixel row dy rows below its centre."""
-    if blades == 0:
-        return _disk_strip_area(dy - 0.5, dy + 0.5, r, table), 0.0
-    return _polygon_strip(dy - 0.5, dy + 0.5, r, blades, rot)
-
-
-@njit(parallel=True, cache=True)
-def _inverse_areas(radius, blades, rot, table):
-    """Per-pixel 1 / (total footprint area), so each source spreads exactly its own energy."""
-    h, w = radius.shape
-    out = np.zeros((h, w), np.float32)
-    for y in prange(h):
-        for x in range(w):
-            r = radius[y, x]
-            if blades == 0:
-                area = math.pi * r * r
-            else:
-                area = 0.0
-                n = int(math.ceil(r + 0.5))
-                for dy in range(-n, n + 1):
-                    area += _strip(dy, r, blades, rot, table)[0]
-            out[y, x] = 1.0 / area if area > 0 else 0.0
-    return out
+    lo = max(dy - 0.5, -r)
+    hi = min(dy + 0.5, r)
+    if hi <= lo:
+        return 0.0, 0.0
+    ghi = _g(hi / r, table, 0)
+    glo = _g(lo / r, table, 0)
+    area = r * r * (ghi - glo)
+    if blades == 0 or ghi <= glo:
+        return area, 0.0
+    return area, r * (_g(hi / r, table, 1) - _g(lo / r, table, 1)) / (ghi - glo)
 
 
 # ----------------------------------------------------------------------------- layer kernels
@@ -166,7 +164,7 @@ def _sort_into_layers(layer, n_layers):
 
 
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
-def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blades, rot, table, out):
+def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blades, table, out):
     """Scatter packed sources into ``out`` rows y_lo..y_hi (H, W, C+1: premultiplied colour, coverage).
 
     Sources are sorted by row: those of row y are ``offsets[y]:offsets[y+1]``, at column ``xs``,
@@ -189,7 +187,7 @@ def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blade
                 r = radius[k]
                 if gap >= r:
                     continue
-                area, centre = _strip(dy, r, blades, rot, table)
+                area, centre = _strip(dy, r, blades, table)
                 if area <= 0.0:
                     continue
                 a = xs[k] + centre - 0.5 * area  # one row high, so the strip is `area` wide
@@ -223,7 +221,7 @@ def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blade
 
 
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
-def _scatter_packed4(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blades, rot, table, out):
+def _scatter_packed4(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blades, table, out):
     """:func:`_scatter_packed` for three colour channels and coverage, with the channel loop unrolled."""
     h = offsets.size - 1
     reach = int(math.ceil(r_max + 0.5))
@@ -237,7 +235,7 @@ def _scatter_packed4(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blad
                 r = radius[k]
                 if gap >= r:
                     continue
-                area, centre = _strip(dy, r, blades, rot, table)
+                area, centre = _strip(dy, r, blades, table)
                 if area <= 0.0:
                     continue
                 v0, v1, v2, v3 = values[k, 0], values[k, 1], values[k, 2], values[k, 3]
@@ -448,32 +446,17 @@ def check_quality(quality) -> str:
     return quality
 
 
-def _block_mean(a: np.ndarray, s: int) -> np.ndarray:
-    """Mean over s x s blocks; the image is zero-padded to a multiple of s.
-
-    OpenCV's area resampling by an integer factor is exactly the block mean (and ~10x faster than
-    a reshaped numpy mean).
-    """
-    h, w = a.shape[:2]
-    channels = a.shape[2:]  # OpenCV drops a trailing axis of length 1
-    hs, ws = -(-h // s), -(-w // s)
-    a = np.ascontiguousarray(a, np.float32)
-    if hs * s != h or ws * s != w:
-        a = cv2.copyMakeBorder(a, 0, hs * s - h, 0, ws * s - w, cv2.BORDER_CONSTANT, value=0)
-    return cv2.resize(a, (ws, hs), interpolation=cv2.INTER_AREA).reshape(hs, ws, *channels)
-
-
-def _inverse_area(radius: np.ndarray, blades: int, rot: float) -> np.ndarray:
+def _inverse_area(radius: np.ndarray, table: np.ndarray) -> np.ndarray:
     """1 / (footprint area) per source, so each source spreads exactly its own energy.
 
-    Radii are taken as at least :data:`MIN_SOURCE_RADIUS_PX` (as :func:`_scatter_mask` scatters
-    them), so the result is finite and fits float32 for any radius.
+    The area is the aperture table's own total, r^2 (G(1) - G(-1)) (pi r^2 for a disc), which the
+    strips of :func:`_strip` add up to exactly. Radii are taken as at least
+    :data:`MIN_SOURCE_RADIUS_PX` (as :func:`_scatter_mask` scatters them), so the result is finite
+    and fits float32 for any radius.
     """
-    radius = np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX)).astype(np.float32)
-    if blades == 0:
-        r2 = radius.astype(np.float64) ** 2
-        return (1.0 / (np.pi * r2)).astype(np.float32)
-    return _inverse_areas(radius, blades, rot, _G_TABLE)
+    radius = np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX)).astype(np.float64)
+    unit_area = float(table[0, -1] - table[0, 0])
+    return (1.0 / (unit_area * radius * radius)).astype(np.float32)
 
 
 def _extend_behind(lin, radius, member, hidden, reach_px):
@@ -508,6 +491,7 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0):
     up to *reach_px* (:func:`_extend_behind`), on the 1/s grid when s > 1 (s^2 times less work).
     """
     h, w, nc = lin.shape
+    table = _aperture(blades, rot)
     n_members = int(np.count_nonzero(member))
     if s == 1 and hidden is not None:
         lin, radius, member = _extend_behind(lin, radius, member, hidden, reach_px)
@@ -528,11 +512,11 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0):
         # block averaging and bilinear upsampling widen the blur by about s^2 in variance: take it off
         radius = (np.sqrt(np.maximum(r * r - s * s, 0.25 * r * r)) / s).astype(np.float32)
         radius = np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX))
-        weight = (m_s * _inverse_area(radius, blades, rot)).astype(np.float32)
+        weight = (m_s * _inverse_area(radius, table)).astype(np.float32)
         member = present
     else:
         radius = np.ascontiguousarray(np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX)), np.float32)
-        weight = np.where(member, _inverse_area(radius, blades, rot), 0).astype(np.float32)
+        weight = np.where(member, _inverse_area(radius, table), 0).astype(np.float32)
     hs, ws = member.shape
     idx = np.flatnonzero(member.ravel())  # row-major: sorted by row, then column
     offsets = np.zeros(hs + 1, np.int64)
@@ -549,7 +533,7 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0):
     buf = np.zeros((hs, ws, nc + 1), np.float32)
     kernel = _scatter_packed4 if nc + 1 == 4 else _scatter_packed  # buf is zeroed: rows start empty
     kernel(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach),
-                    blades, rot, _G_TABLE, buf)
+           blades, table, buf)
     if s == 1:
         return buf, extended
     up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)

@@ -91,8 +91,10 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes):
         report["dof_summary"] = dof.summarize(rows)
         _write_csv(os.path.join(output, "dof.csv"), rows)
         dof.pareto_plot(rows, os.path.join(output, "pareto.png"))
-        md += ["## Depth of field against the ray-traced ground truth\n", dof.markdown_table(rows), ""]
-        click.echo(dof.markdown_table(rows))
+        md += ["## Depth of field against the ray-traced ground truth\n", dof.summary_table(rows), "",
+               dof.compact_table(rows), "", "All methods and quality levels:\n", dof.markdown_table(rows), ""]
+        click.echo(dof.summary_table(rows))
+        click.echo(dof.compact_table(rows))
         save()
     if "speed" in parts:
         from ..bench import speed
@@ -103,9 +105,14 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes):
         cost = speed.cost_follows_work(size=sizes[0], depth_size=dsize, repeats=repeats)
         speed.cost_plot(cost, os.path.join(output, "cost.png"))
         report["speed"], report["cost"] = rows, cost
-        lines = ["| colour | depth | pcdof ms | paper ms | ratio |", "|---|---|---|---|---|"]
-        lines += [f"| {r['color_size']} | {r['depth_size']} | {r['pcdof_ms']:.1f} | {r['paper_ms']:.1f} | "
-                  f"{r['ratio']:.2f} |" for r in rows]
+        lines = ["| colour | depth | pcdof ms (register + fill + coc + render) | paper method ms (register + fill + "
+                 "blur/weight/blend) | ratio | paper blur/weight/blend alone ms |", "|---|---|---|---|---|---|"]
+        for r in rows:
+            st, pst = r["pcdof_stages_ms"], r["paper_stages_ms"]
+            ours = " + ".join(f"{st.get(k, 0):.1f}" for k in ("register", "fill", "coc", "render"))
+            theirs = " + ".join(f"{pst.get(k, 0):.1f}" for k in ("register", "fill", "render"))
+            lines.append(f"| {r['color_size']} | {r['depth_size']} | {r['pcdof_ms']:.1f} ({ours}) | "
+                         f"{r['paper_ms']:.1f} ({theirs}) | {r['ratio']:.2f} | {pst.get('render', 0):.1f} |")
         lines += ["", "| out of focus | f-number | render ms | relative to 100 % |", "|---|---|---|---|"]
         lines += [f"| {100 * r['share']:.0f} % | {r['f_number']:.2f} | {r['render_ms']:.2f} | "
                   f"{r['relative_to_full']:.3f} |" for r in cost]

@@ -34,6 +34,13 @@ def command(output, data_dir):
                     spec.get("aperture_blades", 0))
     frame = io.load_frame(os.path.join(sample, "color.png"), os.path.join(sample, "depth.png"),
                           os.path.join(sample, "calib.json"))
+    # the first call compiles the numba kernels (or loads them from numba's cache): timed apart
+    import time
+
+    t0 = time.perf_counter()
+    for method in ("physical", "paper"):
+        pipeline.run(frame, lens, method=method)
+    click.echo(f"warm-up (compiling or loading the kernels): {(time.perf_counter() - t0) * 1e3:.0f} ms")
     for method in ("physical", "paper"):
         result = pipeline.run(frame, lens, method=method)
         io.write_image(os.path.join(output, f"sample_{method}.png"), result.image)

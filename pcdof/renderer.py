@@ -165,64 +165,14 @@ def _sort_into_layers(layer, n_layers):
 
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blades, table, out):
-    """Scatter packed sources into ``out`` rows y_lo..y_hi (H, W, C+1: premultiplied colour, coverage).
+    """Scatter packed sources into ``out`` rows y_lo..y_hi (H, W, 4: premultiplied colour, coverage).
 
     Sources are sorted by row: those of row y are ``offsets[y]:offsets[y+1]``, at column ``xs``,
-    with footprint radius ``radius`` and ``values`` = (colour, 1) * weight / footprint area. Each
+    with footprint radius ``radius`` and ``values`` = (r, g, b, 1) * weight / footprint area. Each
     footprint is split exactly into one strip per pixel row, and each strip into two fractional
     end pixels and a run of whole pixels (kept as a difference array). Runs as a gather over
-    output rows, so rows are independent and parallel.
+    output rows, so rows are independent and parallel; the four channels are unrolled.
     """
-    h = offsets.size - 1
-    nc1 = values.shape[1]
-    reach = int(math.ceil(r_max + 0.5))
-    for y in prange(y_lo, y_hi + 1):
-        diff = np.zeros((width + 1, nc1), np.float32)
-        row = out[y]
-        row[:] = 0.0
-        for ys in range(max(0, y - reach), min(h - 1, y + reach) + 1):
-            dy = y - ys
-            gap = abs(dy) - 0.5
-            for k in range(offsets[ys], offsets[ys + 1]):
-                r = radius[k]
-                if gap >= r:
-                    continue
-                area, centre = _strip(dy, r, blades, table)
-                if area <= 0.0:
-                    continue
-                a = xs[k] + centre - 0.5 * area  # one row high, so the strip is `area` wide
-                b = a + area
-                ka = int(math.floor(a + 0.5))
-                kb = int(math.floor(b + 0.5))
-                if ka == kb:
-                    if 0 <= ka < width:
-                        for c in range(nc1):
-                            row[ka, c] += area * values[k, c]
-                    continue
-                if 0 <= ka < width:
-                    f = ka + 0.5 - a
-                    for c in range(nc1):
-                        row[ka, c] += f * values[k, c]
-                if 0 <= kb < width:
-                    f = b - (kb - 0.5)
-                    for c in range(nc1):
-                        row[kb, c] += f * values[k, c]
-                lo = max(ka + 1, 0)
-                hi = min(kb, width)  # whole pixels ka+1 .. kb-1
-                if hi > lo:
-                    for c in range(nc1):
-                        diff[lo, c] += values[k, c]
-                        diff[hi, c] -= values[k, c]
-        run = np.zeros(nc1, np.float32)
-        for x in range(width):
-            for c in range(nc1):
-                run[c] += diff[x, c]
-                row[x, c] += run[c]
-
-
-@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
-def _scatter_packed4(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blades, table, out):
-    """:func:`_scatter_packed` for three colour channels and coverage, with the channel loop unrolled."""
     h = offsets.size - 1
     reach = int(math.ceil(r_max + 0.5))
     for y in prange(y_lo, y_hi + 1):
@@ -523,17 +473,18 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0):
     np.cumsum(member.sum(axis=1), out=offsets[1:])
     xs = (idx % ws).astype(np.float32)
     src_r = radius.ravel()[idx]
-    values = np.empty((idx.size, nc + 1), np.float32)
+    values = np.zeros((idx.size, 4), np.float32)  # up to 3 colour channels (zero-padded), coverage
     values[:, :nc] = lin.reshape(-1, nc)[idx]
-    values[:, nc] = 1.0
+    values[:, 3] = 1.0
     values *= weight.ravel()[idx][:, None]
     rows = np.flatnonzero(offsets[1:] > offsets[:-1])
     r_max = float(src_r.max())
     reach = int(math.ceil(r_max + 0.5))
-    buf = np.zeros((hs, ws, nc + 1), np.float32)
-    kernel = _scatter_packed4 if nc + 1 == 4 else _scatter_packed  # buf is zeroed: rows start empty
-    kernel(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach),
-           blades, table, buf)
+    buf = np.zeros((hs, ws, 4), np.float32)
+    _scatter_packed(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach),
+                    blades, table, buf)
+    if nc < 3:
+        buf = np.ascontiguousarray(buf[:, :, list(range(nc)) + [3]])
     if s == 1:
         return buf, extended
     up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)
@@ -547,7 +498,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
 
     Parameters
     ----------
-    lin : (H, W, C) float32, linear radiance
+    lin : (H, W, C) float32, linear radiance, C = 1..3
     signed_coc : (H, W) float32, signed circle-of-confusion diameter in pixels (< 0 in front of focus);
         NaN is unknown and, like unknown depth in :meth:`pcdof.lens.ThinLens.signed_coc_px`, in focus (0)
     blades, rotation_deg : aperture polygon (0 = disc)
@@ -559,6 +510,8 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     (H, W, C) float32 image and an info dict (layers run, pixels blurred).
     """
     check_quality(quality)
+    if lin.ndim != 3 or not 1 <= lin.shape[2] <= 3:
+        raise InputError(f"lin must be (H, W, C) with 1 to 3 channels; got shape {lin.shape}")
     min_reduced = QUALITIES[quality]
     h, w, nc = lin.shape
     lin = np.ascontiguousarray(lin, np.float32)

@@ -396,19 +396,6 @@ def check_quality(quality) -> str:
     return quality
 
 
-def _inverse_area(radius: np.ndarray, table: np.ndarray) -> np.ndarray:
-    """1 / (footprint area) per source, so each source spreads exactly its own energy.
-
-    The area is the aperture table's own total, r^2 (G(1) - G(-1)) (pi r^2 for a disc), which the
-    strips of :func:`_strip` add up to exactly. Radii are taken as at least
-    :data:`MIN_SOURCE_RADIUS_PX` (as :func:`_scatter_mask` scatters them), so the result is finite
-    and fits float32 for any radius.
-    """
-    radius = np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX)).astype(np.float64)
-    unit_area = float(table[0, -1] - table[0, 0])
-    return (1.0 / (unit_area * radius * radius)).astype(np.float32)
-
-
 def _extend_behind(lin, radius, member, hidden, reach_px):
     """Extend a layer into the pixels that nearer layers hide, up to *reach_px* from its own pixels.
 
@@ -429,6 +416,41 @@ def _extend_behind(lin, radius, member, hidden, reach_px):
     lin[band] = lin.reshape(-1, lin.shape[2])[nearest]
     radius[band] = radius.ravel()[nearest]
     return lin, radius, member | band
+
+
+@njit(cache=True)
+def _pack_sources(lin, radius, member, share, unit_area, min_radius):
+    """The member pixels as scatter sources, in row-major order.
+
+    Returns column (float32), footprint radius (at least *min_radius*), values (colour zero-padded
+    to 3 channels, then coverage 1, all times share / footprint area: (N, 4) float32) and per-row
+    offsets (H + 1,) so that row y's sources are offsets[y]:offsets[y+1].
+    """
+    h, w, nc = lin.shape
+    offsets = np.zeros(h + 1, np.int64)
+    for y in range(h):
+        n = 0
+        for x in range(w):
+            if member[y, x]:
+                n += 1
+        offsets[y + 1] = offsets[y] + n
+    total = offsets[h]
+    xs = np.empty(total, np.float32)
+    src_r = np.empty(total, np.float32)
+    values = np.zeros((total, 4), np.float32)
+    k = 0
+    for y in range(h):
+        for x in range(w):
+            if member[y, x]:
+                r = max(radius[y, x], min_radius)
+                weight = share[y, x] / (unit_area * r * r)  # each source spreads exactly its own energy
+                xs[k] = x
+                src_r[k] = r
+                for c in range(nc):
+                    values[k, c] = lin[y, x, c] * weight
+                values[k, 3] = weight
+                k += 1
+    return xs, src_r, values, offsets
 
 
 def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0):
@@ -461,22 +483,15 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0):
             present = grown
         # block averaging and bilinear upsampling widen the blur by about s^2 in variance: take it off
         radius = (np.sqrt(np.maximum(r * r - s * s, 0.25 * r * r)) / s).astype(np.float32)
-        radius = np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX))
-        weight = (m_s * _inverse_area(radius, table)).astype(np.float32)
+        share = m_s
         member = present
     else:
-        radius = np.ascontiguousarray(np.maximum(radius, np.float32(MIN_SOURCE_RADIUS_PX)), np.float32)
-        weight = np.where(member, _inverse_area(radius, table), 0).astype(np.float32)
+        share = member.astype(np.float32)
+    xs, src_r, values, offsets = _pack_sources(np.ascontiguousarray(lin, np.float32),
+                                               np.ascontiguousarray(radius, np.float32),
+                                               np.ascontiguousarray(member), np.ascontiguousarray(share, np.float32),
+                                               float(table[0, -1] - table[0, 0]), MIN_SOURCE_RADIUS_PX)
     hs, ws = member.shape
-    idx = np.flatnonzero(member.ravel())  # row-major: sorted by row, then column
-    offsets = np.zeros(hs + 1, np.int64)
-    np.cumsum(member.sum(axis=1), out=offsets[1:])
-    xs = (idx % ws).astype(np.float32)
-    src_r = radius.ravel()[idx]
-    values = np.zeros((idx.size, 4), np.float32)  # up to 3 colour channels (zero-padded), coverage
-    values[:, :nc] = lin.reshape(-1, nc)[idx]
-    values[:, 3] = 1.0
-    values *= weight.ravel()[idx][:, None]
     rows = np.flatnonzero(offsets[1:] > offsets[:-1])
     r_max = float(src_r.max())
     reach = int(math.ceil(r_max + 0.5))

@@ -716,7 +716,7 @@ class TestFoundBugs:
                                    atol=UNDISTORT_TOL_PX)
 
     def test_tiny_circle_of_confusion_without_runtime_warnings(self):
-        # _inverse_area computed 1 / (pi r^2) for every pixel in float64 and cast it to float32, which
+        # the footprint weight 1 / (pi r^2) was computed in float64 for every pixel and cast to float32, which
         # overflowed for a circle of confusion of ~1e-33 px next to a blurred layer
         color = np.array([[[10, 20, 30], [200, 100, 50]]], np.uint8)
         depth = np.array([[1e-3, 1e30]], np.float32)  # c = -2.4 px and c = 2.4e-33 px

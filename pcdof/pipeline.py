@@ -114,16 +114,17 @@ def fill_stage(depth_m: np.ndarray, color: np.ndarray, trace: list, *, method: s
 def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False,
                   quality="balanced"):
     """Circle of confusion + render stages on registered, filled depth. Returns (image, coc_px)."""
-    coc = None
+    coc = signed = None
     if isinstance(lens, ThinLens):
         with _Timer(trace, "coc") as rec:
-            coc = lens.coc_px(depth_filled_m, fx)
+            signed = lens.signed_coc_px(depth_filled_m, fx)  # computed once, for the map and the renderer
+            coc = np.abs(signed)
             rec.detail = {"max_coc_px": float(coc.max()) if coc.size else 0.0,
                           "out_of_focus_share": float(np.mean(coc >= 1.0)) if coc.size else 0.0}
             rec.reason = f"max {rec.detail['max_coc_px']:.2f} px"
     with _Timer(trace, "render") as rec:
         image, info = render_image(color, depth_filled_m, lens, fx=fx, method=method,
-                                   max_range_m=max_range_m, linear=linear, quality=quality)
+                                   max_range_m=max_range_m, linear=linear, quality=quality, signed_coc=signed)
         rec.skipped = bool(info.pop("skipped", False))
         rec.reason = info.pop("reason", method)
         if not rec.skipped and method == "physical":

@@ -592,11 +592,16 @@ def _as_channels(color: np.ndarray) -> np.ndarray:
     return color[:, :, None] if color.ndim == 2 else color
 
 
-def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False, quality="balanced"):
-    """Thin-lens depth of field (see the module docstring). Returns (image, info)."""
+def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False, quality="balanced",
+                    signed_coc=None):
+    """Thin-lens depth of field (see the module docstring). Returns (image, info).
+
+    *signed_coc* (H, W) float32 pixels, if given, is ``lens.signed_coc_px(depth_m, fx)`` already
+    computed by the caller (the pipeline's CoC stage), so it is not computed twice.
+    """
     if not isinstance(lens, ThinLens):
         raise LensError(f"the physical method needs a ThinLens; got {type(lens).__name__}")
-    coc = lens.signed_coc_px(depth_m, fx)
+    coc = lens.signed_coc_px(depth_m, fx) if signed_coc is None else signed_coc
     cmax = float(np.abs(coc).max()) if coc.size else 0.0
     if cmax < SHARP_COC_PX:
         return color.copy(), {"skipped": True, "reason": f"largest circle of confusion {cmax:.3f} px < "
@@ -627,7 +632,7 @@ def paper_lens_for(lens) -> PaperLens:
     raise LensError(f"lens must be a ThinLens or PaperLens; got {type(lens).__name__}")
 
 
-def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=False, quality=None):
+def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=False, quality=None, signed_coc=None):
     """The seed paper's method: Gaussian blur + eq. 2 (or eq. 1) weight + linear blend (eq. 3)."""
     plens = paper_lens_for(lens)
     src = to_float(_as_channels(color))
@@ -650,7 +655,7 @@ METHODS = {"physical": render_physical, "paper": render_paper}
 
 
 def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.0, linear=False,
-                 quality="balanced"):
+                 quality="balanced", signed_coc=None):
     """Render a registered, hole-free RGB-D pair. Returns (image, info); see :data:`METHODS`.
 
     Raises
@@ -666,4 +671,7 @@ def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.
     depth_m = np.asarray(depth_m, np.float32)
     if depth_m.shape != color.shape[:2]:
         raise InputError(f"depth_m must be (H, W) = {color.shape[:2]}; got {depth_m.shape}")
-    return METHODS[method](color, depth_m, lens, fx=fx, max_range_m=max_range_m, linear=linear, quality=quality)
+    if signed_coc is not None and np.shape(signed_coc) != depth_m.shape:
+        raise InputError(f"signed_coc must be (H, W) = {depth_m.shape}; got {np.shape(signed_coc)}")
+    return METHODS[method](color, depth_m, lens, fx=fx, max_range_m=max_range_m, linear=linear, quality=quality,
+                           signed_coc=signed_coc)

@@ -25,17 +25,31 @@ Drawing keeps 1/z in the output buffer (no division per pixel; the largest value
 nearest surface) and converts it to z at the end. The output rows are split into bands, one
 task each, so threads never write the same pixel.
 
-The rasteriser is numba code; :func:`warmup` compiles (or loads from cache) it up front.
+Everything that depends only on the calibration (the depth camera's rotated, undistorted rays
+and the colour camera's lens constants) is computed once per rig and cached. Each call makes
+two passes: the depth rows are projected and their quads coded in chunks, then the colour
+bands are drawn. The passes are numba code that releases the GIL; the calling thread and
+``numba.get_num_threads() - 1`` helper threads take chunks and bands from an atomic counter
+and wait for each other in the operating system, without spinning. So when another process
+keeps a core busy, the threads that do get a CPU take over the remaining work instead of
+waiting, spinning, for one that does not (an OpenMP team spinning at its barrier on a shared
+core costs whole scheduler time slices per parallel region). :func:`warmup` compiles (or
+loads from numba's cache) the kernels and starts the helper threads up front.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .camera import Rig, RGBDFrame
 from .errors import InputError
@@ -56,6 +70,9 @@ _MIN_Z_M = 1e-6
 _EDGE_EPS = 1e-9
 
 # Fast-math without "nnan"/"ninf": NaN and inf tests (unknown depth, rays without inverse) stay exact.
+# The kernels use error_model="numpy": a division by zero gives inf or NaN instead of raising, so
+# divisions need no zero test (the row projection evaluates the lens model for every pixel and
+# drops the ones that fail, and every division the drawing uses is guarded).
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 # Quad split codes: bit 0 = triangle (a, b, d), bit 1 = (a, d, c) [diagonal a-d];
@@ -101,110 +118,149 @@ def needs_registration(rig: Rig) -> tuple[bool, str]:
 # numba kernels
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _distort(x, y, d, tilt, has_dist, has_tilt):
-    """OpenCV distortion of undistorted normalised (x, y); scalar twin of geometry._distort_normalized."""
-    if not has_dist:
-        return x, y
-    r2 = x * x + y * y
-    num = 1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))
-    den = 1.0 + r2 * (d[5] + r2 * (d[6] + r2 * d[7]))
-    radial = num / den
-    a1 = 2.0 * x * y
-    xd = x * radial + d[2] * a1 + d[3] * (r2 + 2.0 * x * x) + r2 * (d[8] + d[9] * r2)
-    yd = y * radial + d[2] * (r2 + 2.0 * y * y) + d[3] * a1 + r2 * (d[10] + d[11] * r2)
-    if has_tilt:
-        wx = tilt[0, 0] * xd + tilt[0, 1] * yd + tilt[0, 2]
-        wy = tilt[1, 0] * xd + tilt[1, 1] * yd + tilt[1, 2]
-        wz = tilt[2, 0] * xd + tilt[2, 1] * yd + tilt[2, 2]
-        inv = 1.0 / wz if wz != 0.0 else 1.0
-        xd = wx * inv
-        yd = wy * inv
-    return xd, yd
+@intrinsic
+def _claim(typingctx, counter):
+    """Atomically take the next task number: fetch-and-add 1 on ``counter[0]`` (int64)."""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64 and counter.ndim == 1):
+        return None
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [context.get_constant(types.intp, 0)])
+        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1), "monotonic")
+
+    return types.int64(counter), codegen
 
 
-@njit(cache=True, parallel=True, fastmath=_FASTMATH)
-def _project_grid(depth, rays_c, t, cam, d, tilt, has_dist, has_tilt, r2_max, foot_v, P, row_lo, row_hi):
-    """Pass 1: project every known depth pixel into the colour image.
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
+def _project_row(depth_row, rx, ry, rz, t, cam, d, tilt, has_dist, has_tilt, r2_max, foot_v, U, V, IZ):
+    """Project one row of depth pixels into the colour image.
 
-    Writes ``P[i, j] = (u, v, 1/z)``: colour pixel position and inverse colour-frame depth
-    (1/z = 0: not projected), and per depth row the range of colour rows its pixels and
-    footprints can touch.
+    Writes ``U, V`` (colour pixel position) and ``IZ`` (inverse colour-frame depth; 0 = not
+    projected) and returns the range of colour rows the row's pixels and footprints can touch.
+    The constants are read into locals first: the row's stores could alias the arrays they come
+    from, which would reload them for every pixel.
     """
-    h, w = depth.shape
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     tx, ty, tz = t[0], t[1], t[2]
-    for i in prange(h):
-        lo = np.inf
-        hi = -np.inf
-        for j in range(w):
-            P[i, j, 2] = 0.0
-            z = np.float64(depth[i, j])
-            if not (z > 0.0 and z < np.inf):  # 0, negative, NaN and inf are unknown
-                continue
-            Z = z * rays_c[i, j, 2] + tz
-            if not (Z > _MIN_Z_M):  # also false for NaN rays (no inverse of the depth distortion)
-                continue
-            iz = 1.0 / Z
-            x = (z * rays_c[i, j, 0] + tx) * iz
-            y = (z * rays_c[i, j, 1] + ty) * iz
-            if x * x + y * y > r2_max:
-                continue
-            xd, yd = _distort(x, y, d, tilt, has_dist, has_tilt)
-            v = fy * yd + cy
-            P[i, j, 0] = fx * xd + cx
-            P[i, j, 1] = v
-            P[i, j, 2] = iz
-            half = foot_v * z * iz + 1.0
-            lo = min(lo, v - half)
-            hi = max(hi, v + half)
-        row_lo[i] = lo
-        row_hi[i] = hi
+    k1, k2, p1, p2, k3, k4, k5, k6 = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
+    s1, s2, s3, s4 = d[8], d[9], d[10], d[11]
+    has_rational = (k4 != 0.0) | (k5 != 0.0) | (k6 != 0.0)
+    has_prism = (s1 != 0.0) | (s2 != 0.0) | (s3 != 0.0) | (s4 != 0.0)
+    m00, m01, m02, m10, m11, m12 = tilt[0, 0], tilt[0, 1], tilt[0, 2], tilt[1, 0], tilt[1, 1], tilt[1, 2]
+    m20, m21, m22 = tilt[2, 0], tilt[2, 1], tilt[2, 2]
+    lo = np.inf
+    hi = -np.inf
+    for j in range(depth_row.shape[0]):
+        z = np.float64(depth_row[j])
+        known = (z > 0.0) & (z < np.inf)  # 0, negative, NaN and inf are unknown
+        z = z if known else 0.0
+        Z = z * np.float64(rz[j]) + tz
+        ok = known & (Z > _MIN_Z_M)  # also false for NaN rays (no inverse of the depth distortion)
+        iz = 1.0 / (Z if ok else 1.0)
+        x = (z * np.float64(rx[j]) + tx) * iz
+        y = (z * np.float64(ry[j]) + ty) * iz
+        r2 = x * x + y * y
+        ok = ok & (not (r2 > r2_max))
+        if has_dist:
+            # OpenCV distortion; twin of geometry._distort_normalized
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            if has_rational:  # otherwise the denominator is exactly 1
+                radial = radial / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+            a1 = 2.0 * x * y
+            xd = x * radial + p1 * a1 + p2 * (r2 + 2.0 * x * x)
+            yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * a1
+            if has_prism:  # otherwise these terms are exactly 0
+                xd += r2 * (s1 + s2 * r2)
+                yd += r2 * (s3 + s4 * r2)
+            if has_tilt:
+                wx = m00 * xd + m01 * yd + m02
+                wy = m10 * xd + m11 * yd + m12
+                wz = m20 * xd + m21 * yd + m22
+                inv = 1.0 / wz if wz != 0.0 else 1.0
+                xd = wx * inv
+                yd = wy * inv
+        else:
+            xd = x
+            yd = y
+        u = fx * xd + cx
+        v = fy * yd + cy
+        U[j] = np.float32(u if ok else 0.0)
+        V[j] = np.float32(v if ok else 0.0)
+        IZ[j] = np.float32(iz if ok else 0.0)
+        half = foot_v * z * iz + 1.0
+        lo = min(lo, v - half if ok else np.inf)
+        hi = max(hi, v + half if ok else -np.inf)
+    return lo, hi
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH)
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _keep(w0, w1, w2, ratio):
     """Whether a triangle with inverse corner depths w (0 = unknown) lies on one surface."""
-    if w0 <= 0.0 or w1 <= 0.0 or w2 <= 0.0:
-        return False
     wmin = min(w0, min(w1, w2))
     wmax = max(w0, max(w1, w2))
-    return wmax <= wmin * ratio  # zmax / zmin = wmax / wmin
+    return (wmin > 0.0) & (wmax <= wmin * ratio)  # zmax / zmin = wmax / wmin
 
 
-@njit(cache=True, parallel=True, fastmath=_FASTMATH)
-def _quad_codes(P, ratio, codes):
-    """Pass 2: choose each quad's diagonal and which of its two triangles to keep.
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
+def _code_row(top, bottom, ratio, codes_row):
+    """Choose the diagonal of each quad between two rows of 1/z and which of its two triangles to keep.
 
-    ``codes`` is (h + 1, w + 1) with a zero border: quad (i, j) is ``codes[i + 1, j + 1]``, so
-    the four quads around pixel (i, j) are ``codes[i:i + 2, j:j + 2]``.
+    ``codes_row[j]`` is quad j's code (see the quad split codes above).
     """
-    h = P.shape[0]
-    w = P.shape[1]
-    for i in prange(h - 1):
-        for j in range(w - 1):
-            wa = np.float64(P[i, j, 2])
-            wb = np.float64(P[i, j + 1, 2])
-            wc = np.float64(P[i + 1, j, 2])
-            wd = np.float64(P[i + 1, j + 1, 2])
-            k0 = _keep(wa, wb, wd, ratio)
-            k1 = _keep(wa, wd, wc, ratio)
-            k2 = _keep(wa, wb, wc, ratio)
-            k3 = _keep(wb, wd, wc, ratio)
-            n_ad = int(k0) + int(k1)
-            n_bc = int(k2) + int(k3)
-            use_ad = n_ad > n_bc
-            if n_ad == n_bc:
-                # Both diagonals give the same coverage: cut along the smaller relative depth step.
-                use_ad = abs(wa - wd) * (wb + wc) <= abs(wb - wc) * (wa + wd)
-            if use_ad:
-                code = int(k0) | (int(k1) << 1) | (_WHOLE if n_ad == 2 else 0)
-            else:
-                code = (int(k2) << 2) | (int(k3) << 3) | (_WHOLE if n_bc == 2 else 0)
-            codes[i + 1, j + 1] = np.uint8(code)
+    for j in range(top.shape[0] - 1):
+        wa = np.float64(top[j])
+        wb = np.float64(top[j + 1])
+        wc = np.float64(bottom[j])
+        wd = np.float64(bottom[j + 1])
+        k0 = _keep(wa, wb, wd, ratio)
+        k1 = _keep(wa, wd, wc, ratio)
+        k2 = _keep(wa, wb, wc, ratio)
+        k3 = _keep(wb, wd, wc, ratio)
+        n_ad = int(k0) + int(k1)
+        n_bc = int(k2) + int(k3)
+        # equal coverage: cut along the smaller relative depth step
+        tie = abs(wa - wd) * (wb + wc) <= abs(wb - wc) * (wa + wd)
+        use_ad = (n_ad > n_bc) | ((n_ad == n_bc) & tie)
+        code_ad = int(k0) | (int(k1) << 1) | (_WHOLE if n_ad == 2 else 0)
+        code_bc = (int(k2) << 2) | (int(k3) << 3) | (_WHOLE if n_bc == 2 else 0)
+        codes_row[j] = np.uint8(code_ad if use_ad else code_bc)
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH)
+@njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _prepare(counter, n_tasks, chunk, depth, rays, t, cam, d, tilt, has_dist, has_tilt, r2_max, foot_v, ratio,
+             U, V, IZ, row_lo, row_hi, codes):
+    """Pass 1, one chunk of depth rows per task: project the rows, then code the quads below them.
+
+    Tasks are claimed from *counter* until *n_tasks* are taken, so any number of threads can run
+    this at once. ``codes`` is (h + 1, w + 1) with a zero border: quad (i, j) is ``codes[i + 1, j + 1]``,
+    so the four quads around pixel (i, j) are ``codes[i:i + 2, j:j + 2]``. The quads below a
+    chunk's last row need the next chunk's first row: it is projected again into scratch rows.
+    """
+    h, w = depth.shape
+    su = np.empty(w, np.float32)
+    sv = np.empty(w, np.float32)
+    siz = np.empty(w, np.float32)
+    while True:
+        k = _claim(counter)
+        if k >= n_tasks:
+            break
+        r0 = k * chunk
+        r1 = min(h, r0 + chunk)
+        for i in range(r0, r1):
+            lo, hi = _project_row(depth[i], rays[0, i], rays[1, i], rays[2, i], t, cam, d, tilt, has_dist, has_tilt,
+                                  r2_max, foot_v, U[i], V[i], IZ[i])
+            row_lo[i] = lo
+            row_hi[i] = hi
+        if r1 < h:
+            _project_row(depth[r1], rays[0, r1], rays[1, r1], rays[2, r1], t, cam, d, tilt, has_dist, has_tilt,
+                         r2_max, foot_v, su, sv, siz)
+        for i in range(r0, min(r1, h - 1)):
+            _code_row(IZ[i], IZ[i + 1] if i + 1 < r1 else siz, ratio, codes[i + 1, 1:])
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _inside(x, y, u0, v0, w0, u1, v1, w1, u2, v2, w2):
     """Interpolated 1/z at pixel centre (x, y) if it lies in the triangle (edges included), else -1.
 
@@ -227,7 +283,7 @@ def _inside(x, y, u0, v0, w0, u1, v1, w1, u2, v2, w2):
     return (e0 * w0 + e1 * w1 + e2 * w2) / area
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH)
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _box(umin, umax, vmin, vmax, W, y0, y1):
     """Clamped integer range of pixel centres in a bounding box; empty when xa > xb or ya > yb."""
     if umax - umin > MAX_PRIMITIVE_PX or vmax - vmin > MAX_PRIMITIVE_PX:
@@ -239,7 +295,7 @@ def _box(umin, umax, vmin, vmax, W, y0, y1):
     return xa, xb, ya, yb
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH)
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _scan(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
     """Draw a triangle by scanlines: 1/z is incremented along each row; buf keeps the largest 1/z.
 
@@ -285,7 +341,7 @@ def _scan(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
             iz += gx
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH)
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _triangle(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
     """Draw one triangle into rows [y0, y1) of the 1/z buffer (largest 1/z = nearest wins)."""
     xa, xb, ya, yb = _box(min(u0, min(u1, u2)), max(u0, max(u1, u2)), min(v0, min(v1, v2)),
@@ -302,7 +358,7 @@ def _triangle(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
                 buf[y, x] = iz
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH)
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _quad(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, diag_ad):
     """Draw a whole quad (both triangles of its split), sharing one bounding box."""
     xa, xb, ya, yb = _box(min(min(ua, ub), min(uc, ud)), max(max(ua, ub), max(uc, ud)),
@@ -331,7 +387,7 @@ def _quad(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, diag_ad):
                 buf[y, x] = iz
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH)
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _footprint(buf, y0, y1, u, v, iz, left, right, up, down, ratio):
     """Draw a known depth pixel as the rectangle [u - left, u + right] x [v - up, v + down] (constant 1/z).
 
@@ -364,14 +420,14 @@ def _footprint(buf, y0, y1, u, v, iz, left, right, up, down, ratio):
                 buf[y, x] = izf
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _reach(P, i, j, wij, ratio, unknown):
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
+def _reach(IZ, i, j, wij, ratio, unknown):
     """How far (share of the half pixel) a footprint reaches towards neighbour (i, j): not at all
     towards a nearer surface (that side belongs to the occluder), *unknown* towards a hole or the
     image border, fully otherwise."""
-    if i < 0 or j < 0 or i >= P.shape[0] or j >= P.shape[1]:
+    if i < 0 or j < 0 or i >= IZ.shape[0] or j >= IZ.shape[1]:
         return unknown
-    wn = np.float64(P[i, j, 2])
+    wn = np.float64(IZ[i, j])
     if not (wn > 0.0):
         return unknown
     if wn > wij * ratio:
@@ -379,21 +435,26 @@ def _reach(P, i, j, wij, ratio, unknown):
     return 1.0
 
 
-@njit(cache=True, parallel=True, fastmath=_FASTMATH)
-def _rasterise(depth, P, codes, row_lo, row_hi, foot, ratio, unknown, n_bands, out):
-    """Pass 3: draw kept triangles, then the footprints of the mesh's edge pixels, one band of colour rows per task.
+@njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _rasterise(counter, n_bands, band_h, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out):
+    """Pass 2, one band of colour rows per task: draw kept triangles, then the footprints of the mesh's edge pixels.
 
-    Drawing keeps 1/z in *out* (0 = empty, largest = nearest, no division per pixel); each band
-    turns its rows into z at the end. Bands own disjoint rows of *out*, so tasks never write the
-    same pixel (no races, no merge); a depth row is visited by every band its projection can touch.
+    Tasks are claimed from *counter* until *n_bands* are taken. Drawing keeps 1/z in *out* (0 =
+    empty, largest = nearest, no division per pixel); each band clears its rows first and turns
+    them into z at the end. Bands own disjoint rows of *out*, so tasks never write the same pixel
+    (no races, no merge); a depth row is visited by every band its projection can touch.
     """
-    h = P.shape[0]
-    w = P.shape[1]
-    H = out.shape[0]
-    band_h = (H + n_bands - 1) // n_bands
-    for b in prange(n_bands):
+    h, w = IZ.shape
+    H, W = out.shape
+    while True:
+        b = _claim(counter)
+        if b >= n_bands:
+            break
         y0 = b * band_h
         y1 = min(H, y0 + band_h)
+        for y in range(y0, y1):
+            for x in range(W):
+                out[y, x] = 0.0
         for i in range(h - 1):
             if max(row_hi[i], row_hi[i + 1]) < y0 - 1 or min(row_lo[i], row_lo[i + 1]) > y1 + 1:
                 continue
@@ -401,18 +462,18 @@ def _rasterise(depth, P, codes, row_lo, row_hi, foot, ratio, unknown, n_bands, o
                 code = codes[i + 1, j + 1]
                 if code == 0:
                     continue
-                ua = np.float64(P[i, j, 0])
-                va = np.float64(P[i, j, 1])
-                wa = np.float64(P[i, j, 2])
-                ub = np.float64(P[i, j + 1, 0])
-                vb = np.float64(P[i, j + 1, 1])
-                wb = np.float64(P[i, j + 1, 2])
-                uc = np.float64(P[i + 1, j, 0])
-                vc = np.float64(P[i + 1, j, 1])
-                wc = np.float64(P[i + 1, j, 2])
-                ud = np.float64(P[i + 1, j + 1, 0])
-                vd = np.float64(P[i + 1, j + 1, 1])
-                wd = np.float64(P[i + 1, j + 1, 2])
+                ua = np.float64(U[i, j])
+                va = np.float64(V[i, j])
+                wa = np.float64(IZ[i, j])
+                ub = np.float64(U[i, j + 1])
+                vb = np.float64(V[i, j + 1])
+                wb = np.float64(IZ[i, j + 1])
+                uc = np.float64(U[i + 1, j])
+                vc = np.float64(V[i + 1, j])
+                wc = np.float64(IZ[i + 1, j])
+                ud = np.float64(U[i + 1, j + 1])
+                vd = np.float64(V[i + 1, j + 1])
+                wd = np.float64(IZ[i + 1, j + 1])
                 if code & _WHOLE:
                     _quad(out, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, (code & 1) != 0)
                 elif code == 1:
@@ -430,35 +491,102 @@ def _rasterise(depth, P, codes, row_lo, row_hi, foot, ratio, unknown, n_bands, o
                 # interior pixels (all four quads around them whole) are covered by the mesh
                 if codes[i, j] & codes[i, j + 1] & codes[i + 1, j] & codes[i + 1, j + 1] & _WHOLE:
                     continue
-                wij = np.float64(P[i, j, 2])
+                wij = np.float64(IZ[i, j])
                 if not (wij > 0.0):
                     continue
                 s = depth[i, j] * wij  # depth-camera z / colour-camera z
                 hu = foot[0] * s
                 hv = foot[1] * s
-                _footprint(out, y0, y1, np.float64(P[i, j, 0]), np.float64(P[i, j, 1]), wij,
-                           hu * _reach(P, i, j - 1, wij, ratio, unknown), hu * _reach(P, i, j + 1, wij, ratio, unknown),
-                           hv * _reach(P, i - 1, j, wij, ratio, unknown), hv * _reach(P, i + 1, j, wij, ratio, unknown),
+                _footprint(out, y0, y1, np.float64(U[i, j]), np.float64(V[i, j]), wij,
+                           hu * _reach(IZ, i, j - 1, wij, ratio, unknown),
+                           hu * _reach(IZ, i, j + 1, wij, ratio, unknown),
+                           hv * _reach(IZ, i - 1, j, wij, ratio, unknown),
+                           hv * _reach(IZ, i + 1, j, wij, ratio, unknown),
                            ratio)
         for y in range(y0, y1):
-            for x in range(out.shape[1]):
+            for x in range(W):
                 iz = out[y, x]
-                if iz > 0.0:
-                    out[y, x] = np.float32(1.0) / iz
+                out[y, x] = np.float32(1.0) / iz if iz > 0.0 else np.float32(0.0)
 
 
 # ---------------------------------------------------------------------------------------------
 
 
+class _RigPlan:
+    """Per-rig constants of the registration, computed once per calibration (see :func:`_plan`)."""
+
+    __slots__ = ("rays", "t", "cam", "dist", "tilt", "has_dist", "has_tilt", "r2_max", "foot")
+
+    def __init__(self, color, depth, T):
+        R = T[:3, :3]
+        xy = pixel_rays(depth)
+        # (3, h, w) float32 planes of the rays R @ (x, y, 1), NaN where undefined; 1e-7 relative: far below a pixel
+        rays = np.empty((3, depth.height, depth.width), dtype=np.float32)
+        for k in range(3):
+            rays[k] = xy[..., 0] * R[k, 0] + xy[..., 1] * R[k, 1] + R[k, 2]
+        rays.setflags(write=False)
+        self.rays = rays
+        self.t = np.ascontiguousarray(T[:3, 3])
+        self.cam = np.array([color.fx, color.fy, color.cx, color.cy])
+        self.dist = dist14(color)
+        self.has_tilt = bool(self.dist[12] != 0.0 or self.dist[13] != 0.0)
+        self.tilt = tilt_matrix(self.dist[12], self.dist[13]) if self.has_tilt else np.eye(3)
+        self.has_dist = color.has_distortion
+        self.r2_max = max_radius2(color)
+        # Half-size, in colour pixels per (depth z / colour z), of a depth pixel's projected footprint.
+        self.foot = np.array([0.5 * color.fx / depth.fx, 0.5 * color.fy / depth.fy])
+        for arr in (self.t, self.cam, self.dist, self.tilt, self.foot):
+            arr.setflags(write=False)  # shared by every call with this calibration
+
+
 @functools.lru_cache(maxsize=8)
-def _rotated_rays(depth_intr, rotation_bytes: bytes) -> np.ndarray:
-    """(h, w, 3) float32 rays R @ (x, y, 1) of the depth camera's pixels; NaN where undefined."""
-    R = np.frombuffer(rotation_bytes, dtype=np.float64).reshape(3, 3)
-    xy = pixel_rays(depth_intr)
-    rays = xy[..., 0:1] * R[:, 0] + xy[..., 1:2] * R[:, 1] + R[:, 2]
-    rays = np.ascontiguousarray(rays, dtype=np.float32)  # 1e-7 relative: far below a pixel
-    rays.setflags(write=False)
-    return rays
+def _cached_plan(color, depth, T_bytes: bytes) -> _RigPlan:
+    return _RigPlan(color, depth, np.frombuffer(T_bytes, dtype=np.float64).reshape(4, 4))
+
+
+def _plan(rig: Rig) -> _RigPlan:
+    """The rig's cached :class:`_RigPlan`, keyed by its calibration (equal rigs share one)."""
+    T = np.ascontiguousarray(rig.T_color_from_depth, dtype=np.float64)
+    return _cached_plan(rig.color, rig.depth, T.tobytes())
+
+
+_pool_lock = threading.Lock()
+_pool_state: list = [None, None]  # [executor, pid that created it]
+
+
+def _thread_pool() -> ThreadPoolExecutor:
+    """Helper threads for the kernels (numba releases the GIL); a forked child makes its own."""
+    with _pool_lock:
+        pool, pid = _pool_state
+        if pool is None or pid != os.getpid():
+            workers = max(1, int(numba.config.NUMBA_NUM_THREADS) - 1)
+            pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="pcdof-register")
+            _pool_state[:] = [pool, os.getpid()]
+        return pool
+
+
+def _run_tasks(kernel, n_tasks: int, *args) -> None:
+    """Run ``kernel(counter, n_tasks, *args)`` on up to ``numba.get_num_threads()`` threads.
+
+    The kernel claims task numbers from the shared counter until all are taken, so the calling
+    thread and the helpers share the work however the operating system schedules them; waiting
+    is done in the OS (no spinning), so a thread that gets no CPU (another busy process) only
+    leaves its share to the others instead of stalling them. Helpers that have not started when
+    the caller has finished are cancelled.
+    """
+    counter = np.zeros(1, dtype=np.int64)
+    helpers = min(numba.get_num_threads(), n_tasks) - 1
+    futures = []
+    if helpers > 0:
+        try:
+            pool = _thread_pool()
+            futures = [pool.submit(kernel, counter, n_tasks, *args) for _ in range(helpers)]
+        except RuntimeError:  # interpreter shutting down: no new threads
+            futures = []
+    kernel(counter, n_tasks, *args)
+    for f in futures:
+        if not f.cancel():
+            f.result()
 
 
 def _depth_input(depth_m, shape) -> np.ndarray:
@@ -475,6 +603,11 @@ def _depth_input(depth_m, shape) -> np.ndarray:
 
 def _n_bands(height: int) -> int:
     # A few bands per thread balance the load; bands thinner than ~16 rows waste re-visited quads.
+    return int(max(1, min(4 * numba.get_num_threads(), height // 16)))
+
+
+def _n_chunks(height: int) -> int:
+    # Depth-row chunks of pass 1; each re-projects one row of the next chunk.
     return int(max(1, min(4 * numba.get_num_threads(), height // 16)))
 
 
@@ -517,26 +650,24 @@ def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None) 
     if not np.isfinite(ratio) or ratio <= 0:
         raise InputError(f"max_depth_ratio must be a finite number > 0; got {max_depth_ratio!r}")
     depth = _depth_input(depth_m, rig.depth.shape)
-    T = np.asarray(rig.T_color_from_depth, dtype=np.float64)
-    rays_c = _rotated_rays(rig.depth, np.ascontiguousarray(T[:3, :3]).tobytes())
-    color = rig.color
-    d = dist14(color)
-    has_tilt = bool(d[12] != 0.0 or d[13] != 0.0)
-    tilt = tilt_matrix(d[12], d[13]) if has_tilt else np.eye(3)
-    cam = np.array([color.fx, color.fy, color.cx, color.cy])
-    # Half-size, in colour pixels per (depth z / colour z), of a depth pixel's projected footprint.
-    foot = np.array([0.5 * color.fx / rig.depth.fx, 0.5 * color.fy / rig.depth.fy])
+    plan = _plan(rig)
     h, w = depth.shape
-    # (u, v, 1/z) per depth pixel in float32: interleaved, so a quad's corners are two cache lines
-    P = np.empty((h, w, 3), dtype=np.float32)
+    # (u, v, 1/z) per depth pixel in float32 planes (1/z = 0: not projected)
+    U = np.empty((h, w), dtype=np.float32)
+    V = np.empty((h, w), dtype=np.float32)
+    IZ = np.empty((h, w), dtype=np.float32)
     row_lo = np.empty(h)
     row_hi = np.empty(h)
-    _project_grid(depth, rays_c, np.ascontiguousarray(T[:3, 3]), cam, d, tilt, color.has_distortion, has_tilt,
-                  max_radius2(color), float(foot[1]), P, row_lo, row_hi)
     codes = np.zeros((h + 1, w + 1), dtype=np.uint8)
-    _quad_codes(P, 1.0 + ratio, codes)
-    out = np.zeros(color.shape, dtype=np.float32)
-    _rasterise(depth, P, codes, row_lo, row_hi, foot, 1.0 + ratio, _UNKNOWN_REACH, _n_bands(color.height), out)
+    n_chunks = _n_chunks(h)
+    _run_tasks(_prepare, n_chunks, -(-h // n_chunks), depth, plan.rays, plan.t, plan.cam, plan.dist, plan.tilt,
+               plan.has_dist, plan.has_tilt, plan.r2_max, float(plan.foot[1]), 1.0 + ratio, U, V, IZ, row_lo, row_hi,
+               codes)
+    H = rig.color.height
+    out = np.empty(rig.color.shape, dtype=np.float32)
+    n_bands = _n_bands(H)
+    _run_tasks(_rasterise, n_bands, -(-H // n_bands), depth, U, V, IZ, codes, row_lo, row_hi, plan.foot, 1.0 + ratio,
+               _UNKNOWN_REACH, out)
     return out
 
 
@@ -565,7 +696,7 @@ def register_depth(frame: RGBDFrame, *, max_depth_ratio: float | None = None) ->
 
 
 def warmup() -> None:
-    """Compile (or load from numba's cache) the registration kernels on a tiny rig."""
+    """Compile (or load from numba's cache) the registration kernels on a tiny rig and start the helper threads."""
     from .camera import Intrinsics
 
     depth_intr = Intrinsics(4, 3, 3.0, 3.0, 1.5, 1.0, (0.01, 0.0, 0.0, 0.0, 0.0))
@@ -576,3 +707,8 @@ def warmup() -> None:
     depth = np.full((3, 4), 1.0, dtype=np.float32)
     depth[0, 0] = 2.0
     reproject_depth(depth, Rig(color_intr, depth_intr, T))
+    helpers = numba.get_num_threads() - 1
+    if helpers > 0:
+        pool = _thread_pool()
+        for f in [pool.submit(int) for _ in range(helpers)]:
+            f.result()

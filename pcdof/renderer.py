@@ -641,12 +641,18 @@ def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=Fals
     blurred = cv2.GaussianBlur(src, (ksize, ksize), plens.blur_sigma_px, borderType=cv2.BORDER_REFLECT)
     blurred = blurred.reshape(src.shape)
     alpha = plens.alpha(depth_m, max_range_m)[:, :, None]
-    out = blurred * alpha + src * (1.0 - alpha)  # eq. 3
+    # eq. 3, out = B*alpha + O*(1 - alpha), evaluated in place as O + alpha*(B - O)
+    out = blurred
+    out -= src
+    out *= alpha
+    out += src
     info = {"skipped": False, "blur_sigma_px": plens.blur_sigma_px, "weight": plens.weight,
             "mean_alpha": float(alpha.mean())}
-    # where nothing is blended in the pixel is the input, bit for bit (float64 would otherwise be
-    # rounded through the float32 computation)
-    out = np.where(alpha == 0, _as_channels(color), from_float(out, color.dtype))
+    out = from_float(out, color.dtype)
+    if color.dtype.itemsize > 4:
+        # where nothing is blended the pixel is the input, bit for bit (float64 would otherwise be
+        # rounded through the float32 computation; 8/16-bit and float32 values round-trip exactly)
+        out = np.where(alpha == 0, _as_channels(color), out)
     return out.reshape(color.shape), info
 
 

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
 from .errors import CalibrationError, InputError, LensError
 
@@ -46,6 +47,29 @@ def _focal_px(fx) -> float:
     if not math.isfinite(v) or v <= 0:
         raise CalibrationError(f"fx (colour focal length, pixels) must be a finite number > 0; got {fx!r}")
     return v
+
+
+@njit(cache=True, parallel=True)
+def _signed_coc(z, scale, inv_focus, out):
+    """out = scale * (inv_focus - 1/z) in float64 per pixel, 0 where z is not > 0 (also NaN) or the
+    point is exactly in focus, NaN as 0 and saturated at the float32 range."""
+    for i in prange(z.size):
+        d = np.float64(z[i])
+        if not d > 0.0:
+            out[i] = 0.0
+            continue
+        term = inv_focus - 1.0 / d  # d = inf: 1/d = 0
+        if term == 0.0:  # exactly in focus (also for an infinite scale)
+            out[i] = 0.0
+            continue
+        v = scale * term
+        if v != v:
+            v = 0.0
+        elif v > _F32_MAX:
+            v = _F32_MAX
+        elif v < -_F32_MAX:
+            v = -_F32_MAX
+        out[i] = v
 
 
 @dataclass(frozen=True)
@@ -108,16 +132,12 @@ class ThinLens:
             *fx* is not a finite number > 0.
         """
         scale = self.aperture_m * _focal_px(fx)
-        # float64: a subnormal float32 depth or an extreme aperture must not overflow into inf * 0 = NaN
-        z = np.asarray(depth_m, dtype=np.float64)
-        known = z > 0
-        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-            inv_z = np.divide(1.0, z, out=np.zeros_like(z), where=known)
-            term = 1.0 / self.focus_distance_m - inv_z
-            out = scale * term
-        out[(term == 0) | ~known] = 0.0  # exactly in focus (also for an infinite scale) or unknown
-        out = np.nan_to_num(out, nan=0.0, posinf=_F32_MAX, neginf=-_F32_MAX)
-        return np.clip(out, -_F32_MAX, _F32_MAX).astype(np.float32)
+        z = np.asarray(depth_m)
+        if z.dtype not in (np.float32, np.float64):
+            z = z.astype(np.float64)
+        out = np.empty(z.shape, np.float32)
+        _signed_coc(np.ascontiguousarray(z).reshape(-1), scale, 1.0 / self.focus_distance_m, out.reshape(-1))
+        return out
 
     def coc_px(self, depth_m, fx: float) -> np.ndarray:
         """Circle-of-confusion diameter c(z) = A*fx*|1/d_f - 1/z|, pixels (0 where depth is 0)."""

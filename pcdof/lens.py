@@ -26,14 +26,18 @@ MAX_COC_PX = 256.0
 _F32_MAX = float(np.finfo(np.float32).max)
 
 
-def _positive(name: str, value) -> float:
+def positive_number(name: str, value, error=LensError) -> float:
+    """*value* as a float if it is a finite number > 0; else *error* naming *name*."""
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise LensError(f"{name} must be a number; got {value!r}") from None
+        raise error(f"{name} must be a number; got {value!r}") from None
     if not math.isfinite(v) or v <= 0:
-        raise LensError(f"{name} must be a finite number > 0; got {value!r}")
+        raise error(f"{name} must be a finite number > 0; got {value!r}")
     return v
+
+
+_positive = positive_number
 
 
 def _focal_px(fx) -> float:

@@ -38,7 +38,7 @@ import numpy as np
 from .camera import Intrinsics, check_color
 from .color import to_float
 from .errors import ImageWriteError, InputError, LensError
-from .lens import ThinLens
+from .lens import ThinLens, positive_number
 
 #: Colours of the scene elements (named colours PyVista understands; tests look for the plane's).
 PLANE_COLOR = (255, 140, 0)  # dark orange
@@ -64,13 +64,7 @@ def _check_intrinsics(intrinsics) -> Intrinsics:
 
 
 def _positive(name: str, value, error=InputError) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise error(f"{name} must be a number; got {value!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise error(f"{name} must be a finite number > 0; got {value!r}")
-    return v
+    return positive_number(name, value, error)
 
 
 # --------------------------------------------------------------------------------------------------

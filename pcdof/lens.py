@@ -37,20 +37,12 @@ def positive_number(name: str, value, error=LensError) -> float:
     return v
 
 
-_positive = positive_number
-
-
 def _focal_px(fx) -> float:
     """The colour camera's focal length in pixels, checked (it comes from the calibration)."""
+    name = "fx (colour focal length, pixels)"
     if isinstance(fx, (bool, np.bool_, str, bytes)):
-        raise CalibrationError(f"fx (colour focal length, pixels) must be a number; got {fx!r}")
-    try:
-        v = float(fx)
-    except (TypeError, ValueError):
-        raise CalibrationError(f"fx (colour focal length, pixels) must be a number; got {fx!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise CalibrationError(f"fx (colour focal length, pixels) must be a finite number > 0; got {fx!r}")
-    return v
+        raise CalibrationError(f"{name} must be a number; got {fx!r}")
+    return positive_number(name, fx, CalibrationError)
 
 
 @njit(cache=True, parallel=True)
@@ -96,9 +88,9 @@ class ThinLens:
     aperture_rotation_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "focal_length_mm", _positive("focal_length_mm", self.focal_length_mm))
-        object.__setattr__(self, "f_number", _positive("f_number", self.f_number))
-        object.__setattr__(self, "focus_distance_m", _positive("focus_distance_m", self.focus_distance_m))
+        object.__setattr__(self, "focal_length_mm", positive_number("focal_length_mm", self.focal_length_mm))
+        object.__setattr__(self, "f_number", positive_number("f_number", self.f_number))
+        object.__setattr__(self, "focus_distance_m", positive_number("focus_distance_m", self.focus_distance_m))
         blades = self.aperture_blades
         if isinstance(blades, bool) or not isinstance(blades, (int, np.integer)) or blades < 0 or blades in (1, 2):
             raise LensError(f"aperture_blades must be 0 (circle) or an integer >= 3; got {blades!r}")
@@ -149,7 +141,7 @@ class ThinLens:
 
     def dof_limits_m(self, fx: float, coc_limit_px: float = 1.0) -> tuple[float, float]:
         """(near, far) depths in metres where c(z) equals *coc_limit_px*; far is inf past the hyperfocal."""
-        limit = _positive("coc_limit_px", coc_limit_px)
+        limit = positive_number("coc_limit_px", coc_limit_px)
         reach = self.aperture_m * _focal_px(fx)
         k = limit / reach if reach > 0 else math.inf  # an aperture that underflows to 0 is a pinhole
         inv_f = 1.0 / self.focus_distance_m
@@ -180,14 +172,14 @@ class PaperLens:
     max_range_m: float | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "focus_distance_m", _positive("focus_distance_m", self.focus_distance_m))
-        object.__setattr__(self, "sigma", _positive("sigma", self.sigma))
-        object.__setattr__(self, "blur_sigma_px", _positive("blur_sigma_px", self.blur_sigma_px))
-        object.__setattr__(self, "eq1_aperture", _positive("eq1_aperture", self.eq1_aperture))
+        object.__setattr__(self, "focus_distance_m", positive_number("focus_distance_m", self.focus_distance_m))
+        object.__setattr__(self, "sigma", positive_number("sigma", self.sigma))
+        object.__setattr__(self, "blur_sigma_px", positive_number("blur_sigma_px", self.blur_sigma_px))
+        object.__setattr__(self, "eq1_aperture", positive_number("eq1_aperture", self.eq1_aperture))
         if self.weight not in PAPER_WEIGHTS:
             raise LensError(f"weight must be one of {sorted(PAPER_WEIGHTS)}; got {self.weight!r}")
         if self.max_range_m is not None:
-            object.__setattr__(self, "max_range_m", _positive("max_range_m", self.max_range_m))
+            object.__setattr__(self, "max_range_m", positive_number("max_range_m", self.max_range_m))
 
     def alpha(self, depth_m, max_range_m: float) -> np.ndarray:
         """Blend weight in [0, 1] of the blurred image (eq. 3's alpha), (H, W) float32.
@@ -195,7 +187,7 @@ class PaperLens:
         NaN depth is unknown and weighs like 0 (as in :func:`pcdof.camera.as_depth_m`); +inf is
         infinitely far. The result is always finite.
         """
-        rng = self.max_range_m or _positive("max_range_m", max_range_m)
+        rng = self.max_range_m or positive_number("max_range_m", max_range_m)
         z = np.asarray(depth_m, np.float32)
         z = np.where(np.isnan(z), np.float32(0), z)
         with np.errstate(over="ignore", divide="ignore", invalid="ignore"):  # tiny z: d_f / z -> inf, clipped

@@ -63,10 +63,6 @@ def _check_intrinsics(intrinsics) -> Intrinsics:
     return intrinsics
 
 
-def _positive(name: str, value, error=InputError) -> float:
-    return positive_number(name, value, error)
-
-
 # --------------------------------------------------------------------------------------------------
 # Pure geometry
 # --------------------------------------------------------------------------------------------------
@@ -125,7 +121,7 @@ def focal_plane_corners(intrinsics: Intrinsics, focus_distance_m: float) -> np.n
     >>> focal_plane_corners(intr, 2.0)[0].tolist()
     [-2.0, -1.0, 2.0]
     """
-    d_f = _positive("focus_distance_m", focus_distance_m, LensError)
+    d_f = positive_number("focus_distance_m", focus_distance_m)
     return image_corner_rays(intrinsics) * d_f
 
 
@@ -180,7 +176,7 @@ def dof_slab(intrinsics: Intrinsics, lens: ThinLens, *, coc_limit_px: float = 1.
     intr = _check_intrinsics(intrinsics)
     if not isinstance(lens, ThinLens):
         raise LensError(f"lens must be a ThinLens; got {type(lens).__name__}")
-    z_max = _positive("z_max_m", z_max_m)
+    z_max = positive_number("z_max_m", z_max_m, InputError)
     near, far = lens.dof_limits_m(intr.fx, coc_limit_px)
     z_clip = max(z_max, lens.focus_distance_m)
     rays = image_corner_rays(intr)
@@ -201,7 +197,7 @@ def frustum_lines(intrinsics: Intrinsics, far_m: float) -> tuple[np.ndarray, np.
         (top-left, top-right, bottom-right, bottom-left)
     segments : (8, 2) int64 ndarray, indices into *points*: the four edges, then the far rectangle
     """
-    far = _positive("far_m", far_m)
+    far = positive_number("far_m", far_m, InputError)
     points = np.concatenate([np.zeros((1, 3)), image_corner_rays(intrinsics) * far])
     segments = np.array([[0, 1], [0, 2], [0, 3], [0, 4], [1, 2], [2, 3], [3, 4], [4, 1]], dtype=np.int64)
     return points, segments
@@ -422,7 +418,7 @@ class FocusViewer:
 
         ``preview=False`` (while a slider is dragged) leaves the preview for :meth:`refresh_preview`.
         """
-        d_f = _positive("focus_distance_m", focus_distance_m, LensError)
+        d_f = positive_number("focus_distance_m", focus_distance_m)
         self.lens = self.lens.with_focus(d_f)
         self._sync_slider(self.focus_slider, d_f)
         self._update(preview=preview)
@@ -432,7 +428,7 @@ class FocusViewer:
 
         ``preview=False`` (while a slider is dragged) leaves the preview for :meth:`refresh_preview`.
         """
-        n = _positive("f_number", f_number, LensError)
+        n = positive_number("f_number", f_number)
         lens = self.lens
         self.lens = ThinLens(lens.focal_length_mm, n, lens.focus_distance_m, lens.aperture_blades,
                              lens.aperture_rotation_deg)
@@ -702,7 +698,7 @@ def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *
         raise InputError(f"depth_filled_m must be numeric; got dtype {depth.dtype}")
     if not np.any(np.isfinite(depth) & (depth > 0)):
         raise InputError("depth_filled_m has no known depth (all values are 0, negative or not finite)")
-    coc_limit = _positive("coc_limit_px", coc_limit_px, LensError)
+    coc_limit = positive_number("coc_limit_px", coc_limit_px)
     if color_by not in COLOR_BY:
         raise InputError(f"color_by must be one of {list(COLOR_BY)}; got {color_by!r}")
     if isinstance(preview_max_side, bool) or not isinstance(preview_max_side, (int, np.integer)) \

@@ -44,6 +44,7 @@ from .camera import check_color
 from .color import decode_to_linear, encode_from_linear, from_float, to_float
 from .errors import InputError, LensError
 from .lens import MAX_COC_PX, PaperLens, ThinLens
+from .tiles import TileMap, classify_tiles
 
 #: |CoC| layer edges in pixels; |c| < 1 is the in-focus layer, copied without blur.
 LAYER_EDGES_PX = np.array([1, 1.5, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 91, 128, 181, 256, np.inf])
@@ -262,6 +263,41 @@ def _composite_under(layer_buf, y0, x0, acc, acc_a, trans):
                 trans[y, x] = t * (1.0 - alpha)
 
 
+@njit(cache=True)
+def _composite_sharp(src, member, y0, x0, acc, acc_a, trans):
+    """Composite in-focus pixels (placed at row y0, column x0): opaque copies behind what is already there."""
+    hb, wb, nc = src.shape
+    for yy in range(hb):
+        y = y0 + yy
+        for xx in range(wb):
+            x = x0 + xx
+            t = trans[y, x]
+            if member[yy, xx] and t > 0.0:
+                for c in range(nc):
+                    acc[y, x, c] += t * src[yy, xx, c]
+                acc_a[y, x] += t
+                trans[y, x] = 0.0
+
+
+@njit(cache=True)
+def _copy_tiles(src, copy, tile, out):
+    """out[tile] = src[tile] for every tile set in *copy* ((th, tw) bool); src and out are (H, W, C)."""
+    h, w = src.shape[0], src.shape[1]
+    for ty in range(copy.shape[0]):
+        for tx in range(copy.shape[1]):
+            if copy[ty, tx]:
+                for y in range(ty * tile, min(h, (ty + 1) * tile)):
+                    for x in range(tx * tile, min(w, (tx + 1) * tile)):
+                        out[y, x] = src[y, x]
+
+
+def copy_tiles(src: np.ndarray, tiles: TileMap, out: np.ndarray) -> None:
+    """Copy the copy tiles of *tiles* from *src* into *out* (same shape, (H, W) or (H, W, C))."""
+    if tiles.copy.any():
+        _copy_tiles(src.reshape(src.shape[0], src.shape[1], -1), tiles.copy, tiles.tile_px,
+                    out.reshape(out.shape[0], out.shape[1], -1))
+
+
 @njit(parallel=True, cache=True)
 def _normalise(acc, acc_a, lin, out):
     """out = acc / acc_a where some light arrived (acc_a > 1e-6), else the input pixel."""
@@ -404,18 +440,32 @@ def _extend_behind(lin, radius, member, hidden, reach_px):
     single-view guess continues each background pixel's nearest visible neighbour in its layer.
     Returns (lin, radius, mask) with the extension filled in (copies; inputs are not modified).
     """
-    dist, labels = cv2.distanceTransformWithLabels((~member).astype(np.uint8), cv2.DIST_L2, 5,
+    rows = np.flatnonzero(hidden.any(axis=1))
+    if rows.size == 0:
+        return lin, radius, member
+    cols = np.flatnonzero(hidden.any(axis=0))
+    # every pixel that can be filled, and its nearest member within reach, lie in this window
+    pad = int(math.ceil(reach_px)) + 1
+    h, w = member.shape
+    win = (slice(max(0, rows[0] - pad), min(h, rows[-1] + pad + 1)), slice(max(0, cols[0] - pad), min(w, cols[-1] + pad + 1)))
+    m_win = member[win]
+    if not m_win.any():
+        return lin, radius, member
+    dist, labels = cv2.distanceTransformWithLabels((~m_win).astype(np.uint8), cv2.DIST_L2, 5,
                                                    labelType=cv2.DIST_LABEL_PIXEL)
-    band = hidden & (dist <= reach_px)
+    band = hidden[win] & (dist <= reach_px)
     if not band.any():
         return lin, radius, member
-    sources = np.flatnonzero(member.ravel())  # labels number the member pixels in raster order
+    sources = np.flatnonzero(m_win.ravel())  # labels number the member pixels in raster order
     nearest = sources[labels[band] - 1]
     lin = lin.copy()
     radius = radius.copy()
-    lin[band] = lin.reshape(-1, lin.shape[2])[nearest]
-    radius[band] = radius.ravel()[nearest]
-    return lin, radius, member | band
+    member = member.copy()
+    lin_win, r_win = lin[win], radius[win]
+    lin_win[band] = lin_win.reshape(-1, lin.shape[2])[nearest]
+    r_win[band] = r_win.ravel()[nearest]
+    member[win] |= band
+    return lin, radius, member
 
 
 @njit(cache=True)
@@ -508,7 +558,7 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0):
 
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
                          rotation_deg: float = 0.0, quality: str = "balanced",
-                         extend_behind: bool = True) -> tuple[np.ndarray, dict]:
+                         extend_behind: bool = True, tiles: TileMap | None = None) -> tuple[np.ndarray, dict]:
     """Physical depth of field in linear light.
 
     Parameters
@@ -519,10 +569,12 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     blades, rotation_deg : aperture polygon (0 = disc)
     quality : a key of :data:`QUALITIES`
     extend_behind : continue each layer behind the soft edges of nearer blurred layers (partial occlusion)
+    tiles : :func:`pcdof.tiles.classify_tiles` of *signed_coc*, if the caller has it (else computed here);
+        its copy tiles are left out of every layer and come out as the input, exactly
 
     Returns
     -------
-    (H, W, C) float32 image and an info dict (layers run, pixels blurred).
+    (H, W, C) float32 image and an info dict (layers run, pixels blurred, tiles).
     """
     check_quality(quality)
     if lin.ndim != 3 or not 1 <= lin.shape[2] <= 3:
@@ -535,10 +587,18 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     radius = (np.abs(coc) * np.float32(0.5)).astype(np.float32)
     layer, keys = _layer_of(coc)
     rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
+    if tiles is None:
+        tiles = classify_tiles(coc, sharp_px=float(LAYER_EDGES_PX[0]))
+    elif not isinstance(tiles, TileMap) or tiles.shape != (h, w):
+        raise InputError(f"tiles must be a TileMap of shape {(h, w)}; got {tiles!r:.80}")
 
     acc = np.zeros((h, w, nc), np.float32)
     acc_a = np.zeros((h, w), np.float32)
     trans = np.ones((h, w), np.float32)
+    # copy tiles: in focus and out of every foreground's reach, so opaque from the start; nothing
+    # is composited there and the normalisation returns the input (acc_a stays 0)
+    if tiles.copy.any():
+        trans[tiles.pixel_mask(tiles.copy)] = 0.0
     r_front = 0.0  # largest blur radius of the layers composited so far
     layers_run = []
     counts, r_maxes, boxes = _layer_stats(layer, radius, len(keys))
@@ -565,12 +625,9 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
                 s *= 2
         if hidden is not None and key == 0:
             src, src_r, m = _extend_behind(src, src_r, m, hidden, ext_reach)
-        t_box, acc_box, acc_a_box = trans[box], acc[box], acc_a[box]
         if key == 0:  # in focus: an opaque copy, no blur
-            t = t_box[m]
-            acc_box[m] += t[:, None] * src[m]
-            acc_a_box[m] += t
-            t_box[m] = 0.0
+            _composite_sharp(np.ascontiguousarray(src), np.ascontiguousarray(m), box[0].start, box[1].start,
+                             acc, acc_a, trans)
             layers_run.append({"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1})
         else:
             layer_buf, extended = _scatter_mask(src, src_r, m, s, int(blades), rot, hidden, ext_reach)
@@ -583,7 +640,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     _normalise(acc, acc_a, lin, out)
     in_focus = sum(l["pixels"] for l in layers_run if not l["blurred"])
     info = {"layers": layers_run, "foreground_pass": bool((keys < 0).any()), "blurred_pixels": h * w - in_focus,
-            "quality": quality}
+            "quality": quality, "tiles": tiles.summary()}
     return out, info
 
 
@@ -611,14 +668,16 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
         warnings.warn(f"circle of confusion up to {cmax:.0f} px clamped to {MAX_COC_PX:.0f} px", stacklevel=3)
     src = _as_channels(color)
     lin = to_float(src).copy() if linear else decode_to_linear(src)
+    tiles = classify_tiles(coc, sharp_px=float(LAYER_EDGES_PX[0]))
     out_lin, info = render_layers_linear(np.ascontiguousarray(lin, np.float32), coc,
                                          blades=lens.aperture_blades, rotation_deg=lens.aperture_rotation_deg,
-                                         quality=quality)
+                                         quality=quality, tiles=tiles)
     if linear:
         out = out_lin if color.dtype.kind == "f" else from_float(out_lin, color.dtype)
         out = out.astype(color.dtype, copy=False)
     else:
         out = encode_from_linear(out_lin, color.dtype)
+    copy_tiles(src, tiles, out)  # exactly the input there, whatever the dtype's round trip
     info.update(skipped=False, max_coc_px=cmax)
     return out.reshape(color.shape), info
 

@@ -1,0 +1,170 @@
+"""Tile classification of a circle-of-confusion map: where the renderer has work to do.
+
+The image is cut into square tiles of :data:`TILE_PX` pixels and each tile gets the range of its
+signed circle of confusion (CoC, pixels, negative in front of the focus plane). From those
+ranges alone (one pass over the map, then work on a grid 256 times smaller) the renderer learns:
+
+* **copy** tiles: every pixel is in focus (|c| below the sharp limit) and no blurred pixel in
+  front of the focus plane can spread onto the tile. Their output is their input, bit for bit;
+  the renderer neither blurs nor composites them.
+* **uniform** tiles: the tile and every pixel whose blur can reach it lie in one blur layer with
+  nearly the same CoC (spread at most :data:`UNIFORM_SPREAD` of its size). There the layered
+  scatter is a convolution with one fixed aperture kernel, which the renderer computes as such
+  (:func:`pcdof.renderer.render_layers_linear`).
+* all other tiles are **mixed**: the exact per-pixel scatter runs there.
+
+This is the tile classification of real-time depth-of-field renderers (min/max CoC per tile,
+in-focus tiles skipped, cheap paths for tiles of constant blur), kept exact where it matters:
+a copy tile is exact by construction and a uniform tile differs from the scatter only by the
+spread of its CoC.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from .errors import InputError
+
+#: Tile side in pixels.
+TILE_PX = 16
+#: Largest relative CoC spread (max - min over mean) of a uniform tile and everything that reaches it.
+UNIFORM_SPREAD = 0.1
+
+
+@njit(cache=True)
+def _tile_ranges(coc, tile, sharp):
+    """Per tile: min and max signed CoC, largest blur radius of its front pixels (|c| >= sharp, c < 0; else 0)."""
+    h, w = coc.shape
+    th, tw = (h + tile - 1) // tile, (w + tile - 1) // tile
+    lo = np.full((th, tw), np.inf, np.float32)
+    hi = np.full((th, tw), -np.inf, np.float32)
+    front_r = np.zeros((th, tw), np.float32)
+    for y in range(h):
+        ty = y // tile
+        for x in range(w):
+            tx = x // tile
+            c = coc[y, x]
+            if c < lo[ty, tx]:
+                lo[ty, tx] = c
+            if c > hi[ty, tx]:
+                hi[ty, tx] = c
+            if c <= -sharp and -0.5 * c > front_r[ty, tx]:
+                front_r[ty, tx] = -0.5 * c
+    return lo, hi, front_r
+
+
+@njit(cache=True)
+def _reached_from_front(front_r, tile):
+    """Tiles onto which some front tile's blur can spread: within 2 r + 2 pixels of it.
+
+    The margin covers the footprint radius r, the anti-aliased edge and the spread that the
+    renderer's reduced-resolution layers add (at most r).
+    """
+    th, tw = front_r.shape
+    reached = np.zeros((th, tw), np.bool_)
+    for ty in range(th):
+        for tx in range(tw):
+            r = front_r[ty, tx]
+            if r <= 0.0:
+                continue
+            k = int(math.ceil((2.0 * r + 2.0) / tile))
+            for yy in range(max(0, ty - k), min(th, ty + k + 1)):
+                for xx in range(max(0, tx - k), min(tw, tx + k + 1)):
+                    reached[yy, xx] = True
+    return reached
+
+
+@njit(cache=True)
+def _window_range(lo, hi, k):
+    """Min of *lo* and max of *hi* over the (2k+1)^2 tile window around each tile."""
+    th, tw = lo.shape
+    wlo = np.empty_like(lo)
+    whi = np.empty_like(hi)
+    for ty in range(th):
+        for tx in range(tw):
+            a = np.inf
+            b = -np.inf
+            for yy in range(max(0, ty - k), min(th, ty + k + 1)):
+                for xx in range(max(0, tx - k), min(tw, tx + k + 1)):
+                    a = min(a, lo[yy, xx])
+                    b = max(b, hi[yy, xx])
+            wlo[ty, tx] = a
+            whi[ty, tx] = b
+    return wlo, whi
+
+
+@dataclass(frozen=True)
+class TileMap:
+    """Per-tile CoC ranges and classes of an (H, W) CoC map; tile arrays are (ceil(H/t), ceil(W/t)).
+
+    Attributes
+    ----------
+    shape : (H, W) of the CoC map, pixels
+    tile_px : tile side, pixels
+    coc_min, coc_max : float32, signed CoC range of each tile's own pixels, pixels
+    copy : bool, in focus and out of reach of every blurred foreground pixel
+    """
+
+    shape: tuple
+    tile_px: int
+    coc_min: np.ndarray
+    coc_max: np.ndarray
+    copy: np.ndarray
+
+    @property
+    def n_tiles(self) -> int:
+        return int(self.copy.size)
+
+    def uniform(self, lo_px: float, hi_px: float, reach_px: float) -> np.ndarray:
+        """Uniform tiles of the blur layer of signed CoC in [lo_px, hi_px): (th, tw) bool.
+
+        A tile is uniform when every pixel within *reach_px* of it (its own included; the
+        neighbourhood is rounded up to whole tiles) has a CoC in the layer's range whose spread
+        is at most :data:`UNIFORM_SPREAD` of its mean magnitude.
+        """
+        k = int(math.ceil(reach_px / self.tile_px))
+        wlo, whi = _window_range(self.coc_min, self.coc_max, k)
+        spread = whi - wlo
+        mag = 0.5 * np.abs(whi + wlo)
+        return (wlo >= lo_px) & (whi < hi_px) & (spread <= UNIFORM_SPREAD * mag) & (mag > 0)
+
+    def pixel_mask(self, tiles: np.ndarray) -> np.ndarray:
+        """(H, W) bool mask of the pixels of the tiles set in *tiles* ((th, tw) bool)."""
+        t = self.tile_px
+        full = np.repeat(np.repeat(tiles, t, axis=0), t, axis=1)
+        return full[: self.shape[0], : self.shape[1]]
+
+    def summary(self) -> dict:
+        """Plain counts for the pipeline trace."""
+        return {"tile_px": self.tile_px, "tiles": self.n_tiles, "copy_tiles": int(self.copy.sum())}
+
+
+def classify_tiles(signed_coc, *, tile_px: int = TILE_PX, sharp_px: float = 1.0) -> TileMap:
+    """Classify the tiles of a signed CoC map (see the module docstring).
+
+    Parameters
+    ----------
+    signed_coc : (H, W) float array, signed CoC diameter in pixels (< 0 in front of focus); NaN counts as 0
+    tile_px : int >= 1, tile side in pixels
+    sharp_px : float > 0, pixels with |c| below it are in focus (the renderer's sharp limit)
+
+    Returns
+    -------
+    TileMap
+    """
+    coc = np.asarray(signed_coc)
+    if coc.ndim != 2 or coc.dtype.kind != "f":
+        raise InputError(f"signed_coc must be a 2-D float array; got shape {coc.shape}, dtype {coc.dtype}")
+    if isinstance(tile_px, bool) or not isinstance(tile_px, (int, np.integer)) or tile_px < 1:
+        raise InputError(f"tile_px must be an integer >= 1; got {tile_px!r}")
+    if not (isinstance(sharp_px, (int, float)) and math.isfinite(sharp_px) and sharp_px > 0):
+        raise InputError(f"sharp_px must be a finite number > 0; got {sharp_px!r}")
+    coc = np.ascontiguousarray(np.nan_to_num(coc, nan=0.0), np.float32)
+    lo, hi, front_r = _tile_ranges(coc, int(tile_px), float(sharp_px))
+    sharp = (lo > -sharp_px) & (hi < sharp_px)
+    copy = sharp & ~_reached_from_front(front_r, int(tile_px))
+    return TileMap(coc.shape, int(tile_px), lo, hi, copy)

@@ -129,8 +129,12 @@ def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", 
         rec.reason = info.pop("reason", method)
         if not rec.skipped and method == "physical":
             blurred = [f"{l['side']}[{l['coc_px'][0]:g},{l['coc_px'][1]:g})" for l in info["layers"] if l["blurred"]]
+            tiles = info.get("tiles", {})
+            uniform = sum(l.get("uniform_tiles", 0) for l in info["layers"] if l["blurred"])
             rec.reason = (f"physical, {len(blurred)} blur layers: {' '.join(blurred)}"
-                          + ("" if info.get("foreground_pass") else "; no foreground pass (nothing in front of focus)"))
+                          + ("" if info.get("foreground_pass") else "; no foreground pass (nothing in front of focus)")
+                          + (f"; tiles of {tiles['tile_px']} px: {tiles['copy_tiles']} of {tiles['tiles']} copied"
+                             f" (in focus), {uniform} convolved (uniform blur)" if tiles else ""))
         rec.detail = info
     return image, coc
 

@@ -503,14 +503,157 @@ def _pack_sources(lin, radius, member, share, unit_area, min_radius):
     return xs, src_r, values, offsets
 
 
-def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0):
+#: Relative width of the radius bins of uniform tiles: one kernel per bin, at the bin's centre.
+UNIFORM_BIN = 0.04
+#: Uniform tiles take the convolution path only in layers whose footprint radius on the layer's grid
+#: is at least this (pixels): smaller footprints span so few rows that the scatter is cheaper.
+UNIFORM_MIN_RADIUS_PX = 2.0
+#: A radius bin is convolved only if its cells fill at least 1/UNIFORM_MAX_WASTE of their bounding window.
+UNIFORM_MAX_WASTE = 3.0
+
+
+def _footprint_kernel(r: float, blades: int, table: np.ndarray) -> np.ndarray:
+    """The scatter's own footprint of one source of radius *r* at a pixel centre, summing to 1: (2R+1, 2R+1) float32.
+
+    Scattering a region of sources that all have radius r is the convolution with this kernel.
+    """
+    reach = int(math.ceil(r + 0.5))
+    n = 2 * reach + 1
+    unit = float(table[0, -1] - table[0, 0])
+    values = np.full((1, 4), 1.0 / (unit * r * r), np.float32)
+    offsets = np.zeros(n + 1, np.int64)
+    offsets[reach + 1:] = 1  # the one source sits on row `reach`
+    buf = np.zeros((n, n, 4), np.float32)
+    _scatter_packed(np.array([reach], np.float32), np.array([r], np.float32), values, offsets, n, float(r), 0, n - 1,
+                    blades, table, buf)
+    return np.ascontiguousarray(buf[:, :, 3])
+
+
+@njit(cache=True)
+def _fast_cells(fast, member, s):
+    """(hs, ws) bool: member cells of the 1/s grid whose s x s pixels of *fast* (H, W) are all set."""
+    h, w = fast.shape
+    hs, ws = member.shape
+    out = np.zeros((hs, ws), np.bool_)
+    for cy in range(hs):
+        if (cy + 1) * s > h:  # cells cut by the border are never fast
+            break
+        for cx in range(ws):
+            if (cx + 1) * s > w or not member[cy, cx]:
+                continue
+            ok = True
+            for y in range(cy * s, (cy + 1) * s):
+                for x in range(cx * s, (cx + 1) * s):
+                    ok &= fast[y, x]
+            out[cy, cx] = ok
+    return out
+
+
+@njit(cache=True)
+def _premultiplied_planes(lin, share, y0, y1, x0, x1):
+    """(y1 - y0, x1 - x0, 4) float32 window: colour times share (zero-padded to 3 channels), then the share."""
+    nc = lin.shape[2]
+    out = np.zeros((y1 - y0, x1 - x0, 4), np.float32)
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            m = share[y, x]
+            for c in range(nc):
+                out[y - y0, x - x0, c] = lin[y, x, c] * m
+            out[y - y0, x - x0, 3] = m
+    return out
+
+
+@njit(cache=True)
+def _radius_bins(fast, radius, min_radius, step):
+    """Radius bin round(log(r) / step) of each fast cell (-2^31 elsewhere), the smallest and largest bin and
+    the window (y0, y1, x0, x1) holding the fast cells."""
+    hs, ws = fast.shape
+    bins = np.full((hs, ws), -(2 ** 31), np.int32)
+    b_lo, b_hi = 2 ** 31 - 1, -(2 ** 31)
+    y0, y1, x0, x1 = hs, 0, ws, 0
+    for y in range(hs):
+        for x in range(ws):
+            if fast[y, x]:
+                b = np.int32(np.rint(np.log(max(radius[y, x], min_radius)) / step))
+                bins[y, x] = b
+                b_lo = min(b_lo, b)
+                b_hi = max(b_hi, b)
+                y0 = min(y0, y)
+                y1 = max(y1, y + 1)
+                x0 = min(x0, x)
+                x1 = max(x1, x + 1)
+    return bins, b_lo, b_hi, y0, y1, x0, x1
+
+
+@njit(cache=True)
+def _put_cells(src, sy, sx, bins, b, ya, yb, xa, xb, buf):
+    """buf[y, x] = src[y - sy, x - sx] for the cells of bin *b* in rows ya..yb-1, columns xa..xb-1."""
+    for y in range(ya, yb):
+        for x in range(xa, xb):
+            if bins[y, x] == b:
+                for c in range(buf.shape[2]):
+                    buf[y, x, c] = src[y - sy, x - sx, c]
+
+
+_NO_BIN = -(2 ** 31)
+
+
+def _uniform_plan(fast, radius):
+    """Group the fast cells (hs, ws) bool by radius bin; keep the bins a convolution serves well.
+
+    Returns (bins, groups): bins (hs, ws) int32 is each kept cell's bin (``_NO_BIN`` elsewhere),
+    groups a list of (bin, kernel radius, (y0, y1, x0, x1) bounding window). A bin whose cells fill
+    less than 1/:data:`UNIFORM_MAX_WASTE` of their bounding window (a thin diagonal band of a
+    slanted surface, say) is left to the scatter, whose cost follows the cells, not the window.
+    """
+    step = math.log1p(UNIFORM_BIN)
+    bins, b_lo, b_hi, fy0, fy1, fx0, fx1 = _radius_bins(fast, radius, MIN_SOURCE_RADIUS_PX, step)
+    groups = []
+    for b in range(b_lo, b_hi + 1):
+        cells = bins[fy0:fy1, fx0:fx1] == b
+        n = int(np.count_nonzero(cells))
+        if n == 0:
+            continue
+        rows = np.flatnonzero(cells.any(axis=1))
+        cols = np.flatnonzero(cells.any(axis=0))
+        win = (fy0 + rows[0], fy0 + rows[-1] + 1, fx0 + cols[0], fx0 + cols[-1] + 1)
+        if (win[1] - win[0]) * (win[3] - win[2]) > UNIFORM_MAX_WASTE * n:
+            bins[fy0:fy1, fx0:fx1][cells] = _NO_BIN
+            continue
+        groups.append((b, math.exp(b * step), win))
+    return bins, groups
+
+
+def _convolve_uniform(lin, share, bins, groups, blades, table, buf):
+    """Write the layer's scatter at the cells of *groups* as a convolution, one footprint kernel per group.
+
+    lin (hs, ws, C) and share (hs, ws) on the layer's grid; *bins* and *groups* from
+    :func:`_uniform_plan`; buf (hs, ws, 4) receives premultiplied colour and coverage there.
+    """
+    hs, ws, nc = lin.shape
+    for b, radius, (ya, yb, xa, xb) in groups:
+        kernel = _footprint_kernel(radius, blades, table)
+        k = kernel.shape[0] // 2
+        # the window with the kernel's reach around it, so the convolution sees every source it needs
+        cy0, cy1, cx0, cx1 = max(0, ya - k), min(hs, yb + k), max(0, xa - k), min(ws, xb + k)
+        planes = _premultiplied_planes(lin, share, cy0, cy1, cx0, cx1)
+        # filter2D correlates: the flipped kernel makes it the scatter's convolution; zeros beyond the grid
+        conv = cv2.filter2D(planes, -1, cv2.flip(kernel, -1), borderType=cv2.BORDER_CONSTANT)
+        _put_cells(conv, cy0, cx0, bins, b, ya, yb, xa, xb, buf)
+
+
+def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0, fast=None):
     """Scatter the pixels of *member* at 1/s resolution.
 
-    Returns their (H, W, C+1) buffer at full size (premultiplied colour, coverage) and whether the
-    layer was extended.
+    Returns their (H, W, C+1) buffer at full size (premultiplied colour, coverage), whether the
+    layer was extended and the number of uniform-blur kernels used.
 
     With *hidden* (pixels of nearer, not yet opaque layers) the layer is first extended behind them
     up to *reach_px* (:func:`_extend_behind`), on the 1/s grid when s > 1 (s^2 times less work).
+
+    *fast* (H, W) bool marks the pixels of uniform tiles (:meth:`pcdof.tiles.TileMap.uniform`):
+    there the layer is computed as a convolution (:func:`_convolve_uniform`), and only the sources
+    whose footprint reaches another pixel are scattered.
     """
     h, w, nc = lin.shape
     table = _aperture(blades, rot)
@@ -537,23 +680,40 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0):
         member = present
     else:
         share = member.astype(np.float32)
-    xs, src_r, values, offsets = _pack_sources(np.ascontiguousarray(lin, np.float32),
-                                               np.ascontiguousarray(radius, np.float32),
-                                               np.ascontiguousarray(member), np.ascontiguousarray(share, np.float32),
-                                               float(table[0, -1] - table[0, 0]), MIN_SOURCE_RADIUS_PX)
     hs, ws = member.shape
-    rows = np.flatnonzero(offsets[1:] > offsets[:-1])
-    r_max = float(src_r.max())
-    reach = int(math.ceil(r_max + 0.5))
     buf = np.zeros((hs, ws, 4), np.float32)
-    _scatter_packed(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach),
-                    blades, table, buf)
+    groups = []
+    scattered = member
+    if fast is not None:
+        fast_cells = _fast_cells(np.ascontiguousarray(fast), np.ascontiguousarray(member), s)
+        if fast_cells.any():
+            bins, groups = _uniform_plan(fast_cells, np.ascontiguousarray(radius, np.float32))
+    if groups:
+        # only sources whose footprint reaches a cell outside the convolved ones are scattered
+        reach = int(math.ceil(max(float(radius.max(initial=0.0, where=member)), MIN_SOURCE_RADIUS_PX) + 0.5))
+        other = cv2.dilate((bins == _NO_BIN).view(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8),
+                           borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        scattered = member & (other > 0)
+    if scattered.any():
+        xs, src_r, values, offsets = _pack_sources(np.ascontiguousarray(lin, np.float32),
+                                                   np.ascontiguousarray(radius, np.float32),
+                                                   np.ascontiguousarray(scattered), np.ascontiguousarray(share, np.float32),
+                                                   float(table[0, -1] - table[0, 0]), MIN_SOURCE_RADIUS_PX)
+        rows = np.flatnonzero(offsets[1:] > offsets[:-1])
+        r_max = float(src_r.max())
+        reach = int(math.ceil(r_max + 0.5))
+        _scatter_packed(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach),
+                        min(hs - 1, rows[-1] + reach), blades, table, buf)
+    if groups:
+        _convolve_uniform(np.ascontiguousarray(lin, np.float32), np.ascontiguousarray(share, np.float32), bins, groups,
+                          blades, table, buf)
+    n_kernels = len(groups)
     if nc < 3:
         buf = np.ascontiguousarray(buf[:, :, list(range(nc)) + [3]])
     if s == 1:
-        return buf, extended
+        return buf, extended, n_kernels
     up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)
-    return np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w]), extended
+    return np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w]), extended, n_kernels
 
 
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
@@ -630,11 +790,17 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
                              acc, acc_a, trans)
             layers_run.append({"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1})
         else:
-            layer_buf, extended = _scatter_mask(src, src_r, m, s, int(blades), rot, hidden, ext_reach)
+            # uniform tiles: everything within the layer's reach (plus the reduced grid's spread) in this layer
+            uniform = np.zeros_like(tiles.copy)
+            if lo / (2 * s) >= UNIFORM_MIN_RADIUS_PX:
+                uniform = tiles.uniform(lo, hi, 1 if key > 0 else -1, r_max + 2 * s + 2)
+            fast = tiles.pixel_mask(uniform)[box] if uniform.any() else None
+            layer_buf, extended, n_kernels = _scatter_mask(src, src_r, m, s, int(blades), rot, hidden, ext_reach,
+                                                           fast)
             _composite_under(layer_buf, box[0].start, box[1].start, acc, acc_a, trans)
             layers_run.append({"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
                                "side": "front" if key < 0 else "back", "scale": s,
-                               "extended": extended})
+                               "extended": extended, "uniform_tiles": int(uniform.sum()), "kernels": n_kernels})
             r_front = max(r_front, r_max)
     out = np.empty_like(lin)
     _normalise(acc, acc_a, lin, out)

@@ -119,18 +119,20 @@ class TileMap:
     def n_tiles(self) -> int:
         return int(self.copy.size)
 
-    def uniform(self, lo_px: float, hi_px: float, reach_px: float) -> np.ndarray:
-        """Uniform tiles of the blur layer of signed CoC in [lo_px, hi_px): (th, tw) bool.
+    def uniform(self, abs_lo_px: float, abs_hi_px: float, side: int, reach_px: float) -> np.ndarray:
+        """Uniform tiles of the blur layer abs_lo_px <= |c| < abs_hi_px on *side* (+1 behind, -1 in front of focus).
 
         A tile is uniform when every pixel within *reach_px* of it (its own included; the
-        neighbourhood is rounded up to whole tiles) has a CoC in the layer's range whose spread
-        is at most :data:`UNIFORM_SPREAD` of its mean magnitude.
+        neighbourhood is rounded up to whole tiles) lies in the layer and the CoC spread over
+        them is at most :data:`UNIFORM_SPREAD` of its mean magnitude. Returns (th, tw) bool.
         """
         k = int(math.ceil(reach_px / self.tile_px))
         wlo, whi = _window_range(self.coc_min, self.coc_max, k)
-        spread = whi - wlo
-        mag = 0.5 * np.abs(whi + wlo)
-        return (wlo >= lo_px) & (whi < hi_px) & (spread <= UNIFORM_SPREAD * mag) & (mag > 0)
+        if side > 0:
+            a_lo, a_hi = wlo, whi
+        else:
+            a_lo, a_hi = -whi, -wlo
+        return (a_lo >= abs_lo_px) & (a_hi < abs_hi_px) & (a_hi - a_lo <= UNIFORM_SPREAD * 0.5 * (a_lo + a_hi))
 
     def pixel_mask(self, tiles: np.ndarray) -> np.ndarray:
         """(H, W) bool mask of the pixels of the tiles set in *tiles* ((th, tw) bool)."""

@@ -35,25 +35,32 @@ TILE_PX = 16
 UNIFORM_SPREAD = 0.1
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 def _tile_ranges(coc, tile, sharp):
-    """Per tile: min and max signed CoC, largest blur radius of its front pixels (|c| >= sharp, c < 0; else 0)."""
+    """Per tile: min and max signed CoC, largest blur radius of its front pixels (c <= -sharp; else 0).
+
+    NaN counts as 0 (in focus). Each tile's row segments are reduced into local accumulators.
+    """
     h, w = coc.shape
     th, tw = (h + tile - 1) // tile, (w + tile - 1) // tile
-    lo = np.full((th, tw), np.inf, np.float32)
-    hi = np.full((th, tw), -np.inf, np.float32)
-    front_r = np.zeros((th, tw), np.float32)
-    for y in range(h):
-        ty = y // tile
-        for x in range(w):
-            tx = x // tile
-            c = coc[y, x]
-            if c < lo[ty, tx]:
-                lo[ty, tx] = c
-            if c > hi[ty, tx]:
-                hi[ty, tx] = c
-            if c <= -sharp and -0.5 * c > front_r[ty, tx]:
-                front_r[ty, tx] = -0.5 * c
+    lo = np.empty((th, tw), np.float32)
+    hi = np.empty((th, tw), np.float32)
+    front_r = np.empty((th, tw), np.float32)
+    for ty in range(th):
+        for tx in range(tw):
+            a = np.float32(np.inf)
+            b = np.float32(-np.inf)
+            f = np.float32(0.0)  # most negative c of the tile's front pixels
+            for y in range(ty * tile, min(h, (ty + 1) * tile)):
+                for x in range(tx * tile, min(w, (tx + 1) * tile)):
+                    c = coc[y, x]
+                    c = c if c == c else np.float32(0.0)
+                    a = min(a, c)
+                    b = max(b, c)
+                    f = min(f, c)
+            lo[ty, tx] = a
+            hi[ty, tx] = b
+            front_r[ty, tx] = -0.5 * f if f <= -sharp else 0.0
     return lo, hi, front_r
 
 
@@ -165,7 +172,7 @@ def classify_tiles(signed_coc, *, tile_px: int = TILE_PX, sharp_px: float = 1.0)
         raise InputError(f"tile_px must be an integer >= 1; got {tile_px!r}")
     if not (isinstance(sharp_px, (int, float)) and math.isfinite(sharp_px) and sharp_px > 0):
         raise InputError(f"sharp_px must be a finite number > 0; got {sharp_px!r}")
-    coc = np.ascontiguousarray(np.nan_to_num(coc, nan=0.0), np.float32)
+    coc = np.ascontiguousarray(coc, np.float32)
     lo, hi, front_r = _tile_ranges(coc, int(tile_px), float(sharp_px))
     sharp = (lo > -sharp_px) & (hi < sharp_px)
     copy = sharp & ~_reached_from_front(front_r, int(tile_px))

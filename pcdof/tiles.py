@@ -139,7 +139,8 @@ class TileMap:
             a_lo, a_hi = wlo, whi
         else:
             a_lo, a_hi = -whi, -wlo
-        return (a_lo >= abs_lo_px) & (a_hi < abs_hi_px) & (a_hi - a_lo <= UNIFORM_SPREAD * 0.5 * (a_lo + a_hi))
+        with np.errstate(over="ignore", invalid="ignore"):  # infinite CoC: never uniform
+            return (a_lo >= abs_lo_px) & (a_hi < abs_hi_px) & (a_hi - a_lo <= UNIFORM_SPREAD * 0.5 * (a_lo + a_hi))
 
     def pixel_mask(self, tiles: np.ndarray) -> np.ndarray:
         """(H, W) bool mask of the pixels of the tiles set in *tiles* ((th, tw) bool)."""

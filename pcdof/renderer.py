@@ -294,8 +294,10 @@ def _copy_tiles(src, copy, tile, out):
 def copy_tiles(src: np.ndarray, tiles: TileMap, out: np.ndarray) -> None:
     """Copy the copy tiles of *tiles* from *src* into *out* (same shape, (H, W) or (H, W, C))."""
     if tiles.copy.any():
-        _copy_tiles(src.reshape(src.shape[0], src.shape[1], -1), tiles.copy, tiles.tile_px,
-                    out.reshape(out.shape[0], out.shape[1], -1))
+        # copied as unsigned integers of the same size: bit-exact for every dtype (float16 included)
+        bits = f"u{src.dtype.itemsize}"
+        _copy_tiles(src.view(bits).reshape(src.shape[0], src.shape[1], -1), tiles.copy, tiles.tile_px,
+                    out.view(bits).reshape(out.shape[0], out.shape[1], -1))
 
 
 @njit(parallel=True, cache=True)

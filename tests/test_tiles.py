@@ -103,9 +103,12 @@ class TestRendererTiles:
         reference, _ = renderer.render_layers_linear(lin, coc, tiles=no_copy)
         np.testing.assert_array_equal(out, reference)
 
-    def test_copy_tiles_come_out_bit_exact_for_16_bit_input(self):
+    @pytest.mark.parametrize("dtype", [np.uint16, np.float16])
+    def test_copy_tiles_come_out_bit_exact(self, dtype):
         rng = np.random.default_rng(4)
         color = rng.integers(0, 65536, (64, 96, 3), dtype=np.uint16)
+        if dtype == np.float16:
+            color = (color / 65535.0).astype(np.float16)
         depth = np.full((64, 96), 2.0, np.float32)
         depth[:, 70:] = 9.0  # far background, behind focus: blurred, never spreads over the subject
         from pcdof.lens import ThinLens

@@ -512,6 +512,7 @@ UNIFORM_BIN = 0.04
 UNIFORM_MIN_RADIUS_PX = 2.0
 #: A radius bin is convolved only if its cells fill at least 1/UNIFORM_MAX_WASTE of their bounding window.
 UNIFORM_MAX_WASTE = 3.0
+_NO_BIN = -(2 ** 31)  # bin of the cells that are not convolved
 
 
 def _footprint_kernel(r: float, blades: int, table: np.ndarray) -> np.ndarray:
@@ -567,10 +568,10 @@ def _premultiplied_planes(lin, share, y0, y1, x0, x1):
 
 @njit(cache=True)
 def _radius_bins(fast, radius, min_radius, step):
-    """Radius bin round(log(r) / step) of each fast cell (-2^31 elsewhere), the smallest and largest bin and
-    the window (y0, y1, x0, x1) holding the fast cells."""
+    """Radius bin round(log(r) / step) of each fast cell (``_NO_BIN`` elsewhere), the smallest and largest
+    bin and the window (y0, y1, x0, x1) holding the fast cells."""
     hs, ws = fast.shape
-    bins = np.full((hs, ws), -(2 ** 31), np.int32)
+    bins = np.full((hs, ws), _NO_BIN, np.int32)
     b_lo, b_hi = 2 ** 31 - 1, -(2 ** 31)
     y0, y1, x0, x1 = hs, 0, ws, 0
     for y in range(hs):
@@ -596,8 +597,6 @@ def _put_cells(src, sy, sx, bins, b, ya, yb, xa, xb, buf):
                 for c in range(buf.shape[2]):
                     buf[y, x, c] = src[y - sy, x - sx, c]
 
-
-_NO_BIN = -(2 ** 31)
 
 
 def _uniform_plan(fast, radius):

@@ -647,7 +647,8 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0, 
     """Scatter the pixels of *member* at 1/s resolution.
 
     Returns their (H, W, C+1) buffer at full size (premultiplied colour, coverage), whether the
-    layer was extended and the number of uniform-blur kernels used.
+    layer was extended, the number of uniform-blur kernels used and the number of sources scattered
+    (cells of the 1/s grid).
 
     With *hidden* (pixels of nearer, not yet opaque layers) the layer is first extended behind them
     up to *reach_px* (:func:`_extend_behind`), on the 1/s grid when s > 1 (s^2 times less work).
@@ -695,7 +696,8 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0, 
         other = cv2.dilate((bins == _NO_BIN).view(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8),
                            borderType=cv2.BORDER_CONSTANT, borderValue=0)
         scattered = member & (other > 0)
-    if scattered.any():
+    n_scattered = int(np.count_nonzero(scattered))
+    if n_scattered:
         xs, src_r, values, offsets = _pack_sources(np.ascontiguousarray(lin, np.float32),
                                                    np.ascontiguousarray(radius, np.float32),
                                                    np.ascontiguousarray(scattered), np.ascontiguousarray(share, np.float32),
@@ -708,13 +710,12 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0, 
     if groups:
         _convolve_uniform(np.ascontiguousarray(lin, np.float32), np.ascontiguousarray(share, np.float32), bins, groups,
                           blades, table, buf)
-    n_kernels = len(groups)
     if nc < 3:
         buf = np.ascontiguousarray(buf[:, :, list(range(nc)) + [3]])
     if s == 1:
-        return buf, extended, n_kernels
+        return buf, extended, len(groups), n_scattered
     up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)
-    return np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w]), extended, n_kernels
+    return np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w]), extended, len(groups), n_scattered
 
 
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
@@ -796,12 +797,13 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
             if lo / (2 * s) >= UNIFORM_MIN_RADIUS_PX:
                 uniform = tiles.uniform(lo, hi, 1 if key > 0 else -1, r_max + 2 * s + 2)
             fast = tiles.pixel_mask(uniform)[box] if uniform.any() else None
-            layer_buf, extended, n_kernels = _scatter_mask(src, src_r, m, s, int(blades), rot, hidden, ext_reach,
-                                                           fast)
+            layer_buf, extended, n_kernels, n_scattered = _scatter_mask(src, src_r, m, s, int(blades), rot, hidden,
+                                                                        ext_reach, fast)
             _composite_under(layer_buf, box[0].start, box[1].start, acc, acc_a, trans)
             layers_run.append({"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
                                "side": "front" if key < 0 else "back", "scale": s,
-                               "extended": extended, "uniform_tiles": int(uniform.sum()), "kernels": n_kernels})
+                               "extended": extended, "uniform_tiles": int(uniform.sum()), "kernels": n_kernels,
+                               "sources_scattered": n_scattered})
             r_front = max(r_front, r_max)
     out = np.empty_like(lin)
     _normalise(acc, acc_a, lin, out)

@@ -123,6 +123,8 @@ class TestRendererTiles:
         out, info = renderer.render_layers_linear(lin, coc, quality="exact")
         back = [l for l in info["layers"] if l.get("side") == "back"]
         assert back[0]["uniform_tiles"] > 0 and back[0]["kernels"] >= 1
+        # only the sources near the layer's edge (within a footprint of a non-uniform pixel) are scattered
+        assert 0 < back[0]["sources_scattered"] < back[0]["pixels"] / 2
         _without_uniform(monkeypatch)
         scattered, info_s = renderer.render_layers_linear(lin, coc, quality="exact")
         assert all(l.get("uniform_tiles", 0) == 0 for l in info_s["layers"])
@@ -140,9 +142,13 @@ class TestRendererTiles:
         lin = texture(80, 96, seed=5)
         coc = np.full((80, 96), 2 * r, np.float32)
         out, info = renderer.render_layers_linear(lin, coc, quality="exact")
-        assert info["layers"][0]["uniform_tiles"] == 30 and info["layers"][0]["kernels"] == 1
+        layer = info["layers"][0]
+        assert layer["uniform_tiles"] == 30 and layer["kernels"] == 1
+        # the whole frame is one uniform region: nothing is left for the scatter
+        assert layer["sources_scattered"] == 0
         _without_uniform(monkeypatch)
-        scattered, _ = renderer.render_layers_linear(lin, coc, quality="exact")
+        scattered, info_s = renderer.render_layers_linear(lin, coc, quality="exact")
+        assert info_s["layers"][0]["sources_scattered"] == 80 * 96
         np.testing.assert_allclose(out, scattered, atol=2e-6)
 
     def test_small_blur_layers_keep_the_scatter(self):

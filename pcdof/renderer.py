@@ -316,12 +316,13 @@ def _normalise(acc, acc_a, lin, out):
                     out[y, x, c] = lin[y, x, c]
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def _classify(coc, edges):
     """Layer id per pixel, numbering the signed layer keys present from near to far.
 
     The signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k]
     (negative in front of focus). Returns ((H, W) int32 layer ids, the keys present, ascending).
+    Rows run in parallel; each row notes the keys it saw.
     """
     h, w = coc.shape
     n = edges.size
@@ -334,8 +335,8 @@ def _classify(coc, edges):
             j += 1
         by_half[i] = j
     shifted = np.empty((h, w), np.int32)
-    seen = np.zeros(2 * n + 1, np.bool_)
-    for y in range(h):
+    seen_rows = np.zeros((h, 2 * n + 1), np.bool_)
+    for y in prange(h):
         for x in range(w):
             c = coc[y, x]
             a = abs(c)
@@ -343,7 +344,11 @@ def _classify(coc, edges):
             j = by_half[i]
             k = n + (-j if c < 0 else j)
             shifted[y, x] = k
-            seen[k] = True
+            seen_rows[y, k] = True
+    seen = np.zeros(2 * n + 1, np.bool_)
+    for y in range(h):
+        for k in range(2 * n + 1):
+            seen[k] |= seen_rows[y, k]
     lookup = np.full(2 * n + 1, -1, np.int32)
     keys = np.empty(int(seen.sum()), np.int64)
     i = 0
@@ -352,33 +357,71 @@ def _classify(coc, edges):
             lookup[k] = i
             keys[i] = k - n
             i += 1
-    for y in range(h):
+    for y in prange(h):
         for x in range(w):
             shifted[y, x] = lookup[shifted[y, x]]
     return shifted, keys
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def _layer_stats(layer, radius, n_layers):
-    """Per layer id: pixel count, largest radius and bounding box (row0, row1, col0, col1; inclusive)."""
+    """Per layer id: pixel count, largest radius and bounding box (row0, row1, col0, col1; inclusive).
+
+    Bands of rows are reduced in parallel, then merged (counts, maxima and box bounds are exact
+    in any order).
+    """
     h, w = layer.shape
-    count = np.zeros(n_layers, np.int64)
-    r_max = np.zeros(n_layers, np.float32)
-    box = np.empty((n_layers, 4), np.int64)
-    box[:, 0] = h
-    box[:, 1] = -1
-    box[:, 2] = w
-    box[:, 3] = -1
-    for y in range(h):
+    n_bands = min(h, 64)
+    count = np.zeros((n_bands, n_layers), np.int64)
+    r_max = np.zeros((n_bands, n_layers), np.float32)
+    box = np.empty((n_bands, n_layers, 4), np.int64)
+    for b in prange(n_bands):
+        for i in range(n_layers):
+            box[b, i, 0] = h
+            box[b, i, 1] = -1
+            box[b, i, 2] = w
+            box[b, i, 3] = -1
+        for y in range(b * h // n_bands, (b + 1) * h // n_bands):
+            for x in range(w):
+                i = layer[y, x]
+                count[b, i] += 1
+                r_max[b, i] = max(r_max[b, i], radius[y, x])
+                box[b, i, 0] = min(box[b, i, 0], y)
+                box[b, i, 1] = max(box[b, i, 1], y)
+                box[b, i, 2] = min(box[b, i, 2], x)
+                box[b, i, 3] = max(box[b, i, 3], x)
+    total = np.zeros(n_layers, np.int64)
+    r_all = np.zeros(n_layers, np.float32)
+    box_all = np.empty((n_layers, 4), np.int64)
+    for i in range(n_layers):
+        box_all[i, 0] = h
+        box_all[i, 1] = -1
+        box_all[i, 2] = w
+        box_all[i, 3] = -1
+        for b in range(n_bands):
+            total[i] += count[b, i]
+            r_all[i] = max(r_all[i], r_max[b, i])
+            box_all[i, 0] = min(box_all[i, 0], box[b, i, 0])
+            box_all[i, 1] = max(box_all[i, 1], box[b, i, 1])
+            box_all[i, 2] = min(box_all[i, 2], box[b, i, 2])
+            box_all[i, 3] = max(box_all[i, 3], box[b, i, 3])
+    return total, r_all, box_all
+
+
+@njit(parallel=True, cache=True)
+def _clean_coc(coc, max_coc):
+    """The signed CoC with NaN as 0 and clipped to +-max_coc, and the footprint radius |c| / 2 (float32)."""
+    h, w = coc.shape
+    out = np.empty((h, w), np.float32)
+    radius = np.empty((h, w), np.float32)
+    lim = np.float32(max_coc)
+    for y in prange(h):
         for x in range(w):
-            i = layer[y, x]
-            count[i] += 1
-            r_max[i] = max(r_max[i], radius[y, x])
-            box[i, 0] = min(box[i, 0], y)
-            box[i, 1] = max(box[i, 1], y)
-            box[i, 2] = min(box[i, 2], x)
-            box[i, 3] = max(box[i, 3], x)
-    return count, r_max, box
+            c = coc[y, x]
+            c = np.float32(0.0) if c != c else min(max(c, -lim), lim)
+            out[y, x] = c
+            radius[y, x] = abs(c) * np.float32(0.5)
+    return out, radius
 
 
 def _layer_of(signed_coc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -386,29 +429,30 @@ def _layer_of(signed_coc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return _classify(np.ascontiguousarray(signed_coc, np.float32), LAYER_EDGES_PX)
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def _reduce_cells(lin, radius, member, hidden, has_hidden, s):
     """Block means over s x s cells (zero-padded): member-weighted colour and radius, member share
-    and hidden share. Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s, hid_s) as float32."""
+    and hidden share. Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s, hid_s) as float32.
+
+    Rows of cells run in parallel; within a cell, pixels are summed in raster order."""
     h, w, nc = lin.shape
     hs, ws = (h + s - 1) // s, (w + s - 1) // s
     lin_s = np.zeros((hs, ws, nc), np.float32)
     r_s = np.zeros((hs, ws), np.float32)
     m_s = np.zeros((hs, ws), np.float32)
     hid_s = np.zeros((hs, ws), np.float32)
-    for y in range(h):
-        cy = y // s
-        for x in range(w):
-            cx = x // s
-            if member[y, x]:
-                m_s[cy, cx] += 1.0
-                r_s[cy, cx] += radius[y, x]
-                for c in range(nc):
-                    lin_s[cy, cx, c] += lin[y, x, c]
-            elif has_hidden and hidden[y, x]:
-                hid_s[cy, cx] += 1.0
     inv_area = 1.0 / (s * s)
-    for cy in range(hs):
+    for cy in prange(hs):
+        for y in range(cy * s, min(h, (cy + 1) * s)):
+            for x in range(w):
+                cx = x // s
+                if member[y, x]:
+                    m_s[cy, cx] += 1.0
+                    r_s[cy, cx] += radius[y, x]
+                    for c in range(nc):
+                        lin_s[cy, cx, c] += lin[y, x, c]
+                elif has_hidden and hidden[y, x]:
+                    hid_s[cy, cx] += 1.0
         for cx in range(ws):
             m = m_s[cy, cx]
             if m > 0:
@@ -744,9 +788,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     min_reduced = QUALITIES[quality]
     h, w, nc = lin.shape
     lin = np.ascontiguousarray(lin, np.float32)
-    coc = np.asarray(signed_coc, np.float32)
-    coc = np.clip(np.where(np.isnan(coc), np.float32(0), coc), -MAX_COC_PX, MAX_COC_PX).astype(np.float32)
-    radius = (np.abs(coc) * np.float32(0.5)).astype(np.float32)
+    coc, radius = _clean_coc(np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX)
     layer, keys = _layer_of(coc)
     rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
     if tiles is None:

@@ -28,7 +28,7 @@ def _median_ms(fn, repeats):
 
 def pipeline_vs_paper(*, sizes=((640, 480), (1920, 1080)), depth_size=(512, 424), scene="portrait",
                       repeats: int = 7, progress: bool = True) -> list[dict]:
-    """Median ms of pcdof's full pipeline (register + fill + render) and of the paper's method."""
+    """Median ms of pcdof's full pipeline (register + fill + render) and of the paper's method, run alternately."""
     from tqdm.auto import tqdm
 
     from ..pipeline import run
@@ -40,18 +40,19 @@ def pipeline_vs_paper(*, sizes=((640, 480), (1920, 1080)), depth_size=(512, 424)
         lens = sf.default_lens
         cmax = float(lens.coc_px(sf.depth_color_m, sf.rig.color.fx).max())
         paper = PaperLens(lens.focus_distance_m, blur_sigma_px=max(cmax / 4, 0.3))
-        results = {}
-        stage_ms = {}
-        for name, fn in (("pcdof", lambda: run(sf.frame, lens)), ("paper", lambda: run(sf.frame, paper, method="paper"))):
-            fn()
-            samples = []
-            for _ in range(repeats):
+        methods = {"pcdof": lambda: run(sf.frame, lens), "paper": lambda: run(sf.frame, paper, method="paper")}
+        samples = {name: [] for name in methods}
+        for fn in methods.values():
+            fn()  # warm-up
+        # interleaved, so that a burst of load from elsewhere hits both methods alike
+        for _ in range(repeats):
+            for name, fn in methods.items():
                 t0 = time.perf_counter()
                 res = fn()
-                samples.append((time.perf_counter() - t0, {t.name: t.seconds for t in res.trace}))
-            results[name] = statistics.median(t for t, _ in samples) * 1e3
-            stage_ms[name] = {k: statistics.median(s.get(k, 0) for _, s in samples) * 1e3
-                              for k in samples[0][1]}
+                samples[name].append((time.perf_counter() - t0, {t.name: t.seconds for t in res.trace}))
+        results = {name: statistics.median(t for t, _ in ss) * 1e3 for name, ss in samples.items()}
+        stage_ms = {name: {k: statistics.median(s.get(k, 0) for _, s in ss) * 1e3 for k in ss[0][1]}
+                    for name, ss in samples.items()}
         # the paper's method alone, as the seed implemented it (blur + weight + blend on registered depth)
         rows.append({"color_size": f"{size[0]}x{size[1]}", "depth_size": f"{depth_size[0]}x{depth_size[1]}",
                      "scene": scene, "max_coc_px": cmax, "pcdof_ms": results["pcdof"], "paper_ms": results["paper"],

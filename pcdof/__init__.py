@@ -1,5 +1,16 @@
 """pcdof: physically plausible shallow depth of field from one RGB-D frame."""
 
+import os as _os
+
+# OpenMP (numba's parallel kernels, Open3D) keeps its threads spinning after each parallel region,
+# by default for 300 000 iterations. On a machine with few cores those spinning threads take the
+# CPU from the stage that runs next (registration runs on its own threads right after the previous
+# frame's render): a shorter spin keeps the renderer's back-to-back regions fast without that cost.
+# Read once when the OpenMP runtime loads, so it is set before anything loads it; a value the user
+# has set, or an explicit OMP_WAIT_POLICY, is left alone.
+if "GOMP_SPINCOUNT" not in _os.environ and "OMP_WAIT_POLICY" not in _os.environ:
+    _os.environ["GOMP_SPINCOUNT"] = "10000"
+
 from .camera import Intrinsics, RGBDFrame, Rig
 from .errors import (
     CalibrationError,

@@ -131,3 +131,23 @@ class TestApi:
             run(f, "f/2")
         with pytest.raises(InputError, match="focus"):
             run(f, ThinLens(50, 2, 1), focus_at=(500, 2))
+
+
+class TestOpenMPSpin:
+    """Importing pcdof shortens OpenMP's spin-wait, unless the user chose a spin or wait policy."""
+
+    @pytest.mark.parametrize("env, expected", [
+        ({}, "10000"),
+        ({"GOMP_SPINCOUNT": "5"}, "5"),
+        ({"OMP_WAIT_POLICY": "ACTIVE"}, "unset"),
+    ])
+    def test_spin_count(self, env, expected):
+        import os
+        import subprocess
+        import sys
+
+        base = {k: v for k, v in os.environ.items() if k not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")}
+        code = "import os, pcdof; print(os.environ.get('GOMP_SPINCOUNT', 'unset'))"
+        out = subprocess.run([sys.executable, "-c", code], env={**base, **env}, capture_output=True, text=True,
+                             check=True)
+        assert out.stdout.strip() == expected

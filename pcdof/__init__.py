@@ -8,7 +8,9 @@ import os as _os
 # frame's render): a shorter spin keeps the renderer's back-to-back regions fast without that cost.
 # Read once when the OpenMP runtime loads, so it is set before anything loads it; a value the user
 # has set, or an explicit OMP_WAIT_POLICY, is left alone.
-if "GOMP_SPINCOUNT" not in _os.environ and "OMP_WAIT_POLICY" not in _os.environ:
+#: Whether importing pcdof set GOMP_SPINCOUNT (the peer benchmarks give other libraries their default back).
+SPINCOUNT_SET = "GOMP_SPINCOUNT" not in _os.environ and "OMP_WAIT_POLICY" not in _os.environ
+if SPINCOUNT_SET:
     _os.environ["GOMP_SPINCOUNT"] = "10000"
 
 from .camera import Intrinsics, RGBDFrame, Rig

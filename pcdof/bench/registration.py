@@ -392,10 +392,22 @@ def _time_isolated(name: str, jobs: list, repeats: int, rounds: int) -> tuple[fl
     calls in the same process several-fold.
     """
     import multiprocessing
+    import os
     from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return pool.submit(_time_method, name, jobs, repeats, rounds).result()
+    import pcdof
+
+    # a peer runs with its libraries' own OpenMP settings, not the spin count pcdof sets on import:
+    # the spawned process inherits this environment, and libgomp's default spin count is 300000
+    restore = os.environ.get("GOMP_SPINCOUNT")
+    if name != "pcdof" and pcdof.SPINCOUNT_SET:
+        os.environ["GOMP_SPINCOUNT"] = "300000"
+    try:
+        with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            return pool.submit(_time_method, name, jobs, repeats, rounds).result()
+    finally:
+        if restore is not None:
+            os.environ["GOMP_SPINCOUNT"] = restore
 
 
 def run_registration_bench(*, sizes=DEFAULT_SIZES, repeats: int = 10, quick: bool = False, progress: bool = True,

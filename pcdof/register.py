@@ -296,18 +296,25 @@ def _box(umin, umax, vmin, vmax, W, y0, y1):
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
+def _plane(u0, v0, w0, u1, v1, w1, u2, v2, w2):
+    """Doubled signed area of a triangle and the gradient (d/du, d/dv) of its 1/z plane (0, 0 if degenerate)."""
+    area = (u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)
+    inv = 1.0 / area if area != 0.0 else 0.0
+    gx = ((w1 - w0) * (v2 - v0) - (w2 - w0) * (v1 - v0)) * inv
+    gy = ((u1 - u0) * (w2 - w0) - (u2 - u0) * (w1 - w0)) * inv
+    return area, gx, gy
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _scan(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
     """Draw a triangle by scanlines: 1/z is incremented along each row; buf keeps the largest 1/z.
 
     Each edge's crossing of a row is evaluated from the edge's upper corner with the edge's own
     slope, so two triangles sharing an edge get bit-identical spans (no cracks).
     """
-    area = (u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)
+    area, gx, gy = _plane(u0, v0, w0, u1, v1, w1, u2, v2, w2)
     if abs(area) < 1e-9:
         return
-    inv_area = 1.0 / area
-    gx = ((w1 - w0) * (v2 - v0) - (w2 - w0) * (v1 - v0)) * inv_area  # d(1/z)/du
-    gy = ((u1 - u0) * (w2 - w0) - (u2 - u0) * (w1 - w0)) * inv_area  # d(1/z)/dv
     # sort the corners by v: (ua, va) top, (ub, vb) middle, (uc, vc) bottom
     ua, va, ub, vb, uc, vc = u0, v0, u1, v1, u2, v2
     if vb < va:
@@ -366,7 +373,7 @@ def _triangle_coefs(u0, v0, w0, u1, v1, w1, u2, v2, w2):
     that they are >= 0 inside and widened by the same tolerance as :func:`_inside` (shared edges
     are drawn by both triangles). A degenerate triangle gets an edge that is negative everywhere.
     """
-    area = (u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)
+    area, gx, gy = _plane(u0, v0, w0, u1, v1, w1, u2, v2, w2)
     sg = 1.0 if area > 0.0 else -1.0
     tol = _EDGE_EPS * abs(area)
     a0 = (v1 - v2) * sg
@@ -374,9 +381,6 @@ def _triangle_coefs(u0, v0, w0, u1, v1, w1, u2, v2, w2):
     c0 = (u1 * v2 - u2 * v1) * sg + tol
     if area == 0.0:
         a0, b0, c0 = 0.0, 0.0, -1.0
-    inv = 1.0 / area if area != 0.0 else 0.0
-    gx = ((w1 - w0) * (v2 - v0) - (w2 - w0) * (v1 - v0)) * inv  # d(1/z)/du
-    gy = ((u1 - u0) * (w2 - w0) - (u2 - u0) * (w1 - w0)) * inv  # d(1/z)/dv
     f = np.float32
     return (f(a0), f(b0), f(c0),
             f((v2 - v0) * sg), f((u0 - u2) * sg), f((u2 * v0 - u0 * v2) * sg + tol),

@@ -838,7 +838,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
             uniform = np.zeros_like(tiles.copy)
             if lo / (2 * s) >= UNIFORM_MIN_RADIUS_PX:
                 uniform = tiles.uniform(lo, hi, 1 if key > 0 else -1, r_max + 2 * s + 2)
-            fast = tiles.pixel_mask(uniform)[box] if uniform.any() else None
+            fast = tiles.pixel_mask(uniform, box) if uniform.any() else None
             layer_buf, extended, n_kernels, n_scattered = _scatter_mask(src, src_r, m, s, int(blades), rot, hidden,
                                                                         ext_reach, fast)
             _composite_under(layer_buf, box[0].start, box[1].start, acc, acc_a, trans)

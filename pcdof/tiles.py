@@ -142,11 +142,15 @@ class TileMap:
         with np.errstate(over="ignore", invalid="ignore"):  # infinite CoC: never uniform
             return (a_lo >= abs_lo_px) & (a_hi < abs_hi_px) & (a_hi - a_lo <= UNIFORM_SPREAD * 0.5 * (a_lo + a_hi))
 
-    def pixel_mask(self, tiles: np.ndarray) -> np.ndarray:
-        """(H, W) bool mask of the pixels of the tiles set in *tiles* ((th, tw) bool)."""
+    def pixel_mask(self, tiles: np.ndarray, window=None) -> np.ndarray:
+        """Bool mask of the pixels of the tiles set in *tiles* ((th, tw) bool): (H, W), or only the
+        pixels of *window* (a (rows, cols) pair of slices with steps of 1, as used to crop the image)."""
         t = self.tile_px
-        full = np.repeat(np.repeat(tiles, t, axis=0), t, axis=1)
-        return full[: self.shape[0], : self.shape[1]]
+        (y0, y1, _), (x0, x1, _) = (sl.indices(n) for sl, n in zip(window or (slice(None), slice(None)), self.shape))
+        # the tiles the window touches, expanded to pixels, then cut to the window
+        sub = tiles[y0 // t:(y1 + t - 1) // t, x0 // t:(x1 + t - 1) // t]
+        full = np.repeat(np.repeat(sub, t, axis=0), t, axis=1)
+        return full[y0 - (y0 // t) * t:y1 - (y0 // t) * t, x0 - (x0 // t) * t:x1 - (x0 // t) * t]
 
     def summary(self) -> dict:
         """Plain counts for the pipeline trace."""

@@ -68,6 +68,8 @@ class TestClassify:
         mask = tiles.pixel_mask(sel)
         assert mask.shape == (20, 35)
         assert mask[8:16, 32:35].all() and mask.sum() == 8 * 3
+        window = (slice(5, 19), slice(30, 35))
+        np.testing.assert_array_equal(tiles.pixel_mask(sel, window), mask[window])
 
     @pytest.mark.parametrize("kwargs, name", [
         ({"signed_coc": np.zeros((4, 4, 2), np.float32)}, "signed_coc"),

@@ -18,7 +18,7 @@ from PIL import Image
 from pcdof.camera import Intrinsics
 from pcdof.cli import main
 from pcdof.cloud import colored_points, write_ply
-from pcdof.errors import EXIT_CODES, CalibrationError, ImageReadError, InputError
+from pcdof.errors import EXIT_CODES, CalibrationError, ImageReadError, InputError, LensError
 from pcdof.io import exr_available, read_calibration, read_depth
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -272,3 +272,34 @@ class TestWritePly:
         with pytest.raises(InputError, match=message):
             write_ply(tmp_path / name, pts, cols)
         assert os.listdir(tmp_path) == []
+
+
+# ---------------------------------------------------------------------------------------------------------
+class TestRenderPaperOptions:
+    SAMPLE = os.path.join(ROOT, "data", "sample")
+
+    def test_eq1_aperture_reaches_the_paper_lens(self, tmp_path):
+        """`--weight eq1 --eq1-aperture A` renders what PaperLens(weight="eq1", eq1_aperture=A) renders."""
+        from pcdof.io import load_frame
+        from pcdof.lens import PaperLens
+        from pcdof.pipeline import run
+
+        frame = load_frame(*(os.path.join(self.SAMPLE, n) for n in ("color.png", "depth.png", "calib.json")))
+        images = {}
+        for a in (0.05, 2.0):
+            out = tmp_path / f"eq1_{a}.png"
+            result = invoke("render", *frame_args(self.SAMPLE), "-o", out, "--method", "paper", "--weight", "eq1",
+                            "--eq1-aperture", a, "--focus-distance", 1.49)
+            assert result.exit_code == 0, result.output
+            images[a] = np.asarray(Image.open(out).convert("RGB"))
+            expected = run(frame, PaperLens(1.49, weight="eq1", eq1_aperture=a), method="paper").image
+            np.testing.assert_array_equal(images[a], expected)
+        # a larger A gives a larger weight of the blurred copy: further from the sharp input
+        sharp = frame.color.astype(np.float64)
+        assert np.abs(images[2.0] - sharp).mean() > 2 * np.abs(images[0.05] - sharp).mean()
+
+    def test_bad_eq1_aperture_is_a_lens_error(self, tmp_path):
+        result = invoke("render", *frame_args(self.SAMPLE), "-o", tmp_path / "x.png", "--method", "paper",
+                        "--weight", "eq1", "--eq1-aperture", -1)
+        assert result.exit_code == EXIT_CODES[LensError], result.output
+        assert "eq1_aperture" in result.stderr and not os.path.exists(tmp_path / "x.png")

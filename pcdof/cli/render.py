@@ -59,6 +59,8 @@ def lens_options(func):
               help="Paper method: blend weight (eq. 2 Gaussian or eq. 1 CoC).")
 @click.option("--weight-sigma", type=float, default=0.3, show_default=True,
               help="Paper method: eq. 2 sigma on depth normalised by the sensor range.")
+@click.option("--eq1-aperture", type=float, default=1.0, show_default=True,
+              help="Paper method with --weight eq1: the dimensionless A of C = A|d - d_f|/d (weight = min(1, C)).")
 @click.option("--fill-method", default="joint-bilateral", show_default=True, help="Depth hole filling method.")
 @click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
 @click.option("--linear", is_flag=True, help="Colour is linear light (float EXR/TIFF/NPY), not sRGB.")
@@ -67,7 +69,7 @@ def lens_options(func):
 @click.option("--explain", is_flag=True, help="Print each stage's time and what was skipped.")
 @handle_errors
 def command(color, depth, calib, output, focal_length_mm, f_number, focus_distance_m, focus_at, aperture_blades,
-            aperture_rotation_deg, method, quality, blur_sigma_px, weight, weight_sigma, fill_method, depth_scale, linear,
+            aperture_rotation_deg, method, quality, blur_sigma_px, weight, weight_sigma, eq1_aperture, fill_method, depth_scale, linear,
             save_maps, explain):
     """Render COLOR + DEPTH with a shallow depth of field into OUTPUT."""
     from .. import io, pipeline
@@ -81,7 +83,8 @@ def command(color, depth, calib, output, focal_length_mm, f_number, focus_distan
     frame = io.load_frame(color, depth, calib, depth_scale=depth_scale)
     provisional = focus_distance_m if focus_distance_m is not None else 1.0
     if method == "paper":
-        lens = PaperLens(provisional, sigma=weight_sigma, blur_sigma_px=blur_sigma_px, weight=weight)
+        lens = PaperLens(provisional, sigma=weight_sigma, blur_sigma_px=blur_sigma_px, weight=weight,
+                         eq1_aperture=eq1_aperture)
     else:
         lens = ThinLens(focal_length_mm, f_number, provisional, aperture_blades, aperture_rotation_deg)
     if focus_distance_m is None and focus_at is None:

@@ -13,6 +13,46 @@ SPINCOUNT_SET = "GOMP_SPINCOUNT" not in _os.environ and "OMP_WAIT_POLICY" not in
 if SPINCOUNT_SET:
     _os.environ["GOMP_SPINCOUNT"] = "10000"
 
+
+
+def _writable_folder(path: str) -> bool:
+    """Whether *path* is (or can be made) a folder this process can create files in."""
+    import tempfile
+
+    try:
+        _os.makedirs(path, exist_ok=True)
+        tempfile.TemporaryFile(dir=path).close()
+    except OSError:
+        return False
+    return True
+
+
+def _numba_cache_fallback(candidates, fallback: str):
+    """The folder numba's on-disk cache should use, or None when one of *candidates* is writable.
+
+    numba caches compiled kernels next to the source (``__pycache__``) or in the user's cache
+    folder, and fails at import when neither is writable (a read-only install run by a user
+    without a home folder, e.g. a service). Then the cache goes to *fallback* instead.
+    """
+    if any(_writable_folder(c) for c in candidates):
+        return None
+    return fallback if _writable_folder(fallback) else None
+
+
+if not _os.environ.get("NUMBA_CACHE_DIR"):
+    import tempfile as _tempfile
+
+    import numba as _numba
+    from numba.misc.appdirs import AppDirs as _AppDirs
+
+    _cache = _numba_cache_fallback(
+        [_os.path.join(_os.path.dirname(_os.path.abspath(__file__)), "__pycache__"),
+         _AppDirs(appname="numba", appauthor=False).user_cache_dir],
+        _os.path.join(_tempfile.gettempdir(), f"pcdof-numba-cache-{_os.getuid() if hasattr(_os, 'getuid') else 0}"))
+    if _cache is not None:
+        _os.environ["NUMBA_CACHE_DIR"] = _cache
+        _numba.config.CACHE_DIR = _cache
+
 from .camera import Intrinsics, RGBDFrame, Rig
 from .errors import (
     CalibrationError,

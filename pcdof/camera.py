@@ -276,6 +276,8 @@ class RGBDFrame:
     color : (H, W, 3) RGB ndarray (uint8, uint16 or float in [0, 1]) at ``rig.color`` size
     depth_m : (h, w) float32 ndarray, metres, 0 = unknown, in the depth camera's pixel grid
     rig : Rig
+    n_invalid_depth : int >= 0, depth values already found invalid upstream (a file reader's count);
+        the NaN, inf and negative values of *depth_m* are added to it
     """
 
     color: np.ndarray
@@ -286,6 +288,9 @@ class RGBDFrame:
     def __post_init__(self) -> None:
         if not isinstance(self.rig, Rig):
             raise InputError(f"rig must be a Rig; got {type(self.rig).__name__}")
+        n0 = self.n_invalid_depth
+        if isinstance(n0, (bool, np.bool_)) or not isinstance(n0, (int, np.integer)) or n0 < 0:
+            raise InputError(f"n_invalid_depth must be an integer >= 0 (a count of depth pixels); got {_short(n0)}")
         color = check_color(self.color, self.rig.color.shape)
         depth, n_bad = as_depth_m(self.depth_m, self.rig.depth.shape)
         object.__setattr__(self, "color", color)

@@ -52,6 +52,7 @@ from numba import njit, prange
 
 from .camera import as_depth_m, check_color
 from .errors import InputError
+from .lens import finite_number
 
 #: Default relative depth gap that separates two surfaces among a hole pixel's candidates.
 DEFAULT_EDGE_RATIO = 0.04
@@ -488,11 +489,10 @@ _median_far_serial = njit(cache=True)(_median_far.py_func)
 
 
 def _number(name, value, *, minimum, inclusive=False):
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a number; got {value!r}") from None
-    if not math.isfinite(v) or v < minimum or (v == minimum and not inclusive):
+    """*value* as a float if it is a finite number > *minimum* (>= when *inclusive*); else an InputError
+    naming *name* (bool, str and complex are refused: see :func:`pcdof.lens.finite_number`)."""
+    v = finite_number(name, value, InputError)
+    if v < minimum or (v == minimum and not inclusive):
         raise InputError(f"{name} must be a finite number {'>=' if inclusive else '>'} {minimum:g}; got {value!r}")
     return v
 
@@ -706,7 +706,7 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", **options) ->
     >>> fill_depth(d, np.zeros((1, 3, 3), np.uint8)).tolist()
     [[1.0, 2.0, 2.0]]
     """
-    if method not in FILL_METHODS:
+    if not isinstance(method, str) or method not in FILL_METHODS:
         raise InputError(f"method must be one of {sorted(FILL_METHODS)}; got {method!r}")
     fn = FILL_METHODS[method]
     try:

@@ -18,31 +18,62 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from .camera import _as_array, _short
 from .errors import CalibrationError, InputError, LensError
 
 #: Largest circle of confusion (pixels) the renderers compute; larger ones are clamped with a warning.
 MAX_COC_PX = 256.0
 
 _F32_MAX = float(np.finfo(np.float32).max)
+#: Most blades of a polygonal aperture (real lenses have up to about 20; a 64-gon's outline is within
+#: 0.12 % of its circle's radius, a tenth of a pixel on the largest blur rendered).
+MAX_APERTURE_BLADES = 64
+
+
+#: Types that ``float()`` converts but that are not numbers here (True would be 1 mm, "50" a typo).
+_NOT_NUMBERS = (bool, np.bool_, str, bytes, complex, np.complexfloating)
+
+
+def _real(name: str, value, error) -> float:
+    """*value* as a float (inf for an int beyond the float range) if it is a real number, numpy
+    scalars included; bool, str and complex convert with float() but are refused, as are arrays."""
+    if isinstance(value, _NOT_NUMBERS) or (isinstance(value, np.ndarray) and value.ndim):
+        raise error(f"{name} must be a number; got {type(value).__name__} {_short(value)}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise error(f"{name} must be a number; got {_short(value)}") from None
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
+def finite_number(name: str, value, error=LensError) -> float:
+    """*value* as a float if it is a finite number (not bool, str or complex); else *error* naming *name*."""
+    v = _real(name, value, error)
+    if not math.isfinite(v):
+        raise error(f"{name} must be a finite number; got {_short(value)}")
+    return v
 
 
 def positive_number(name: str, value, error=LensError) -> float:
-    """*value* as a float if it is a finite number > 0; else *error* naming *name*."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise error(f"{name} must be a number; got {value!r}") from None
+    """*value* as a float if it is a finite number > 0 (not bool, str or complex); else *error* naming *name*."""
+    v = _real(name, value, error)
     if not math.isfinite(v) or v <= 0:
-        raise error(f"{name} must be a finite number > 0; got {value!r}")
+        raise error(f"{name} must be a finite number > 0; got {_short(value)}")
     return v
 
 
 def _focal_px(fx) -> float:
     """The colour camera's focal length in pixels, checked (it comes from the calibration)."""
-    name = "fx (colour focal length, pixels)"
-    if isinstance(fx, (bool, np.bool_, str, bytes)):
-        raise CalibrationError(f"{name} must be a number; got {fx!r}")
-    return positive_number(name, fx, CalibrationError)
+    return positive_number("fx (colour focal length, pixels)", fx, CalibrationError)
+
+
+def _depth_array(depth_m, name: str = "depth_m") -> np.ndarray:
+    """*depth_m* as an ndarray of any shape if it holds real numbers (int or float); else an InputError."""
+    z = _as_array(depth_m, name)
+    if z.dtype.kind not in "fiu":
+        raise InputError(f"{name} must be a numeric array (metres); got {type(depth_m).__name__} of dtype {z.dtype}")
+    return z
 
 
 @njit(cache=True, parallel=True)
@@ -92,13 +123,13 @@ class ThinLens:
         object.__setattr__(self, "f_number", positive_number("f_number", self.f_number))
         object.__setattr__(self, "focus_distance_m", positive_number("focus_distance_m", self.focus_distance_m))
         blades = self.aperture_blades
-        if isinstance(blades, bool) or not isinstance(blades, (int, np.integer)) or blades < 0 or blades in (1, 2):
-            raise LensError(f"aperture_blades must be 0 (circle) or an integer >= 3; got {blades!r}")
+        if isinstance(blades, bool) or not isinstance(blades, (int, np.integer)) or blades < 0 or blades in (1, 2) \
+                or blades > MAX_APERTURE_BLADES:
+            raise LensError(f"aperture_blades must be 0 (circle) or an integer from 3 to {MAX_APERTURE_BLADES}; "
+                            f"got {_short(blades)}")
         object.__setattr__(self, "aperture_blades", int(blades))
-        rot = float(self.aperture_rotation_deg)
-        if not math.isfinite(rot):
-            raise LensError(f"aperture_rotation_deg must be finite; got {self.aperture_rotation_deg!r}")
-        object.__setattr__(self, "aperture_rotation_deg", rot)
+        object.__setattr__(self, "aperture_rotation_deg",
+                           finite_number("aperture_rotation_deg", self.aperture_rotation_deg))
 
     @property
     def aperture_m(self) -> float:
@@ -126,9 +157,11 @@ class ThinLens:
         ------
         CalibrationError
             *fx* is not a finite number > 0.
+        InputError
+            *depth_m* is not a rectangular array of numbers.
         """
         scale = self.aperture_m * _focal_px(fx)
-        z = np.asarray(depth_m)
+        z = _depth_array(depth_m)
         if z.dtype not in (np.float32, np.float64):
             z = z.astype(np.float64)
         out = np.empty(z.shape, np.float32)
@@ -136,7 +169,10 @@ class ThinLens:
         return out
 
     def coc_px(self, depth_m, fx: float) -> np.ndarray:
-        """Circle-of-confusion diameter c(z) = A*fx*|1/d_f - 1/z|, pixels (0 where depth is 0)."""
+        """Circle-of-confusion diameter c(z) = A*fx*|1/d_f - 1/z|, pixels (0 where depth is 0).
+
+        *depth_m* and *fx* as in :meth:`signed_coc_px`; float32 ndarray of *depth_m*'s shape.
+        """
         return np.abs(self.signed_coc_px(depth_m, fx))
 
     def dof_limits_m(self, fx: float, coc_limit_px: float = 1.0) -> tuple[float, float]:
@@ -176,7 +212,7 @@ class PaperLens:
         object.__setattr__(self, "sigma", positive_number("sigma", self.sigma))
         object.__setattr__(self, "blur_sigma_px", positive_number("blur_sigma_px", self.blur_sigma_px))
         object.__setattr__(self, "eq1_aperture", positive_number("eq1_aperture", self.eq1_aperture))
-        if self.weight not in PAPER_WEIGHTS:
+        if not isinstance(self.weight, str) or self.weight not in PAPER_WEIGHTS:
             raise LensError(f"weight must be one of {sorted(PAPER_WEIGHTS)}; got {self.weight!r}")
         if self.max_range_m is not None:
             object.__setattr__(self, "max_range_m", positive_number("max_range_m", self.max_range_m))
@@ -188,7 +224,7 @@ class PaperLens:
         infinitely far. The result is always finite.
         """
         rng = self.max_range_m or positive_number("max_range_m", max_range_m)
-        z = np.asarray(depth_m, np.float32)
+        z = np.asarray(_depth_array(depth_m), np.float32)
         z = np.where(np.isnan(z), np.float32(0), z)
         with np.errstate(over="ignore", divide="ignore", invalid="ignore"):  # tiny z: d_f / z -> inf, clipped
             return PAPER_WEIGHTS[self.weight](z, self, rng)
@@ -220,22 +256,37 @@ def focus_depth_at(depth_m, x: float, y: float, *, radius_px: int = 7) -> float:
     Parameters
     ----------
     depth_m : (H, W) float ndarray, metres, 0 = unknown (registered to the colour camera)
-    x, y : pixel coordinates (column, row)
-    radius_px : half-size of the square window; grown up to 8x if the window has no known depth
+    x, y : float, pixel coordinates (column, row) inside the image
+    radius_px : int >= 0, half-size of the square window; grown up to 8x if the window has no known depth
+
+    Returns
+    -------
+    float, metres
+
+    Raises
+    ------
+    InputError
+        bad arguments, or no known depth within the largest window searched
     """
-    z = np.asarray(depth_m)
+    z = _depth_array(depth_m)
     if z.ndim != 2:
         raise InputError(f"depth_m must be (H, W); got shape {z.shape}")
+    x = finite_number("x (focus pixel column)", x, InputError)
+    y = finite_number("y (focus pixel row)", y, InputError)
+    integral = isinstance(radius_px, (int, np.integer)) or (
+        isinstance(radius_px, (float, np.floating)) and float(radius_px).is_integer())
+    if isinstance(radius_px, (bool, np.bool_)) or not integral or radius_px < 0:
+        raise InputError(f"radius_px must be an integer >= 0; got {_short(radius_px)}")
     h, w = z.shape
-    if not (0 <= x < w and 0 <= y < h):
-        raise InputError(f"focus pixel ({x}, {y}) is outside the image of size {w}x{h}")
-    xi, yi = int(round(x)), int(round(y))
-    xi, yi = min(xi, w - 1), min(yi, h - 1)
-    r = max(int(radius_px), 0)
+    if not (-0.5 <= x < w - 0.5 and -0.5 <= y < h - 0.5):  # pixel i spans [i - 0.5, i + 0.5)
+        raise InputError(f"focus pixel ({x:g}, {y:g}) is outside the image of size {w}x{h}")
+    xi, yi = int(math.floor(x + 0.5)), int(math.floor(y + 0.5))
+    r = min(int(radius_px), max(h, w))  # a larger window only covers the whole image again
     for _ in range(4):
         win = z[max(0, yi - r): yi + r + 1, max(0, xi - r): xi + r + 1]
         vals = win[np.isfinite(win) & (win > 0)]
         if vals.size:
             return float(np.median(vals))
-        r = max(2 * r, 1)
-    raise InputError(f"no known depth within {r} px of focus pixel ({x}, {y})")
+        searched = r
+        r = min(max(2 * r, 1), max(h, w))
+    raise InputError(f"no known depth within {searched} px of focus pixel ({x:g}, {y:g})")

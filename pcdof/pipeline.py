@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .camera import RGBDFrame, check_color
+from .camera import RGBDFrame, _short, check_color
 from .errors import InputError, LensError
-from .lens import PaperLens, ThinLens, focus_depth_at
+from .lens import PaperLens, ThinLens, _depth_array, finite_number, focus_depth_at
 from .renderer import METHODS, check_quality, render_image
 
 
@@ -139,20 +139,37 @@ def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", 
     return image, coc
 
 
-def _resolve_lens(lens, focus_at, depth_registered_m, depth_filled_m):
+def _check_lens(lens) -> None:
     if not isinstance(lens, (ThinLens, PaperLens)):
         raise LensError(f"lens must be a ThinLens or PaperLens; got {type(lens).__name__}")
+
+
+def _focus_pixel(focus_at) -> tuple[float, float] | None:
+    """*focus_at* as an (x, y) pair of floats (None stays None); else an InputError."""
     if focus_at is None:
-        return lens
+        return None
     try:
-        x, y = (float(v) for v in focus_at)
-    except (TypeError, ValueError):
-        raise InputError(f"focus_at must be an (x, y) pixel; got {focus_at!r}") from None
+        x, y = (finite_number("focus_at", v, InputError) for v in focus_at)
+    except (TypeError, ValueError):  # not a pair, or an entry that is not a finite number
+        raise InputError(f"focus_at must be an (x, y) pixel of finite numbers; got {_short(focus_at)}") from None
+    return x, y
+
+
+def _resolve_lens(lens, focus_at, depth_registered_m, depth_filled_m):
+    _check_lens(lens)
+    pixel = _focus_pixel(focus_at)
+    if pixel is None:
+        return lens
     source = depth_registered_m if np.any(depth_registered_m > 0) else depth_filled_m
-    d = focus_depth_at(source, x, y)
+    d = focus_depth_at(source, *pixel)
     if isinstance(lens, ThinLens):
         return lens.with_focus(d)
     return PaperLens(d, lens.sigma, lens.blur_sigma_px, lens.weight, lens.eq1_aperture, lens.max_range_m)
+
+
+def _check_method(method) -> None:
+    if not isinstance(method, str) or method not in METHODS:
+        raise InputError(f"method must be one of {sorted(METHODS)}; got {_short(method)}")
 
 
 def _check_fill_method(fill_method) -> None:
@@ -178,13 +195,14 @@ def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = 
     """
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
-    if method not in METHODS:
-        raise InputError(f"method must be one of {sorted(METHODS)}; got {method!r}")
+    _check_method(method)
+    _check_lens(lens)
     if method == "physical" and isinstance(lens, PaperLens):
         raise LensError("the physical method needs a ThinLens; a PaperLens only works with method='paper'")
     # checked here, not when the stage runs: a stage with nothing to do must not hide a bad name
     _check_fill_method(fill_method)
     check_quality(quality)
+    _focus_pixel(focus_at)
     trace: list[StageTrace] = []
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=fill_method)
@@ -205,8 +223,9 @@ def render(frame: RGBDFrame, lens, *, method: str = "physical", **options) -> np
 def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "physical",
                       max_range_m: float = 10.0, linear: bool = False, quality: str = "balanced"):
     """Render from an already registered, hole-free depth (previews, sliders). Returns (image, trace)."""
+    _check_method(method)
     color = check_color(color)
-    depth = np.asarray(depth_filled_m, np.float32)
+    depth = np.asarray(_depth_array(depth_filled_m, "depth_filled_m"), np.float32)
     if depth.shape != color.shape[:2]:
         raise InputError(f"depth_filled_m must be (H, W) = {color.shape[:2]}; got {depth.shape}")
     trace: list[StageTrace] = []

@@ -54,6 +54,7 @@ from numba.extending import intrinsic
 from .camera import Rig, RGBDFrame
 from .errors import InputError
 from .geometry import dist14, max_radius2, pixel_rays, tilt_matrix
+from .lens import positive_number
 
 #: Smallest automatic discontinuity ratio: a triangle is dropped when max z > (1 + ratio) * min z
 #: of its corners. At 0.03 a kept triangle never puts depth more than 3 % behind a corner it was built from.
@@ -702,6 +703,14 @@ def default_depth_ratio(depth_intrinsics) -> float:
     return max(MIN_DEPTH_RATIO, math.sqrt(2.0) * math.tan(math.radians(MAX_INCIDENCE_DEG)) / f)
 
 
+def _depth_ratio(max_depth_ratio, depth_intrinsics) -> float | None:
+    """The checked discontinuity ratio: *max_depth_ratio*, or the camera's default when it is None
+    (None again without *depth_intrinsics*)."""
+    if max_depth_ratio is None:
+        return None if depth_intrinsics is None else default_depth_ratio(depth_intrinsics)
+    return positive_number("max_depth_ratio", max_depth_ratio, InputError)
+
+
 def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None) -> np.ndarray:
     """Re-sample a depth map from the depth camera into the colour camera's pixel grid.
 
@@ -724,12 +733,7 @@ def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None) 
     """
     if not isinstance(rig, Rig):
         raise InputError(f"rig must be a Rig; got {type(rig).__name__}")
-    try:
-        ratio = default_depth_ratio(rig.depth) if max_depth_ratio is None else float(max_depth_ratio)
-    except (TypeError, ValueError):
-        raise InputError(f"max_depth_ratio must be a number > 0; got {max_depth_ratio!r}") from None
-    if not np.isfinite(ratio) or ratio <= 0:
-        raise InputError(f"max_depth_ratio must be a finite number > 0; got {max_depth_ratio!r}")
+    ratio = _depth_ratio(max_depth_ratio, rig.depth)
     depth = _depth_input(depth_m, rig.depth.shape)
     plan = _plan(rig)
     h, w = depth.shape
@@ -770,10 +774,11 @@ def register_depth(frame: RGBDFrame, *, max_depth_ratio: float | None = None) ->
     """
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
+    ratio = _depth_ratio(max_depth_ratio, None)  # checked before the identity-rig shortcut: never ignored
     needed, _ = needs_registration(frame.rig)
     if not needed:
         return np.array(frame.depth_m, dtype=np.float32, copy=True)
-    return reproject_depth(frame.depth_m, frame.rig, max_depth_ratio=max_depth_ratio)
+    return reproject_depth(frame.depth_m, frame.rig, max_depth_ratio=ratio)
 
 
 def warmup() -> None:

@@ -940,7 +940,7 @@ def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.
         an unknown *method* or *quality*, a colour image that :func:`pcdof.camera.check_color`
         refuses, or a depth map of another size than the colour image
     """
-    if method not in METHODS:
+    if not isinstance(method, str) or method not in METHODS:
         raise InputError(f"method must be one of {sorted(METHODS)}; got {method!r}")
     check_quality(quality)
     color = check_color(color)

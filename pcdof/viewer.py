@@ -488,12 +488,13 @@ class FocusViewer:
         # the exporter appends ".html" to other names, so the temporary name ends in it too
         tmp = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.{secrets.token_hex(4)}.html")
         try:
+            os.makedirs(folder, exist_ok=True)  # like the image writers: missing folders are created
             export(tmp)
             os.replace(tmp, path)
         except ImportError as err:
             raise ImageWriteError(f"cannot export {path!r}: {err}") from None
         except OSError as err:
-            raise ImageWriteError(f"cannot write {path!r}: {err}") from None
+            raise ImageWriteError(f"cannot write {path!r}: {err.strerror or err}") from None
         finally:
             if os.path.exists(tmp):
                 os.remove(tmp)

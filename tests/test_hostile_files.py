@@ -259,18 +259,18 @@ CASES += [CliCase(f"calib {name}", frame_command(calib=name), code, word) for na
     ("folder.json", READ, "folder"),
 ]]
 CASES += [CliCase(f"option {' '.join(extra)}", frame_command(extra=extra), code, word) for extra, code, word in [
-    (("--f-number", "0"), LENS, "f_number"),
-    (("--f-number", "-2.8"), LENS, "f_number"),
-    (("--f-number", "nan"), LENS, "f_number"),
-    (("--focus-distance", "0"), LENS, "focus_distance_m"),
-    (("--focus-distance", "-1"), LENS, "focus_distance_m"),
-    (("--focal-length", "inf"), LENS, "focal_length_mm"),
+    (("--f-number", "0"), LENS, "--f-number"),
+    (("--f-number", "-2.8"), LENS, "--f-number"),
+    (("--f-number", "nan"), LENS, "--f-number"),
+    (("--focus-distance", "0"), LENS, "--focus-distance"),
+    (("--focus-distance", "-1"), LENS, "--focus-distance"),
+    (("--focal-length", "inf"), LENS, "--focal-length"),
     (("--aperture-blades", "2"), LENS, "aperture_blades"),
     (("--focus-at", "100,100"), INPUT, "outside"),
     (("--depth-scale", "0"), INPUT, "depth_scale"),
 ]]
 CASES += [
-    CliCase("existing output unchanged", frame_command(extra=("--f-number", "0")), LENS, "f_number",
+    CliCase("existing output unchanged", frame_command(extra=("--f-number", "0")), LENS, "--f-number",
             keep=(("out.png", b"previous result"),)),
     CliCase("output suffix", frame_command(output="out.bmp"), INPUT, "out.bmp"),
     CliCase("output name too long", frame_command(output="x" * 300 + ".png"), WRITE, "xxxx"),

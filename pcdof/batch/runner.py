@@ -265,6 +265,8 @@ def measure_focus_track(sequence: Sequence, rig: Rig, xy, *, n_frames: int | Non
     from ..register import needs_registration, reproject_depth
 
     x, y = _check_xy(xy, rig)
+    if isinstance(radius_px, (bool, np.bool_)) or not isinstance(radius_px, (int, np.integer)) or radius_px < 0:
+        raise InputError(f"radius_px must be an integer >= 0; got {radius_px!r}")  # once, not once per frame
     n = len(sequence) if n_frames is None else min(int(n_frames), len(sequence))
     registered = not needs_registration(rig)[0]
     raw = np.full(n, np.nan)
@@ -287,7 +289,7 @@ def _check_xy(xy, rig: Rig) -> tuple[float, float]:
     except (TypeError, ValueError):
         raise InputError(f"focus_at must be an (x, y) pixel; got {xy!r}") from None
     w, h = rig.color.width, rig.color.height
-    if not (0 <= x <= w - 1 and 0 <= y <= h - 1):
+    if not (-0.5 <= x < w - 0.5 and -0.5 <= y < h - 0.5):  # pixel i spans [i - 0.5, i + 0.5)
         raise InputError(f"focus_at ({x:g}, {y:g}) is outside the colour image of size {w}x{h}")
     return x, y
 

@@ -10,7 +10,7 @@ from ..errors import InputError
 from ..fill import FILL_METHODS
 from ..renderer import METHODS
 from ._common import check_output_file, check_output_folder, handle_errors
-from .render import lens_options
+from .render import check_lens_flags, check_positive_flags, lens_options
 
 EPILOG = """\b
 INPUT is one of:
@@ -39,10 +39,10 @@ def _resolve_workers(ctx, param, value):
 
 
 @click.command("batch", epilog=EPILOG)
-@click.argument("input_path", metavar="INPUT", type=click.Path())
-@click.option("--calib", type=click.Path(), default=None,
+@click.argument("input_path", metavar="INPUT", type=click.Path(readable=False))
+@click.option("--calib", type=click.Path(readable=False), default=None,
               help="Calibration file (default: calib.json etc. in the INPUT folder).")
-@click.option("-o", "--output", "output_dir", required=True, type=click.Path(),
+@click.option("-o", "--output", "output_dir", required=True, type=click.Path(readable=False),
               help="Output folder.")
 @lens_options
 @click.option("--focus-keyframes", default=None, metavar="F:M,...",
@@ -65,7 +65,7 @@ def _resolve_workers(ctx, param, value):
 @click.option("--max-time-difference", "max_difference", type=float, default=0.02, show_default=True,
               help="TUM: largest colour/depth timestamp difference for a pair, seconds.")
 @click.option("--save-depth", is_flag=True, help="Also write the registered, filled depth (16-bit mm PNG).")
-@click.option("--video", type=click.Path(), default=None, help="Also encode an H.264 .mp4.")
+@click.option("--video", type=click.Path(readable=False), default=None, help="Also encode an H.264 .mp4.")
 @click.option("--fps", type=float, default=30.0, show_default=True,
               help="Video frame rate, and the time base of --focus-at smoothing.")
 @click.option("--resume", is_flag=True, help="Keep frames whose outputs already exist; render the rest.")
@@ -94,6 +94,13 @@ def command(input_path, calib, output_dir, focal_length_mm, f_number, focus_dist
                                   ("--focus-keyframes", focus_keyframes)) if v is not None]
     if len(given) > 1:
         raise InputError(f"{' and '.join(given)} exclude each other; give one")
+    check_lens_flags(None, None, {"--focal-length": focal_length_mm, "--f-number": f_number,
+                                  "--focus-distance": focus_distance_m})
+    check_positive_flags({"--focus-min-cutoff": focus_min_cutoff, "--max-time-difference": max_difference,
+                          "--fps": fps})
+    check_positive_flags({"--focus-beta": focus_beta}, allow_zero=True)
+    if focus_window < 1:
+        raise InputError(f"--focus-window must be a whole number of frames >= 1; got {focus_window}")
     if not given:  # like `pcdof render`: focus on the depth at the image centre (followed over time)
         focus_at = "center"
     provisional = focus_distance_m if focus_distance_m is not None else 1.0

@@ -53,7 +53,7 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 
 @click.command("bench")
-@click.option("-o", "--output", default="out/bench", show_default=True, type=click.Path())
+@click.option("-o", "--output", default="out/bench", show_default=True, type=click.Path(readable=False))
 @click.option("--quick", is_flag=True, help="Tiny scenes, few repeats: a smoke run for tests.")
 @click.option("--only", default=",".join(PARTS), show_default=True, help="Comma-separated parts to run.")
 @click.option("--size", default="320x240", show_default=True, help="Colour size of the ground-truth scenes.")

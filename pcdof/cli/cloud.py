@@ -9,11 +9,11 @@ from ._common import check_output_file, handle_errors
 
 
 @click.command("cloud")
-@click.argument("color", type=click.Path())
-@click.argument("depth", type=click.Path())
-@click.option("--calib", required=True, type=click.Path(),
+@click.argument("color", type=click.Path(readable=False))
+@click.argument("depth", type=click.Path(readable=False))
+@click.option("--calib", required=True, type=click.Path(readable=False),
               help="Calibration: calib.json, OpenCV .yml/.xml, or Open3D intrinsic JSON.")
-@click.option("-o", "--output", required=True, type=click.Path(), help="Output point cloud (.ply).")
+@click.option("-o", "--output", required=True, type=click.Path(readable=False), help="Output point cloud (.ply).")
 @click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
 @click.option("--no-fill", is_flag=True, help="Keep only measured depth (no hole filling).")
 @click.option("--fill-method", type=click.Choice(list(FILL_METHODS)), default="joint-bilateral", show_default=True,

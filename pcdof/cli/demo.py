@@ -14,8 +14,8 @@ DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.absp
 
 
 @click.command("demo")
-@click.option("-o", "--output", default="out/demo", show_default=True, type=click.Path())
-@click.option("--data", "data_dir", default=DATA, show_default=False, type=click.Path(file_okay=False),
+@click.option("-o", "--output", default="out/demo", show_default=True, type=click.Path(readable=False))
+@click.option("--data", "data_dir", default=DATA, show_default=False, type=click.Path(file_okay=False, readable=False),
               help="The repository's data folder.")
 @handle_errors
 def command(output, data_dir):

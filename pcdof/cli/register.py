@@ -9,11 +9,11 @@ from ._common import check_output_file, handle_errors
 
 
 @click.command("register")
-@click.argument("color", type=click.Path())
-@click.argument("depth", type=click.Path())
-@click.option("--calib", required=True, type=click.Path(),
+@click.argument("color", type=click.Path(readable=False))
+@click.argument("depth", type=click.Path(readable=False))
+@click.option("--calib", required=True, type=click.Path(readable=False),
               help="Calibration: calib.json, OpenCV .yml/.xml, or Open3D intrinsic JSON.")
-@click.option("-o", "--output", required=True, type=click.Path(),
+@click.option("-o", "--output", required=True, type=click.Path(readable=False),
               help="Output depth: .png = uint16 millimetres (0 = unknown); .npy/.tiff/.exr = float32 metres.")
 @click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
 @click.option("--fill", is_flag=True, help="Also fill the holes of the registered depth.")

@@ -32,7 +32,7 @@ class _LazyChoice(click.Choice):
 
 @click.command("synth")
 @click.argument("name", metavar="NAME", type=_LazyChoice())
-@click.option("-o", "--output", required=True, type=click.Path(), help="Output folder.")
+@click.option("-o", "--output", required=True, type=click.Path(readable=False), help="Output folder.")
 @click.option("--size", default="640x480", show_default=True, metavar="WxH", help="Colour image size.")
 @click.option("--depth-size", default="512x424", show_default=True, metavar="WxH", help="Depth image size.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 
@@ -9,7 +10,7 @@ import click
 
 from ..errors import InputError
 from ._common import check_output_file, handle_errors
-from .render import IMAGE_SUFFIXES, lens_options
+from .render import IMAGE_SUFFIXES, check_lens_flags, lens_options
 
 HTML_SUFFIXES = (".html", ".htm")
 
@@ -33,9 +34,9 @@ def has_display() -> bool:
 
 
 @click.command("view")
-@click.argument("color", type=click.Path())
-@click.argument("depth", type=click.Path())
-@click.option("--calib", required=True, type=click.Path(), help="Calibration file.")
+@click.argument("color", type=click.Path(readable=False))
+@click.argument("depth", type=click.Path(readable=False))
+@click.option("--calib", required=True, type=click.Path(readable=False), help="Calibration file.")
 @lens_options
 @click.option("--coc-limit", "coc_limit_px", type=float, default=1.0, show_default=True,
               help="Acceptable circle of confusion in pixels: bounds the depth-of-field slab.")
@@ -45,9 +46,9 @@ def has_display() -> bool:
               help="Keep every N-th pixel in x and y for the point cloud.")
 @click.option("--fill-method", default="joint-bilateral", show_default=True, help="Depth hole filling method.")
 @click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
-@click.option("--screenshot", type=click.Path(), default=None,
+@click.option("--screenshot", type=click.Path(readable=False), default=None,
               help="Render off screen (no display needed) and write this PNG.")
-@click.option("--html", "html_path", type=click.Path(), default=None,
+@click.option("--html", "html_path", type=click.Path(readable=False), default=None,
               help="Write a standalone interactive HTML page of the scene (no display needed).")
 @click.option("--window-size", type=str, default="1500x750", show_default=True, callback=parse_size,
               metavar="WxH", help="Window (and screenshot) size in pixels.")
@@ -74,10 +75,19 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
         raise InputError(f"--screenshot must end in one of {', '.join(IMAGE_SUFFIXES)}; got {screenshot!r}")
     if html_path and os.path.splitext(html_path)[1].lower() not in HTML_SUFFIXES:
         raise InputError(f"--html must end in one of {', '.join(HTML_SUFFIXES)}; got {html_path!r}")
+    check_lens_flags(focus_distance_m, focus_at, {"--focal-length": focal_length_mm, "--f-number": f_number,
+                                                  "--coc-limit": coc_limit_px})
     off_screen = bool(screenshot or html_path)
     if not off_screen and not has_display():
         raise InputError("no display to open a window on (DISPLAY is not set); "
                          "use --screenshot OUT.png or --html OUT.html")
+    if off_screen:  # VTK warns that there is no X server, which off-screen rendering does not need
+        from vtkmodules.vtkCommonCore import vtkLogger
+
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
+    if html_path:  # the HTML exporter loads a trame module that tries to download VTK's WebAssembly
+        # build in the background; offline, its failed task would be logged with a traceback
+        logging.getLogger("asyncio").setLevel(logging.CRITICAL)
     frame = io.load_frame(color, depth, calib, depth_scale=depth_scale)
     provisional = focus_distance_m if focus_distance_m is not None else 1.0
     lens = ThinLens(focal_length_mm, f_number, provisional, aperture_blades, aperture_rotation_deg)
@@ -86,12 +96,19 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
     viewer = scene_from_frame(frame, lens, fill_method=fill_method, focus_at=focus_at, coc_limit_px=coc_limit_px,
                               stride=stride, color_by=color_by, off_screen=off_screen, window_size=window_size)
     try:
+        # the screenshot first: rendering after the HTML export starts the exporter's network tasks
         if screenshot:
             viewer.screenshot(screenshot)
-            click.echo(f"wrote {screenshot}", err=True)
         if html_path:
-            viewer.export_html(html_path)
-            click.echo(f"wrote {html_path}", err=True)
+            try:
+                viewer.export_html(html_path)
+            except BaseException:
+                if screenshot:  # both outputs or neither
+                    os.remove(screenshot)
+                raise
+        for path in (screenshot, html_path):
+            if path:
+                click.echo(f"wrote {path}", err=True)
         if not off_screen:
             viewer.show()
     finally:

@@ -22,6 +22,17 @@ def _color_to_unit(color: np.ndarray) -> np.ndarray:
     return np.clip(color.astype(np.float32), 0.0, 1.0)
 
 
+def _color_to_uint8(cols: np.ndarray) -> np.ndarray:
+    """PLY colours: floats in [0, 1] (clipped) or integers scaled by their dtype's maximum -> uint8 0..255."""
+    if cols.dtype == np.uint8:
+        return cols.copy()
+    if cols.dtype.kind in "iu":
+        unit = np.clip(cols.astype(np.float64) / np.iinfo(cols.dtype).max, 0.0, 1.0)  # negative ints -> 0
+    else:
+        unit = np.clip(cols.astype(np.float64), 0.0, 1.0)
+    return np.rint(unit * 255).astype(np.uint8)
+
+
 def colored_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Back-project registered depth to 3-D points with the colour of their pixel.
 
@@ -69,12 +80,15 @@ def write_ply(path, points, colors=None) -> None:
     ----------
     path : str or os.PathLike, ending in ``.ply``
     points : (N, 3) float ndarray, metres (stored as float32 x, y, z)
-    colors : (N, 3) float ndarray in [0, 1], optional (stored as uint8 red, green, blue)
+    colors : (N, 3) ndarray, optional (stored as uint8 red, green, blue). Floats are in [0, 1] (clipped);
+        integers are scaled by their dtype's maximum: uint8 as is, uint16 / 65535 (so 65535 -> 255),
+        int32 / 2147483647, ... (negative values -> 0), like :func:`colored_points` does.
 
     Raises
     ------
     InputError
-        Wrong suffix, shapes, or non-finite points.
+        Wrong suffix, shapes, non-finite points (values beyond float32's range, about 3.4e38, count as
+        inf), or non-finite colours.
     ImageWriteError
         Writing failed; no file is left behind.
     """
@@ -84,8 +98,10 @@ def write_ply(path, points, colors=None) -> None:
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3 or pts.dtype.kind not in "fiu":
         raise InputError(f"points must be a numeric (N, 3) array; got shape {pts.shape}, dtype {pts.dtype}")
+    with np.errstate(over="ignore", invalid="ignore"):
+        pts = pts.astype(np.float32)  # checked after the cast: values beyond float32's range become inf
     if not np.all(np.isfinite(pts)):
-        raise InputError("points must be finite; got NaN or inf")
+        raise InputError("points must be finite; got NaN or inf (or values beyond float32's range, about ±3.4e38)")
     n = len(pts)
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if colors is not None:
@@ -98,7 +114,7 @@ def write_ply(path, points, colors=None) -> None:
     record = np.empty(n, dtype=fields)
     record["x"], record["y"], record["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
     if colors is not None:
-        c8 = np.rint(np.clip(cols.astype(np.float64), 0.0, 1.0) * 255).astype(np.uint8)
+        c8 = _color_to_uint8(cols)
         record["red"], record["green"], record["blue"] = c8[:, 0], c8[:, 1], c8[:, 2]
     buf = io.BytesIO()
     lines = ["ply", "format binary_little_endian 1.0", "comment pcdof point cloud, metres, colour camera frame",

@@ -302,4 +302,4 @@ class TestRenderPaperOptions:
         result = invoke("render", *frame_args(self.SAMPLE), "-o", tmp_path / "x.png", "--method", "paper",
                         "--weight", "eq1", "--eq1-aperture", -1)
         assert result.exit_code == EXIT_CODES[LensError], result.output
-        assert "eq1_aperture" in result.stderr and not os.path.exists(tmp_path / "x.png")
+        assert "--eq1-aperture" in result.stderr and not os.path.exists(tmp_path / "x.png")

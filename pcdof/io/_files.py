@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import os
 import struct
 import tempfile
@@ -19,6 +20,7 @@ import numpy as np  # noqa: E402
 
 from ..camera import MAX_IMAGE_SIDE  # noqa: E402
 from ..errors import ImageReadError, ImageWriteError, InputError  # noqa: E402
+from ._jpeg import decode_jpeg  # noqa: E402
 
 #: Largest image the readers decode (pixels); together with ``MAX_IMAGE_SIDE`` per side.
 MAX_PIXELS = 250_000_000
@@ -163,7 +165,7 @@ def decode_pfm(data: bytes, path: str, what: str) -> np.ndarray:
 
     The header's scale magnitude is ignored, as by the Middlebury tools (OpenCV divides by it,
     which turns Middlebury's ``-0.003922`` files into disparities 255 times too large); only its
-    sign, the byte order, is used.
+    sign, the byte order, is used. A scale of 0, NaN or inf says no byte order: a malformed header.
     """
     parts = []
     pos = 0
@@ -180,6 +182,10 @@ def decode_pfm(data: bytes, path: str, what: str) -> np.ndarray:
         width, height, scale = int(parts[1]), int(parts[2]), float(parts[3])
     except (KeyError, ValueError):
         raise ImageReadError(f"cannot read {what} file {path}: malformed PFM header") from None
+    if not math.isfinite(scale) or scale == 0:
+        raise ImageReadError(f"cannot read {what} file {path}: malformed PFM header (scale "
+                             f"{parts[3].decode('latin-1')!r}; expected a finite non-zero number, negative for "
+                             "little-endian)")
     check_size(width, height, path, what)
     count = width * height * channels
     if len(data) - pos < 4 * count:
@@ -318,7 +324,9 @@ def _check_png_pixels(view: memoryview, idat: list[tuple[int, int]], ihdr: tuple
 def decode_image(data: bytes, kind: str | None, path: str, what: str) -> np.ndarray:
     """Decode an image file with OpenCV (IMREAD_UNCHANGED: bit depth and channels as stored, BGR order).
 
-    The size in the header is checked against the limits first, and a PNG with :func:`check_png`.
+    The size in the header is checked against the limits first, a PNG with :func:`check_png`, and a
+    JPEG is decoded by :func:`~pcdof.io._jpeg.decode_jpeg`: OpenCV's decoders accept truncated and
+    corrupt files of these kinds with at most a message on stderr.
     """
     if kind == "pfm":
         return decode_pfm(data, path, what)
@@ -328,7 +336,10 @@ def decode_image(data: bytes, kind: str | None, path: str, what: str) -> np.ndar
     if kind == "png":
         check_png(data, path, what)
     try:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if kind == "jpeg":
+            img = decode_jpeg(data, path, what)
+        else:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as err:
         raise ImageReadError(f"cannot decode {what} file {path}: {err.err}") from None
     if img is None or img.size == 0:

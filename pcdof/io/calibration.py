@@ -55,7 +55,9 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import warnings
+import zlib
 
 import cv2
 import numpy as np
@@ -66,6 +68,12 @@ from ._files import fspath, read_bytes
 
 #: Longest depth-to-colour translation (metres) accepted without a warning.
 MAX_PLAUSIBLE_BASELINE_M = 1.0
+#: Deepest nesting an OpenCV FileStorage file (YAML / XML) may possibly have; see :func:`_filestorage_depth_bound`.
+#: OpenCV's parsers recurse once per level and overflow the stack (a crash, not an error) at some 30 000
+#: levels (about 250 bytes of an 8 MiB stack each); a calibration needs 3.
+MAX_FILESTORAGE_NESTING = 10_000
+#: Largest decompressed ``.gz`` FileStorage file read, bytes.
+MAX_FILESTORAGE_BYTES = 64 << 20
 
 _CALIB_KEYS = {"color", "depth", "depth_scale", "T_color_from_depth", "max_range_m"}
 _INTRINSIC_KEYS = {"width", "height", "fx", "fy", "cx", "cy", "distortion"}
@@ -119,7 +127,7 @@ def read_calibration(path, *, depth_scale: float | None = None) -> Rig:
     try:
         kind, obj = _detect(path, data)
         if kind == "opencv":
-            rig = _rig_from_opencv(_read_filestorage(path), depth_scale, unknown)
+            rig = _rig_from_opencv(_read_filestorage(path, data), depth_scale, unknown)
         elif kind == "open3d":
             rig = _rig_from_open3d(obj, depth_scale, unknown)
         else:
@@ -141,7 +149,10 @@ def read_calibration(path, *, depth_scale: float | None = None) -> Rig:
 def _scale_argument(value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise InputError(f"depth_scale must be a number (metres per depth unit); got {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an int beyond float's range
+        v = math.inf
     if not math.isfinite(v) or v <= 0:
         raise InputError(f"depth_scale must be a finite number > 0 (metres per depth unit); got {value!r}")
     return v
@@ -162,6 +173,9 @@ def _detect(path: str, data: bytes) -> tuple[str, dict | None]:
             raise CalibrationError("not a text file (expected JSON, YAML or XML)") from None
         except json.JSONDecodeError as err:
             raise CalibrationError(f"is not valid JSON: {err}") from None
+        except ValueError as err:  # e.g. an integer of more than sys.get_int_max_str_digits() digits
+            reason = str(err).split(";")[0]  # without the advice to call sys.set_int_max_str_digits
+            raise CalibrationError(f"is not a calibration: its JSON cannot be read ({reason})") from None
         except RecursionError:
             raise CalibrationError("is not a calibration: its JSON is nested too deeply to be read") from None
         if not isinstance(obj, dict):
@@ -197,7 +211,11 @@ def _number(value, key: str, *, positive: bool = False) -> float:
         value = value.reshape(()).item()
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise CalibrationError(f"{key} must be a number; got {type(value).__name__} {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:
+        raise CalibrationError(f"{key} must be finite; got an integer too large for a float "
+                               f"({int(value).bit_length()} bits)") from None
     if not math.isfinite(v):
         raise CalibrationError(f"{key} must be finite; got {v}")
     if positive and v <= 0:
@@ -230,7 +248,10 @@ def _numbers(value, key: str) -> np.ndarray:
         for v in arr.ravel():
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise CalibrationError(f"{key} must hold numbers only; got {type(v).__name__} {v!r}")
-    arr = np.asarray(arr, dtype=np.float64)
+    try:
+        arr = np.asarray(arr, dtype=np.float64)
+    except OverflowError:
+        raise CalibrationError(f"{key} must be finite; got an integer too large for a float") from None
     if not np.all(np.isfinite(arr)):
         raise CalibrationError(f"{key} must be finite; got NaN or inf in {arr.tolist()}")
     return arr
@@ -330,8 +351,51 @@ def _cv_message(err: BaseException) -> str:
     return msg.split("error: ", 1)[-1]
 
 
-def _read_filestorage(path: str) -> dict:
-    """Top-level entries of a FileStorage file as Python values (matrices as float64 arrays)."""
+def _filestorage_text(path: str, data: bytes) -> bytes:
+    """The text cv2.FileStorage will parse: *data*, decompressed for a ``.gz`` file (at most MAX_FILESTORAGE_BYTES)."""
+    if not path.lower().endswith(".gz"):
+        return data
+    inflater = zlib.decompressobj(16 + zlib.MAX_WBITS)  # gzip framing
+    try:
+        text = inflater.decompress(data, MAX_FILESTORAGE_BYTES + 1)
+    except zlib.error as err:
+        raise CalibrationError(f"is not a valid gzip file ({err})") from None
+    if len(text) > MAX_FILESTORAGE_BYTES:
+        raise CalibrationError(f"decompresses to more than {MAX_FILESTORAGE_BYTES >> 20} MiB; not a calibration")
+    return text
+
+
+_XML_OPEN_TAG = re.compile(rb"<(?![/?!])")
+_YAML_LINE = re.compile(rb"^([ \t]*)(.*)$", re.MULTILINE)
+
+
+def _filestorage_depth_bound(text: bytes) -> int:
+    """An upper bound of the nesting depth cv2.FileStorage reaches in *text*, counted without parsing.
+
+    XML: the number of opening tags. YAML (and FileStorage JSON): the number of ``[`` and ``{`` (flow
+    collections) plus the largest, over the lines, of the indentation and the ``:`` and ``-`` in the
+    line (block levels: each has its own column, and a line opens at most one per ``key:`` or ``- ``).
+    Comments and strings are counted too, so the bound is never too low.
+    """
+    if text.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"<"):
+        return len(_XML_OPEN_TAG.findall(text))
+    flow = text.count(b"[") + text.count(b"{")
+    block = max((len(m[1]) + m[2].count(b":") + m[2].count(b"-") for m in _YAML_LINE.finditer(text)), default=0)
+    return flow + block
+
+
+def _read_filestorage(path: str, data: bytes) -> dict:
+    """Top-level entries of a FileStorage file as Python values (matrices as float64 arrays).
+
+    Files that might nest deeper than MAX_FILESTORAGE_NESTING are refused before OpenCV parses them:
+    its recursive parsers would crash the process.
+    """
+    depth = _filestorage_depth_bound(_filestorage_text(path, data))
+    if depth > MAX_FILESTORAGE_NESTING:
+        raise CalibrationError(
+            f"is not a calibration: its entries may be nested up to {depth} levels deep, more than the "
+            f"{MAX_FILESTORAGE_NESTING} cv2.FileStorage can read safely"
+        )
     try:
         fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
     except Exception as err:  # noqa: BLE001 - cv2 raises cv2.error or SystemError on a parse error
@@ -361,7 +425,7 @@ def _node_value(node, key: str):
         return node.string()
     if node.isMap():
         keys = node.keys()
-        if {"rows", "cols", "data"} <= set(keys):
+        if {"rows", "cols", "data"} <= set(keys) or {"sizes", "dt", "data"} <= set(keys):  # 2-D or n-D matrix
             try:
                 return np.asarray(node.mat(), dtype=np.float64)
             except Exception as err:  # noqa: BLE001

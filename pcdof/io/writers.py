@@ -67,6 +67,28 @@ def _npy_bytes(array: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+def _jpeg_quality(value) -> int:
+    """*value* as an int in 0..100, or InputError naming jpeg_quality (OpenCV would clamp it with a warning)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= 100:
+        raise InputError(f"jpeg_quality must be an integer in 0..100; got {value!r}")
+    return int(value)
+
+
+def _finite_float32(arr: np.ndarray, name: str) -> np.ndarray:
+    """*arr* cast to float32, or InputError naming *name* when it holds NaN or inf after the cast.
+
+    The check follows the cast so that finite values beyond float32's range (about 3.4e38), which the
+    cast turns into inf, are refused too: nothing non-finite is ever written.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = np.asarray(arr, dtype=np.float32)
+    bad = int(np.count_nonzero(~np.isfinite(out)))
+    if bad:
+        raise InputError(f"{name} must be finite; got {bad} NaN or inf values (or values beyond float32's range, "
+                         f"about ±3.4e38)")
+    return out
+
+
 def write_image(path, image, *, jpeg_quality: int = 95) -> None:
     """Write an RGB (or grey) image atomically.
 
@@ -76,24 +98,25 @@ def write_image(path, image, *, jpeg_quality: int = 95) -> None:
         ``.png`` (uint8/uint16), ``.jpg``/``.jpeg`` (uint8), ``.tif``/``.tiff`` (uint8/uint16/float32),
         ``.exr`` (float32), ``.npy`` (any of these, stored as is).
     image : (H, W, 3) RGB or (H, W) grey ndarray, uint8, uint16 or float (floats are stored as float32)
-    jpeg_quality : int, 0..100
+    jpeg_quality : int, 0..100 (checked for every suffix, used for ``.jpg``/``.jpeg``)
 
     Raises
     ------
     InputError
-        Unsupported suffix, shape or dtype (e.g. float to PNG: convert to uint8/uint16 first), NaN in a float image.
+        Unsupported suffix, shape or dtype (e.g. float to PNG: convert to uint8/uint16 first), NaN or inf in a
+        float image (values beyond float32's range, about 3.4e38, count as inf), *jpeg_quality* not an
+        integer in 0..100.
     ImageWriteError
         Encoding or writing failed; no file is left behind.
     """
     ext = output_format(path, IMAGE_FORMATS, name="image path")
     path = fspath(path)
+    quality = _jpeg_quality(jpeg_quality)
     arr = np.asarray(image)
     if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3) or 0 in arr.shape:
         raise InputError(f"image must be (H, W, 3) RGB or (H, W) grey; got shape {arr.shape}")
     if arr.dtype.kind == "f":
-        if not np.all(np.isfinite(arr)):
-            raise InputError("image must be finite; got NaN or inf values")
-        arr = arr.astype(np.float32, copy=False)
+        arr = _finite_float32(arr, "image")
     if arr.dtype.name not in IMAGE_FORMATS[ext]:
         hint = " (convert to uint8/uint16 first, or write .tiff/.exr)" if arr.dtype.kind == "f" else ""
         raise InputError(f"{ext} images can store {'/'.join(IMAGE_FORMATS[ext])}; got {arr.dtype}{hint}")
@@ -106,7 +129,7 @@ def write_image(path, image, *, jpeg_quality: int = 95) -> None:
             data = encode_exr({"R": arr[:, :, 0], "G": arr[:, :, 1], "B": arr[:, :, 2]}, path)
     else:
         bgr = np.ascontiguousarray(arr[:, :, ::-1]) if arr.ndim == 3 else np.ascontiguousarray(arr)
-        params = [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)] if ext in (".jpg", ".jpeg") else None
+        params = [cv2.IMWRITE_JPEG_QUALITY, quality] if ext in (".jpg", ".jpeg") else None
         data = encode_cv2(ext, bgr, path, params)
     atomic_write_bytes(path, data)
 
@@ -139,13 +162,14 @@ def write_depth(path, depth_m) -> None:
     path : str or os.PathLike
         ``.png``: uint16 millimetres, 0 = unknown (NaN, inf, negative and 0 are unknown; depths
         beyond 65.535 m are clipped to it, with a warning). ``.npy``, ``.tif``/``.tiff``, ``.exr``
-        (channel ``Z``): float32 metres, values stored as given.
+        (channel ``Z``): float32 metres, values stored as given; they must be finite (mark unknown
+        depth with 0).
     depth_m : (H, W) ndarray, metres (any numeric dtype; stored as float32 or uint16 mm)
 
     Raises
     ------
     InputError
-        Unsupported suffix, shape or dtype.
+        Unsupported suffix, shape or dtype; NaN or inf (or values beyond float32's range) for a float format.
     ImageWriteError
         Encoding or writing failed; no file is left behind.
     """
@@ -164,7 +188,7 @@ def write_depth(path, depth_m) -> None:
                           stacklevel=2)
         data = encode_cv2(".png", mm, path)
     else:
-        f32 = np.ascontiguousarray(arr, dtype=np.float32)
+        f32 = np.ascontiguousarray(_finite_float32(arr, "depth_m"))
         if ext == ".npy":
             data = _npy_bytes(f32)
         elif ext == ".exr":

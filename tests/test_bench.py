@@ -64,3 +64,25 @@ def test_lens_for_share_hits_the_requested_share():
         assert got == pytest.approx(share, abs=1.0 / depth.size + 1e-9)
         assert math.isfinite(lens.f_number) and lens.f_number > 0
     assert lens_for_share(depth, fx, 0.0).coc_px(depth, fx).max() < 0.5
+
+
+def test_registration_profile_script(capsys):
+    """scripts/profile_registration.py times the two registration passes on the benchmark's box scene."""
+    import importlib.util
+    import os
+
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts",
+                        "profile_registration.py")
+    spec = importlib.util.spec_from_file_location("profile_registration", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main(["--size", "640x480", "--rounds", "1", "--calls", "1"]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| pass") or line.startswith("| reproject")
+            or line.startswith("| open3d")]
+    assert len(rows) >= 4
+    for row in rows:
+        ms = float(row.split("|")[2])
+        assert 0 < ms < 10_000
+    quads = int(out.split(" quads drawn")[0].split()[-1])
+    assert 0.9 * 639 * 479 < quads <= 639 * 479  # the box scene fills nearly the whole depth image

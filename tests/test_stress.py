@@ -260,7 +260,7 @@ class TestLimits:
         frame = RGBDFrame(color, np.full((h, w), z, np.float32), registered_rig(h, w))
         if via_pixel:  # focus picked on the image, far from the plane's depth at first
             res = run(frame, ThinLens(50.0, n, z * 3 + 1), method=method,
-                      focus_at=(rng.uniform(0, w - 0.01), rng.uniform(0, h - 0.01)))
+                      focus_at=(rng.uniform(-0.5, w - 0.51), rng.uniform(-0.5, h - 0.51)))
         else:
             res = run(frame, ThinLens(50.0, n, z), method=method)
         np.testing.assert_array_equal(res.image, color)

@@ -6,6 +6,7 @@ right, 64x48 pixels, depth as TUM-style 16-bit PNGs (5000 units per metre) with 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -100,6 +101,30 @@ def write_tum(root, n: int, *, moving=True, noisy=False, extra_color=True, calib
         with open(os.path.join(root, "calib.json"), "w") as f:
             json.dump(calib_dict(), f)
     return root
+
+
+def write_folders(root, names, *, moving=True):
+    """A color/ + depth/ folder (depth in mm, calib.json with depth_scale 0.001); one frame per name."""
+    root = str(root)
+    for sub in ("color", "depth"):
+        os.makedirs(os.path.join(root, sub), exist_ok=True)
+    for i, name in enumerate(names):
+        color, depth = scene(i, moving=moving)
+        cv2.imwrite(os.path.join(root, "color", name), color[:, :, ::-1])
+        cv2.imwrite(os.path.join(root, "depth", name), np.rint(depth * 1000).astype(np.uint16))
+    with open(os.path.join(root, "calib.json"), "w") as f:
+        json.dump(calib_dict(depth_scale=0.001), f)
+    return root
+
+
+def file_bytes(folder):
+    """{relative path: bytes} of every file under *folder*."""
+    out = {}
+    for dirpath, _, names in os.walk(folder):
+        for n in names:
+            with open(os.path.join(dirpath, n), "rb") as f:
+                out[os.path.relpath(os.path.join(dirpath, n), folder)] = f.read()
+    return out
 
 
 def lens(**kw):
@@ -232,6 +257,25 @@ class TestDiscover:
         assert seq.pairs[1].color_time == 1.0 and seq.pairs[1].depth_time == 1.01
         lst.write_text("only_one_column.png\n")
         with pytest.raises(InputError, match="frames.txt:1"):
+            discover(str(lst))
+
+    def test_list_file_quotes_commas_and_hashes_inside_names(self, tmp_path):
+        lst = tmp_path / "takes" / "frames.txt"
+        lst.parent.mkdir()
+        lst.write_text('# colour depth\n'
+                       '"../my take/c/f#3.png" "../my take/d/f,3.png"\n'
+                       'take#1_c.png take#1_d.png  # a comment after the fields\n'
+                       "a.png,b.png\n"
+                       "c.png\td.png\n"
+                       "  #an indented comment\n")
+        seq = discover(str(lst))
+        got = [(os.path.relpath(p.color, tmp_path), os.path.relpath(p.depth, tmp_path)) for p in seq.pairs]
+        assert got == [(os.path.join("my take", "c", "f#3.png"), os.path.join("my take", "d", "f,3.png")),
+                       (os.path.join("takes", "take#1_c.png"), os.path.join("takes", "take#1_d.png")),
+                       (os.path.join("takes", "a.png"), os.path.join("takes", "b.png")),
+                       (os.path.join("takes", "c.png"), os.path.join("takes", "d.png"))]
+        lst.write_text('"unclosed.png d.png\n')
+        with pytest.raises(InputError, match=r"frames.txt:1: no closing quotation"):
             discover(str(lst))
 
     def test_ambiguous_and_missing(self, tmp_path):
@@ -583,6 +627,146 @@ class TestRunBatch:
         with pytest.raises(InputError, match="limit"):
             render_sequence(tum_seq, str(tmp_path), lens=lens(), limit=0)
 
+    def test_outputs_that_would_overwrite_inputs_are_refused(self, tmp_path):
+        root = write_folders(tmp_path / "seqin", ["frame_000000.png", "frame_000001.png"])
+        before = file_bytes(root)
+        # -o = the input folder: its depth/ is the input's depth/
+        cases = [({"output_dir": root, "save_depth": True}, "depth/frame_000000.png"),
+                 ({"output_dir": os.path.join(root, "color")}, "color/frame_000000.png"),
+                 ({"output_dir": str(tmp_path / "out"), "video": os.path.join(root, "color", "frame_000001.png")},
+                  "color/frame_000001.png")]
+        os.symlink(os.path.join(root, "depth"), tmp_path / "link")  # the same folder under another name
+        cases.append(({"output_dir": str(tmp_path / "link")}, "depth/frame_000000.png"))
+        for kw, named in cases:
+            with pytest.raises(InputError, match=f"overwrite the input file .*{named}"):
+                render_sequence(root, lens=lens(), workers=1, **kw)
+            assert file_bytes(root) == before and not (tmp_path / "out").exists()
+        # the input folder itself is fine where no name collides
+        rep = render_sequence(root, root, lens=lens(), workers=1)
+        assert rep["exit_code"] == EXIT_OK and os.path.isfile(os.path.join(root, frame_name(1)))
+        assert {k: v for k, v in file_bytes(root).items() if k in before} == before
+
+    def test_a_failed_frame_leaves_no_output_of_an_earlier_run(self, tmp_path):
+        root = write_tum(tmp_path / "seq", 3)
+        out = str(tmp_path / "out")
+        assert render_sequence(root, out, lens=lens(f_number=1.8), save_depth=True, workers=1)["exit_code"] == EXIT_OK
+        depth = discover(root).pairs[1].depth
+        good = open(depth, "rb").read()
+        with open(depth, "wb") as f:
+            f.write(b"not a png")
+        rep = render_sequence(root, out, lens=lens(f_number=8.0), save_depth=True, workers=1)
+        assert rep["exit_code"] == EXIT_PARTIAL and rep["frames"][1]["status"] == "failed"
+        assert not os.path.exists(os.path.join(out, frame_name(1)))  # not the f/1.8 image
+        assert not os.path.exists(os.path.join(out, "depth", frame_name(1)))
+        # resume renders the failed frame (its input repaired), keeps the others
+        with open(depth, "wb") as f:
+            f.write(good)
+        rep = render_sequence(root, out, lens=lens(f_number=8.0), save_depth=True, workers=1, resume=True)
+        assert [(r["status"], r["skipped"]) for r in rep["frames"]] == [
+            ("skipped", "resume"), ("ok", None), ("skipped", "resume")]
+
+    def test_resume_refuses_the_frames_of_another_list_file(self, tmp_path):
+        for take in ("a", "b"):
+            write_folders(tmp_path / take, [f"{i}.png" for i in range(6)], moving=take == "a")
+        (tmp_path / "calib.json").write_text(json.dumps(calib_dict(depth_scale=0.001)))
+        lines = {take: [f"{take}/color/{i}.png {take}/depth/{i}.png" for i in range(6)] for take in ("a", "b")}
+        (tmp_path / "takeA.txt").write_text("\n".join(lines["a"][:4]) + "\n")
+        (tmp_path / "takeB.txt").write_text("\n".join(lines["b"]) + "\n")
+        (tmp_path / "takeA6.txt").write_text("\n".join(lines["a"]) + "\n")
+        out = str(tmp_path / "out")
+        assert render_sequence(str(tmp_path / "takeA.txt"), out, lens=lens(), workers=1)["exit_code"] == EXIT_OK
+        first = file_bytes(out)
+        with pytest.raises(InputError, match=r"--resume: frame 0 .* a/color/0.png .* not b/color/0.png"):
+            render_sequence(str(tmp_path / "takeB.txt"), out, lens=lens(), workers=1, resume=True)
+        assert file_bytes(out) == first
+        # the same takes, longer: the first four frames are kept
+        rep = render_sequence(str(tmp_path / "takeA6.txt"), out, lens=lens(), workers=1, resume=True)
+        assert [r["status"] for r in rep["frames"]] == ["skipped"] * 4 + ["ok"] * 2
+
+    def test_video_fills_failed_frames_at_the_start(self, tmp_path):
+        imageio = pytest.importorskip("imageio.v2")
+        root = write_tum(tmp_path / "seq", 6)
+        pairs = discover(root).pairs
+        for i in (0, 1, 4):
+            open(pairs[i].color, "wb").close()
+        out, video = str(tmp_path / "out"), str(tmp_path / "v.mp4")
+        rep = render_sequence(root, out, lens=lens(), video=video, workers=1)
+        assert rep["exit_code"] == EXIT_PARTIAL
+        assert rep["video"]["frames"] == 6 and rep["video"]["held_frames"] == [0, 1, 4]
+        assert rep["video"]["held_from"] == [[0, 2], [1, 2], [4, 3]]
+        reader = imageio.get_reader(video, "ffmpeg")
+        decoded = [f.astype(float) for f in reader]
+        reader.close()
+        assert len(decoded) == 6
+        shown = [read_png(os.path.join(out, frame_name(i))).astype(float) for i in (2, 2, 2, 3, 3, 5)]
+        for got, want in zip(decoded, shown):
+            assert np.abs(got - want).mean() < 6  # H.264 is lossy
+
+    def test_sigterm_stops_the_batch_like_ctrl_c(self, tmp_path, monkeypatch):
+        import signal
+
+        from pcdof.batch import runner
+
+        root = write_tum(tmp_path / "seq", 4)
+        calls = []
+        real_read = runner.read_frame
+
+        def read_then_terminate(pair, rig):
+            calls.append(pair)
+            if len(calls) == 2:
+                os.kill(os.getpid(), signal.SIGTERM)  # as `timeout` or a job scheduler would
+            return real_read(pair, rig)
+
+        monkeypatch.setattr(runner, "read_frame", read_then_terminate)
+        seen = []
+
+        def mine(signum, frame):
+            seen.append(signum)
+
+        previous = signal.signal(signal.SIGTERM, mine)
+        try:
+            with pytest.raises(KeyboardInterrupt) as info:  # a Terminated, which the CLI turns into exit 143
+                render_sequence(root, str(tmp_path / "out"), lens=lens(), workers=1)
+            assert type(info.value).__name__ == "Terminated"
+            assert not seen and signal.getsignal(signal.SIGTERM) is mine  # the previous handler is back
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+        with open(tmp_path / "out" / "report.json") as f:
+            report = json.load(f)
+        assert report["status"] == "interrupted" and report["error"] == "interrupted by SIGTERM"
+        assert report["totals"]["pending"] >= 2
+
+    def test_no_depth_at_the_focus_point_fails_every_frame_not_the_batch(self, tmp_path):
+        root = write_tum(tmp_path / "seq", 3)
+        for p in discover(root).pairs:
+            with open(p.depth, "wb") as f:
+                f.write(b"not a png")
+        out = tmp_path / "out"
+        (out).mkdir()
+        (out / frame_name(0)).write_bytes(b"an earlier run's frame")
+        for focus_at in ("center", (5, 5)):
+            rep = render_sequence(root, str(out), lens=lens(), focus_at=focus_at, workers=1)
+            assert rep["exit_code"] == EXIT_ALL_FAILED and rep["status"] == "failed"
+            with open(out / "report.json") as f:
+                frames = json.load(f)["frames"]
+            for r in frames:
+                assert r["status"] == "failed" and "no frame of the 3 has depth at the focus point" in r["error"]
+                assert "--focus-distance" in r["error"] and "ImageReadError" in r["error"]  # and this frame's reason
+            assert sorted(os.listdir(out)) == ["report.json"]
+
+    def test_unreachable_scheduler_is_named_in_the_report(self, tmp_path, monkeypatch):
+        pytest.importorskip("distributed")
+        from pcdof.batch import runner
+
+        monkeypatch.setattr(runner, "DASK_CONNECT_TIMEOUT_S", 1, raising=False)
+        root = write_tum(tmp_path / "seq", 2)
+        with pytest.raises(InputError, match="Dask scheduler"):
+            render_sequence(root, str(tmp_path / "out"), lens=lens(), scheduler="tcp://127.0.0.1:1")
+        with open(tmp_path / "out" / "report.json") as f:
+            report = json.load(f)
+        assert report["status"] == "error"
+        assert report["error"].startswith("InputError: cannot connect to the Dask scheduler at 'tcp://127.0.0.1:1'")
+
 
 class TestCli:
     def test_partial_exit_code_and_summary(self, tmp_path):
@@ -600,6 +784,71 @@ class TestCli:
         assert result.exit_code == EXIT_PARTIAL, result.output
         assert "2 written" in result.output and "frame 1" in result.output
         assert sorted(os.listdir(out)) == [frame_name(0), frame_name(2), "report.json"]
+
+    @pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="needs Linux /proc to find the workers")
+    def test_sigterm_exits_143_and_stops_the_workers(self, tmp_path):
+        import shutil
+        import signal
+        import subprocess
+        import sys
+        import time
+
+        sample = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data", "sample")
+        root = tmp_path / "seq"
+        for sub in ("color", "depth"):
+            (root / sub).mkdir(parents=True)
+        for i in range(60):  # 320x240 frames: several seconds of work on two workers
+            shutil.copy(os.path.join(sample, "color.png"), root / "color" / f"{i}.png")
+            shutil.copy(os.path.join(sample, "depth.png"), root / "depth" / f"{i}.png")
+        shutil.copy(os.path.join(sample, "calib.json"), root)
+
+        def descendants(pid):
+            kids = set()
+            for task in os.listdir(f"/proc/{pid}/task") if os.path.isdir(f"/proc/{pid}/task") else []:
+                with contextlib.suppress(OSError):
+                    kids |= {int(c) for c in open(f"/proc/{pid}/task/{task}/children").read().split()}
+            return kids.union(*(descendants(k) for k in kids))
+
+        def pool_processes():
+            """Live forkserver / worker processes of this run (their command line holds its working folder)."""
+            found = []
+            for pid in filter(str.isdigit, os.listdir("/proc")):
+                with contextlib.suppress(OSError):
+                    cmd = open(f"/proc/{pid}/cmdline", "rb").read().decode(errors="replace")
+                    state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+                    if "multiprocessing.forkserver" in cmd and str(tmp_path) in cmd and state != "Z":
+                        found.append(int(pid))
+            return found
+
+        out, log_path = tmp_path / "out", tmp_path / "log.txt"
+        with open(log_path, "wb") as log_file:
+            proc = subprocess.Popen([sys.executable, "-c", "from pcdof.cli import main; main()", "batch", str(root),
+                                     "-o", str(out), "--focus-distance", "1", "--workers", "2", "--no-progress"],
+                                    cwd=tmp_path, stdout=log_file, stderr=subprocess.STDOUT)
+            try:
+                deadline = time.monotonic() + 60
+                while len(descendants(proc.pid)) < 3 and proc.poll() is None and time.monotonic() < deadline:
+                    time.sleep(0.02)  # until the pool starts its workers: the most delicate moment
+                proc.send_signal(signal.SIGTERM)
+                proc.wait(timeout=60)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+        deadline = time.monotonic() + 10
+        while pool_processes() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        left = pool_processes()
+        for pid in left:  # do not leave them behind when the test fails
+            os.kill(pid, signal.SIGKILL)
+        output = log_path.read_text()
+        assert proc.returncode == 143, output
+        assert "terminated (SIGTERM)" in output
+        assert not left, "worker processes outlived the batch"
+        with open(out / "report.json") as f:
+            report = json.load(f)
+        assert report["status"] == "interrupted" and report["error"] == "interrupted by SIGTERM"
+        assert report["totals"]["pending"] > 0
 
     def test_conflicting_focus_options(self, tmp_path):
         from click.testing import CliRunner

@@ -11,6 +11,8 @@ from .runner import (
     EXIT_ALL_FAILED,
     EXIT_OK,
     EXIT_PARTIAL,
+    Terminated,
+    check_inputs_kept,
     exit_code,
     measure_focus_track,
     plan_lens,
@@ -32,7 +34,8 @@ from .schedule import (
 
 __all__ = [
     "FramePair", "Sequence", "associate", "discover", "load_rig", "read_tum_list",
-    "EXIT_OK", "EXIT_PARTIAL", "EXIT_ALL_FAILED", "exit_code", "measure_focus_track", "plan_lens", "render_frame",
+    "EXIT_OK", "EXIT_PARTIAL", "EXIT_ALL_FAILED", "Terminated", "check_inputs_kept",
+    "exit_code", "measure_focus_track", "plan_lens", "render_frame",
     "render_sequence", "run_batch", "write_video",
     "EASINGS", "LensSchedule", "build_schedule", "interpolate_keyframes", "one_euro", "parse_keyframes",
     "running_median", "smooth_focus_track",

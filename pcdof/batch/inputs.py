@@ -18,7 +18,8 @@ Supported inputs (:func:`discover` tells them apart):
     unless the calibration file states its own ``depth_scale``.
 ``list file``
     a text file with one frame per line, ``color_path depth_path`` (paths relative to the list
-    file; quote paths with spaces; ``#`` comments), or the four columns that ``associate.py``
+    file, separated by spaces, tabs or commas; quote paths that hold those; ``#`` at the start of
+    a field starts a comment, see :func:`split_fields`), or the four columns that ``associate.py``
     writes: ``t_color color_path t_depth depth_path``.
 
 Frames are ordered by their pairing key (numbers numerically) or by colour timestamp.
@@ -30,7 +31,6 @@ import json
 import logging
 import os
 import re
-import shlex
 from dataclasses import dataclass
 
 import numpy as np
@@ -178,16 +178,66 @@ def _read_lines(path: str):
     except (OSError, UnicodeDecodeError) as err:
         raise ImageReadError(f"cannot read list file {path}: {err}") from None
     for lineno, line in enumerate(lines, 1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
         try:
-            # TUM's associate.py also accepts commas and tabs as separators
-            fields = shlex.split(stripped.replace(",", " ").replace("\t", " "), comments=True)
-        except ValueError as err:
+            fields = split_fields(line)
+        except InputError as err:
             raise InputError(f"{path}:{lineno}: {err}") from None
         if fields:
             yield lineno, fields
+
+
+#: Field separators of list files: whitespace, and commas (TUM's associate.py accepts commas and tabs).
+_SEPARATORS = " \t\r\n\f\v,"
+
+
+def split_fields(line: str) -> list[str]:
+    """Fields of one list-file line, shell-like.
+
+    Fields are separated by whitespace or commas; ``'...'`` and ``"..."`` quote (separators and
+    ``#`` inside quotes are part of the field); a backslash outside single quotes escapes the next
+    character (inside double quotes only ``"`` and ``\\``); ``#`` starts a comment only at the start
+    of a field, so ``take#1.png`` is a path.
+
+    Examples
+    --------
+    >>> split_fields('"my take/f#3.png" "d,3.png"  # frame 3')
+    ['my take/f#3.png', 'd,3.png']
+    >>> split_fields("take#1_c.png,take#1_d.png")
+    ['take#1_c.png', 'take#1_d.png']
+    """
+    fields: list[str] = []
+    field: list[str] = []
+    in_field, quote, chars = False, None, iter(line)
+    for ch in chars:
+        if ch == "\\" and quote != "'":
+            nxt = next(chars, None)
+            if nxt is None:
+                raise InputError("a backslash ends the line; nothing follows it to escape")
+            if quote == '"' and nxt not in '"\\':
+                field.append(ch)  # as in a shell: inside double quotes, other backslashes stay
+            field.append(nxt)
+            in_field = True
+        elif quote:
+            if ch == quote:
+                quote = None
+            else:
+                field.append(ch)
+        elif ch in "'\"":
+            quote, in_field = ch, True
+        elif ch in _SEPARATORS:
+            if in_field:
+                fields.append("".join(field))
+                field, in_field = [], False
+        elif ch == "#" and not in_field:
+            break  # a comment: the rest of the line
+        else:
+            field.append(ch)
+            in_field = True
+    if quote:
+        raise InputError(f"no closing quotation mark ({quote})")
+    if in_field:
+        fields.append("".join(field))
+    return fields
 
 
 # --------------------------------------------------------------------------------- discovery

@@ -28,6 +28,8 @@ run numba and OpenCV single-threaded there: size the cluster's threads to its co
 Exit status (:func:`exit_code`) -- distinct from :data:`pcdof.errors.EXIT_CODES` (3-8), click's
 usage error (2) and an internal error (1): 0 every frame written (or already there with
 ``resume``), 10 some frames failed (partial result; see the report), 11 no frame succeeded.
+Ctrl-C (KeyboardInterrupt) and SIGTERM (:class:`Terminated`) stop the workers and leave a report
+with status "interrupted"; any other error that stops the batch leaves status "error" and its reason.
 """
 
 from __future__ import annotations
@@ -39,13 +41,15 @@ import math
 import multiprocessing
 import os
 import platform
+import signal
 import socket
 import sys
+import threading
 import time
 import uuid
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -70,6 +74,8 @@ DEPTH_DIR = "depth"
 REPORT_INTERVAL_S = 5.0
 #: A frame whose worker process died this many times is recorded as failed.
 MAX_WORKER_DEATHS = 2
+#: Seconds to wait for a Dask scheduler to answer.
+DASK_CONNECT_TIMEOUT_S = 30
 
 #: Default focus-tracking smoothing (see :func:`pcdof.batch.schedule.smooth_focus_track`).
 DEFAULT_SMOOTHING = {"median_window": 5, "min_cutoff_hz": 0.5, "beta": 1.0, "d_cutoff_hz": 1.0}
@@ -78,6 +84,48 @@ DEFAULT_SMOOTHING = {"median_window": 5, "min_cutoff_hz": 0.5, "beta": 1.0, "d_c
 def frame_name(index: int) -> str:
     """Output file name of frame *index*: ``frame_000000.png``."""
     return f"frame_{index:06d}.png"
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM arrived while a batch ran (raised in the main thread; the CLI exits 143)."""
+
+
+# SIGTERM held while worker processes start (see _sigterm_held); Python runs signal handlers in the main thread.
+_SIGTERM = {"held": 0, "pending": False}
+
+
+def _on_sigterm(signum, frame) -> None:
+    if _SIGTERM["held"]:
+        _SIGTERM["pending"] = True
+    else:
+        raise Terminated("SIGTERM")
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts():
+    """Within the block, SIGTERM raises :class:`Terminated` like Ctrl-C raises KeyboardInterrupt (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+        _SIGTERM["pending"] = False
+
+
+@contextlib.contextmanager
+def _sigterm_held():
+    """A SIGTERM within the block raises at its end: a worker being started is never left unknown to its pool."""
+    _SIGTERM["held"] += 1
+    try:
+        yield
+    finally:
+        _SIGTERM["held"] -= 1
+        if not _SIGTERM["held"] and _SIGTERM["pending"]:
+            _SIGTERM["pending"] = False
+            raise Terminated("SIGTERM")
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,6 +163,17 @@ class FrameTask:
     @property
     def outputs(self) -> tuple[str, ...]:
         return (self.output,) if self.depth_output is None else (self.output, self.depth_output)
+
+
+def _discard_outputs(task: FrameTask) -> None:
+    """Remove *task*'s output files where they exist (an earlier run's, or this run's partial ones)."""
+    for path in task.outputs:
+        try:
+            os.unlink(path)
+        except FileNotFoundError:
+            pass
+        except OSError as err:
+            raise ImageWriteError(f"cannot remove the earlier output {path}: {err.strerror or err}") from None
 
 
 # ------------------------------------------------------------------------------------ per frame
@@ -193,6 +252,8 @@ def base_record(task: FrameTask, output_dir: str, root: str | None = None) -> di
 def render_frame(job: BatchJob, task: FrameTask) -> dict:
     """Read, render and write one frame; never raises for a bad frame.
 
+    The frame's earlier outputs are removed first, so a frame that fails leaves nothing under its names.
+
     Returns
     -------
     dict, the frame's report entry: ``status`` "ok" or "failed", ``error`` (one line, the reason),
@@ -203,6 +264,7 @@ def render_frame(job: BatchJob, task: FrameTask) -> dict:
     rec = base_record(task, job.output_dir)
     rec["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     try:
+        _discard_outputs(task)
         _set_threads(job.threads)
         frame = read_frame(task.pair, job.rig)
         result = _render(frame, task.lens, job)
@@ -223,6 +285,9 @@ def render_frame(job: BatchJob, task: FrameTask) -> dict:
         rec["status"], rec["error"] = "failed", "MemoryError: out of memory"
     except Exception as err:  # noqa: BLE001 - one bad frame must not stop the batch
         rec["status"], rec["error"] = "failed", f"internal error: {type(err).__name__}: {err}"
+    if rec["status"] == "failed":
+        with contextlib.suppress(ImageWriteError):
+            _discard_outputs(task)  # e.g. the depth output, written before the image failed
     rec["seconds"] = round(time.perf_counter() - t0, 6)
     rec["cpu_seconds"] = round(time.process_time() - c0, 6)  # CPU time of the whole worker process
     return rec
@@ -312,7 +377,8 @@ def plan_lens(sequence: Sequence, rig: Rig, template, *, n_frames: int, focus_at
 
     Returns
     -------
-    LensSchedule
+    LensSchedule; when *focus_at* has no depth in any frame, every frame is in its ``failures``
+    (the batch records them as failed, exit 11) instead of an error that stops the batch
     """
     if isinstance(focus_keyframes, str):
         focus_keyframes = parse_keyframes(focus_keyframes, name="focus keyframes")
@@ -330,12 +396,22 @@ def plan_lens(sequence: Sequence, rig: Rig, template, *, n_frames: int, focus_at
     if unknown:
         raise InputError(f"smoothing keys must be among {sorted(DEFAULT_SMOOTHING)}; got {sorted(unknown)}")
     raw, problems = measure_focus_track(sequence, rig, focus_at, n_frames=n_frames, progress=progress)
+    x, y = _check_xy(focus_at, rig)
+    source = f"focus-at {x:g},{y:g}"
+    if not np.any(np.isfinite(raw) & (raw > 0)):  # nothing to follow: no frame can be focused
+        why = (f"no frame of the {len(raw)} has depth at the focus point ({x:g}, {y:g}), so none can be focused; "
+               f"give --focus-distance or another --focus-at")
+        log.warning("%s", why)
+        failures = {i: f"InputError: {why} (this frame: {problems.get(i, 'no depth near the point')})"
+                    for i in range(len(raw))}
+        schedule = build_schedule(template, n_frames, f_number_keyframes=f_number_keyframes, easing=easing,
+                                  source=source, raw_focus_m=raw)
+        return replace(schedule, failures=failures)
     for i, why in sorted(problems.items())[:5]:
         log.warning("focus point: frame %d has no depth measurement (%s); focus is held", i, why)
     track = smooth_focus_track(raw, rate_hz=rate_hz, **params)
-    x, y = _check_xy(focus_at, rig)
     return build_schedule(template, n_frames, focus_track_m=track, f_number_keyframes=f_number_keyframes,
-                          easing=easing, source=f"focus-at {x:g},{y:g}", raw_focus_m=raw)
+                          easing=easing, source=source, raw_focus_m=raw)
 
 
 # ------------------------------------------------------------------------------------ the batch
@@ -408,7 +484,7 @@ class _Reporter:
     def report(self, status: str) -> dict:
         recs = self.records
         wall = time.perf_counter() - self.t0
-        rendered = [r for r in recs if r["status"] in ("ok", "failed")]
+        rendered = [r for r in recs if r["status"] in ("ok", "failed") and r["worker"] is not None]  # ran somewhere
         totals = {
             "frames": len(recs),
             "ok": sum(r["status"] == "ok" for r in recs),
@@ -447,23 +523,92 @@ def _settings(sequence: Sequence, rig: Rig, schedule: LensSchedule, job: BatchJo
     }
 
 
-def _check_resume(report_path: str, settings: dict) -> None:
+def _check_resume(report_path: str, settings: dict, inputs: list[tuple[str, str]]) -> set[int]:
+    """Frames the previous run in the folder finished from the same inputs (their outputs may be kept).
+
+    InputError when it used other settings, or rendered any frame index from other colour / depth
+    files (another sequence, or a different list file): mixing the two runs' frames is refused.
+
+    Parameters
+    ----------
+    report_path : str, the previous run's report.json (missing or unreadable: nothing is kept)
+    settings : dict, this run's settings
+    inputs : list of (colour, depth) paths relative to the input root, one per frame of this run
+
+    Returns
+    -------
+    set of frame indices recorded "ok" or "skipped" from the same inputs
+    """
     import json
 
     try:
         with open(report_path, encoding="utf-8") as f:
-            previous = json.load(f).get("settings")
-    except (OSError, ValueError, AttributeError, RecursionError):
-        return
-    if previous is None:
-        return
-    current = json.loads(json.dumps(settings))  # same JSON normalisation as the stored copy
-    differ = sorted(k for k in set(previous) | set(current) if previous.get(k) != current.get(k))
-    if differ:
-        raise InputError(
-            f"--resume: the output folder was rendered with different settings ({', '.join(differ)}); "
-            f"use a new output folder, or run without --resume to render every frame again"
-        )
+            previous = json.load(f)
+    except (OSError, ValueError, RecursionError):
+        return set()
+    if not isinstance(previous, dict):
+        return set()
+    old_settings = previous.get("settings")
+    if isinstance(old_settings, dict):
+        current = json.loads(json.dumps(settings))  # same JSON normalisation as the stored copy
+        differ = sorted(k for k in set(old_settings) | set(current) if old_settings.get(k) != current.get(k))
+        if differ:
+            raise InputError(
+                f"--resume: the output folder was rendered with different settings ({', '.join(differ)}); "
+                f"use a new output folder, or run without --resume to render every frame again"
+            )
+    done = set()
+    frames = previous.get("frames")
+    for rec in frames if isinstance(frames, list) else []:
+        if not isinstance(rec, dict):
+            continue
+        i = rec.get("index")
+        if not isinstance(i, int) or not 0 <= i < len(inputs):
+            continue
+        recorded = (rec.get("color"), rec.get("depth"))
+        if recorded != inputs[i]:
+            raise InputError(
+                f"--resume: frame {i} in the output folder was rendered from {recorded[0]} + {recorded[1]}, "
+                f"not {inputs[i][0]} + {inputs[i][1]} (another sequence or list file); use a new output folder, "
+                f"or run without --resume to render every frame again"
+            )
+        if rec.get("status") in ("ok", "skipped"):
+            done.add(i)
+    return done
+
+
+def check_inputs_kept(sequence: Sequence, output_dir: str, n_frames: int, *, save_depth: bool = False,
+                      video: str | None = None) -> None:
+    """InputError, before any work, when a file the batch would write is one of the sequence's input files.
+
+    Paths are compared after resolving symbolic links, so an output folder equal to or inside the
+    input folder is refused only where a name really collides (e.g. inputs ``depth/frame_000001.png``).
+
+    Parameters
+    ----------
+    sequence : Sequence
+    output_dir : str
+    n_frames : int, frames to render (outputs ``frame_NNNNNN.png`` for 0..n_frames-1)
+    save_depth : bool, also ``depth/frame_NNNNNN.png``
+    video : str or None, the video path
+    """
+    def key(path: str) -> str:
+        return os.path.normcase(os.path.realpath(path))
+
+    output_dir = os.path.abspath(os.fspath(output_dir))
+    writes = [(os.path.join(output_dir, REPORT_NAME), "report.json (-o)")]
+    for i in range(n_frames):
+        writes.append((os.path.join(output_dir, frame_name(i)), f"frame {i}'s image (-o)"))
+        if save_depth:
+            writes.append((os.path.join(output_dir, DEPTH_DIR, frame_name(i)), f"frame {i}'s depth (--save-depth)"))
+    if video is not None:
+        writes.append((os.path.abspath(str(video)), "the video (--video)"))
+    inputs = {key(p): p for pair in sequence.pairs for p in (pair.color, pair.depth)}
+    for path, what in writes:
+        hit = inputs.get(key(path))
+        if hit is not None:
+            raise InputError(f"refusing to overwrite the input file {hit} with {what}; "
+                             f"choose an output folder (-o) and --video outside the input files")
 
 
 def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, method: str = "physical",
@@ -480,12 +625,15 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     output_dir : str, created if missing; frames go to ``frame_NNNNNN.png``, depth to ``depth/frame_NNNNNN.png``
     method, fill_method : renderer and hole-filling method
     save_depth : bool, also write the registered, filled depth
-    resume : bool, keep frames whose outputs already exist (recorded as ``"skipped": "resume"``)
+    resume : bool, keep frames whose outputs exist and that the previous report records as done from the
+        same inputs (recorded as ``"skipped": "resume"``); InputError when that report has other settings
+        or other inputs for a frame
     workers : int >= 1, local processes (1 = in this process); ignored with *scheduler*
     scheduler : str, distributed.Client or None, a Dask distributed scheduler address (or client)
     threads : int or None, numba / OpenCV threads per frame; None = the libraries' default when serial,
         cores // workers with local processes, 1 on a Dask cluster (its workers' threads are the parallelism)
-    video : str or None, also encode the frames into this .mp4 (H.264, yuv420p)
+    video : str or None, also encode the frames into this .mp4 (H.264, yuv420p), one video frame per
+        frame: a failed frame shows the previous good one (the first good one at the start)
     fps : float, video frame rate
     progress : bool, show a progress bar (frames per second, time left) on stderr
     settings : dict or None, extra JSON-ready settings recorded in the report (and compared on resume)
@@ -493,6 +641,10 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     Returns
     -------
     dict, the report (also in ``output_dir/report.json``); :func:`exit_code` gives the exit status
+
+    Raises InputError before any work when a file it would write (frames, depth, report.json, video)
+    is one of the sequence's input files. Ctrl-C or SIGTERM: the workers stop, the report says
+    "interrupted", and KeyboardInterrupt (:class:`Terminated` for SIGTERM) is raised.
     """
     from ..renderer import METHODS
 
@@ -518,6 +670,8 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     if video is not None and os.path.splitext(str(video))[1].lower() not in (".mp4", ".m4v", ".mov", ".mkv"):
         raise InputError(f"video must end in .mp4, .m4v, .mov or .mkv; got {video!r}")
     output_dir = os.path.abspath(os.fspath(output_dir))
+    n = len(schedule)
+    check_inputs_kept(sequence, output_dir, n, save_depth=save_depth, video=video)
     try:
         os.makedirs(output_dir, exist_ok=True)
         if save_depth:
@@ -537,22 +691,30 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     job = BatchJob(rig, output_dir, method, fill_method, bool(save_depth), threads)
     all_settings = _settings(sequence, rig, schedule, job, settings)
     report_path = os.path.join(output_dir, REPORT_NAME)
+    done = set()
     if resume:
-        _check_resume(report_path, all_settings)
+        inputs = [(sequence.relative(p.color), sequence.relative(p.depth)) for p in sequence.pairs[:n]]
+        done = _check_resume(report_path, all_settings, inputs)
 
+    failures = schedule.failures or {}
     tasks, records = [], []
-    for i in range(len(schedule)):
+    for i in range(n):
         task = FrameTask(i, sequence.pairs[i], schedule.lens_at(i), os.path.join(output_dir, frame_name(i)),
                          os.path.join(output_dir, DEPTH_DIR, frame_name(i)) if save_depth else None)
         rec = base_record(task, output_dir, sequence.root)
         if schedule.raw_focus_m is not None:
             raw = float(schedule.raw_focus_m[i])
             rec["focus_measured_m"] = raw if math.isfinite(raw) else None
-        if resume and _outputs_complete(task):
+        if i in failures:  # no lens for this frame (e.g. no depth at the focus point anywhere)
+            rec.update(status="failed", error=failures[i], focus_distance_m=None)
+            with contextlib.suppress(ImageWriteError):
+                _discard_outputs(task)
+        elif i in done and _outputs_complete(task):
             rec["status"], rec["skipped"] = "skipped", "resume"
         else:
             tasks.append(task)
         records.append(rec)
+    task_of = {t.index: t for t in tasks}
 
     header = {
         "report": "pcdof batch",
@@ -574,23 +736,31 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
         rec = {**rec, "color": prev["color"], "depth": prev["depth"]}  # paths relative to the input root
         if "focus_measured_m" in prev:
             rec["focus_measured_m"] = prev["focus_measured_m"]
+        if rec["status"] == "failed":  # e.g. its worker died: nothing of an earlier run stays under its names
+            with contextlib.suppress(ImageWriteError):
+                _discard_outputs(task_of[i])
         reporter.add(rec)
 
     reporter.write("running")
     try:
-        if not tasks:
-            pass
-        elif scheduler is not None:
-            _run_dask(job, tasks, scheduler, collect)
-        elif workers > 1 and len(tasks) > 1:
-            _run_processes(job, tasks, int(workers), collect)
-        else:
-            with _threads_restored():
-                for task in tasks:
-                    collect(render_frame(job, task))
-    except BaseException:
+        with _sigterm_interrupts():
+            if not tasks:
+                pass
+            elif scheduler is not None:
+                _run_dask(job, tasks, scheduler, collect)
+            elif workers > 1 and len(tasks) > 1:
+                _run_processes(job, tasks, int(workers), collect)
+            else:
+                with _threads_restored():
+                    for task in tasks:
+                        collect(render_frame(job, task))
+    except BaseException as err:
         reporter.close()
-        reporter.write("interrupted")
+        if isinstance(err, KeyboardInterrupt):
+            how = "SIGTERM" if isinstance(err, Terminated) else "Ctrl-C (SIGINT)"
+            reporter.write("interrupted", {"error": f"interrupted by {how}"})
+        else:
+            reporter.write("error", {"error": f"{type(err).__name__}: {err}"})
         raise
     reporter.close()
 
@@ -648,7 +818,8 @@ def _run_processes(job: BatchJob, tasks: list[FrameTask], workers: int, collect)
                 while queue and len(running) < window and not broken:
                     task = queue.pop()
                     try:
-                        running[pool.submit(_render_in_worker, task)] = task
+                        with _sigterm_held():  # submit starts the workers
+                            running[pool.submit(_render_in_worker, task)] = task
                     except BrokenProcessPool:
                         queue.append(task)
                         broken = True
@@ -667,8 +838,12 @@ def _run_processes(job: BatchJob, tasks: list[FrameTask], workers: int, collect)
                         collect(rec)
                 if broken and not running:
                     break
+        except Terminated:  # Ctrl-C reaches the workers itself; SIGTERM only came to this process
+            _interrupt_workers(pool)
+            raise
         finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+            with _sigterm_held():
+                pool.shutdown(wait=True, cancel_futures=True)
         barren_pools = barren_pools + 1 if broken and completed == 0 else 0
         for task in sorted(lost, key=lambda t: t.index, reverse=True):
             if barren_pools == 0:  # the pool did work: a frame in flight may have killed it
@@ -684,6 +859,13 @@ def _run_processes(job: BatchJob, tasks: list[FrameTask], workers: int, collect)
             log.warning("a worker process died; restarting the pool for %d frames", len(queue))
 
 
+def _interrupt_workers(pool: ProcessPoolExecutor) -> None:
+    """Send SIGINT to the pool's worker processes, as Ctrl-C would: they drop their frames and exit."""
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):  # no public API before Python 3.14
+        with contextlib.suppress(OSError):
+            os.kill(proc.pid, signal.SIGINT)
+
+
 def _run_dask(job: BatchJob, tasks: list[FrameTask], scheduler, collect) -> None:
     """The same tasks on a Dask distributed cluster (workers write outputs to the shared filesystem)."""
     try:
@@ -692,9 +874,9 @@ def _run_dask(job: BatchJob, tasks: list[FrameTask], scheduler, collect) -> None
         raise InputError("--scheduler needs the 'distributed' package (pip install distributed)") from None
     own = not isinstance(scheduler, Client)
     try:
-        client = Client(scheduler, timeout="30s") if own else scheduler
+        client = Client(scheduler, timeout=f"{DASK_CONNECT_TIMEOUT_S}s") if own else scheduler
     except (OSError, TimeoutError, ValueError) as err:
-        raise InputError(f"cannot connect to the Dask scheduler at {scheduler!r}: {err}") from None
+        raise InputError(f"cannot connect to the Dask scheduler at {scheduler!r} (--scheduler): {err}") from None
     try:
         job_future = client.scatter(job, broadcast=True, hash=False)
         token = uuid.uuid4().hex[:8]
@@ -793,28 +975,37 @@ def write_video(images, path: str, *, fps: float = 30.0, quality: float = 8.0) -
 
 
 def _make_video(records: list[dict], output_dir: str, video: str, fps: float) -> dict:
-    """Video of the batch's frames in order; a frame that failed repeats the previous good one."""
+    """Video of the batch's frames in order, one video frame per frame.
+
+    A frame that failed repeats the previous good one; failed frames before the first good one show
+    the first good one. ``held_frames`` lists those frames, ``held_from`` pairs each with the frame shown.
+    """
     from .. import io
 
-    held: list[int] = []
+    paths = [os.path.join(output_dir, rec["output"]) for rec in records]
+    good = [rec["status"] in ("ok", "skipped") and os.path.isfile(p) for rec, p in zip(records, paths)]
+    shown, last = [], good.index(True) if any(good) else None  # the first good frame stands in at the start
+    for k, g in enumerate(good):
+        last = k if g else last
+        shown.append(last)
+    held = [[records[k]["index"], records[s]["index"]] for k, s in enumerate(shown) if not good[k] and s is not None]
 
     def frames():
-        last = None
-        for rec in records:
-            path = os.path.join(output_dir, rec["output"])
-            if rec["status"] in ("ok", "skipped") and os.path.isfile(path):
-                last = io.read_color(path)
-            else:
-                held.append(rec["index"])
-            if last is not None:
-                yield last
+        image, loaded = None, None
+        for s in shown:
+            if s is None:  # no good frame at all: write_video reports "no frames"
+                return
+            if s != loaded:
+                image, loaded = io.read_color(paths[s]), s
+            yield image
 
     try:
         info = write_video(frames(), video, fps=fps)
     except PcdofError as err:
         log.warning("video not written: %s", err)
         return {"path": os.path.abspath(video), "error": f"{type(err).__name__}: {err}"}
-    info["held_frames"] = held
+    info["held_frames"] = [k for k, _ in held]
+    info["held_from"] = held
     return info
 
 
@@ -853,6 +1044,7 @@ def render_sequence(input_path: str, output_dir: str, *, lens, calib: str | None
     if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, np.integer)) or limit < 1):
         raise InputError(f"limit must be an integer >= 1; got {limit!r}")
     n = len(sequence) if limit is None else min(int(limit), len(sequence))
+    check_inputs_kept(sequence, output_dir, n, save_depth=save_depth, video=video)  # before the focus pass
     schedule = plan_lens(sequence, rig, lens, n_frames=n, focus_at=focus_at, focus_keyframes=focus_keyframes,
                          f_number_keyframes=f_number_keyframes, easing=easing, rate_hz=fps, smoothing=smoothing,
                          progress=progress)

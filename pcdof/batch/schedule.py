@@ -243,6 +243,8 @@ class LensSchedule:
     f_number : (n,) float64 ndarray (ThinLens) or None (PaperLens)
     source : str, how the focus was decided ("fixed", "keyframes", "focus-at X,Y")
     raw_focus_m : (n,) float64 ndarray or None, the unsmoothed focus-point measurements (focus-at only)
+    failures : dict or None, {frame index: reason} for frames that cannot be rendered (their lens is a
+        placeholder), e.g. every frame when no frame has depth at the followed focus point
     """
 
     template: object
@@ -250,6 +252,7 @@ class LensSchedule:
     f_number: np.ndarray | None
     source: str
     raw_focus_m: np.ndarray | None = None
+    failures: dict | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.template, (ThinLens, PaperLens)):

@@ -17,14 +17,22 @@ INPUT is one of:
   a folder with color/ (or rgb/) and depth/ holding files with the same stem or number
   a folder of NAME_color.* + NAME_depth.* files
   a TUM RGB-D folder with rgb.txt and depth.txt (paired by timestamp; depth 5000 units/m)
-  a text file with one "color_path depth_path" line per frame (relative to the file)
+  a text file with one "color_path depth_path" line per frame (relative to the file;
+  spaces, tabs or commas between; quote paths that hold them; "#" starts a comment
+  only at the start of a field)
 \b
 Outputs: OUTDIR/frame_000000.png ..., OUTDIR/depth/frame_000000.png (--save-depth, 16-bit mm),
 OUTDIR/report.json (per frame: inputs, output, seconds, skipped stages, focus, f-number, error).
+An output that would overwrite an input file is refused before any work. A frame that fails
+leaves no output under its name; the video shows the nearest earlier good frame in its place
+(the first good frame at the start).
 \b
 Exit status: 0 all frames written; 10 some frames failed, or the video could not be written
-(partial; see report.json); 11 no frame written; 3-8 an input, calibration, lens or write error
-before rendering began; 2 usage error; 130 interrupted (report.json says "interrupted").
+(partial; see report.json); 11 no frame written (also when no frame has depth at the focus
+point); 3-8 an input, calibration, lens or write error before rendering began (one that stops
+a running batch, e.g. an unreachable --scheduler, leaves report.json saying "error" and why);
+2 usage error; 130 interrupted by Ctrl-C, 143 by SIGTERM (workers stopped, report.json says
+"interrupted").
 """
 
 
@@ -68,7 +76,9 @@ def _resolve_workers(ctx, param, value):
 @click.option("--video", type=click.Path(readable=False), default=None, help="Also encode an H.264 .mp4.")
 @click.option("--fps", type=float, default=30.0, show_default=True,
               help="Video frame rate, and the time base of --focus-at smoothing.")
-@click.option("--resume", is_flag=True, help="Keep frames whose outputs already exist; render the rest.")
+@click.option("--resume", is_flag=True,
+              help="Keep frames that report.json records as written from the same inputs and settings; render "
+                   "the rest. Refused when OUTDIR holds another sequence's or other settings' frames.")
 @click.option("--workers", type=int, default=None, callback=_resolve_workers,
               help="Local worker processes [default: number of CPU cores]; 1 = no subprocesses.")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
@@ -85,6 +95,7 @@ def command(input_path, calib, output_dir, focal_length_mm, f_number, focus_dist
             scheduler, threads, limit, progress):
     """Render every frame of the RGB-D sequence INPUT with a shallow depth of field into OUTDIR."""
     from ..batch import exit_code, render_sequence
+    from ..batch.runner import Terminated
     from ..lens import PaperLens, ThinLens
 
     check_output_folder(output_dir, "output")
@@ -108,13 +119,17 @@ def command(input_path, calib, output_dir, focal_length_mm, f_number, focus_dist
         lens = PaperLens(provisional)
     else:
         lens = ThinLens(focal_length_mm, f_number, provisional, aperture_blades, aperture_rotation_deg)
-    report = render_sequence(
-        input_path, output_dir, lens=lens, calib=calib, focus_at=focus_at, focus_keyframes=focus_keyframes,
-        f_number_keyframes=f_number_keyframes, easing=easing,
-        smoothing={"median_window": focus_window, "min_cutoff_hz": focus_min_cutoff, "beta": focus_beta},
-        method=method, fill_method=fill_method, depth_scale=depth_scale, max_difference=max_difference,
-        save_depth=save_depth, video=video, fps=fps, resume=resume, workers=workers, scheduler=scheduler,
-        threads=threads, limit=limit, progress=progress)
+    try:
+        report = render_sequence(
+            input_path, output_dir, lens=lens, calib=calib, focus_at=focus_at, focus_keyframes=focus_keyframes,
+            f_number_keyframes=f_number_keyframes, easing=easing,
+            smoothing={"median_window": focus_window, "min_cutoff_hz": focus_min_cutoff, "beta": focus_beta},
+            method=method, fill_method=fill_method, depth_scale=depth_scale, max_difference=max_difference,
+            save_depth=save_depth, video=video, fps=fps, resume=resume, workers=workers, scheduler=scheduler,
+            threads=threads, limit=limit, progress=progress)
+    except Terminated:
+        click.echo("pcdof: terminated (SIGTERM)", err=True)
+        sys.exit(143)  # 128 + SIGTERM, as a shell reports a process killed by it
     t = report["totals"]
     fps_txt = f", {t['frames_per_second']:.2f} frames/s" if t["frames_per_second"] else ""
     click.echo(f"pcdof: {t['ok']} written, {t['skipped']} kept (resume), {t['failed']} failed of {t['frames']} "

@@ -39,10 +39,17 @@ def _numba_cache_fallback(candidates, fallback: str):
     return fallback if _writable_folder(fallback) else None
 
 
+import numba as _numba  # noqa: E402 - after GOMP_SPINCOUNT, which the OpenMP runtime reads when it loads
+
+# numba's parallel kernels use OpenMP (the layer the spin count above tunes). Its default order tries
+# TBB first, which warns on every run when Open3D's older bundled TBB is already loaded (ray casting
+# in pcdof.synth); a layer or order the user has chosen is left alone.
+if "NUMBA_THREADING_LAYER" not in _os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in _os.environ:
+    _numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+
 if not _os.environ.get("NUMBA_CACHE_DIR"):
     import tempfile as _tempfile
 
-    import numba as _numba
     from numba.misc.appdirs import AppDirs as _AppDirs
 
     _cache = _numba_cache_fallback(

@@ -151,3 +151,32 @@ class TestOpenMPSpin:
         out = subprocess.run([sys.executable, "-c", code], env={**base, **env}, capture_output=True, text=True,
                              check=True)
         assert out.stdout.strip() == expected
+
+
+class TestThreadingLayer:
+    """numba's parallel kernels run on OpenMP even when Open3D's bundled TBB is loaded first, silently."""
+
+    def test_openmp_without_tbb_warning_after_open3d(self):
+        import os
+        import subprocess
+        import sys
+
+        base = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_THREADING_LAYER")}
+        code = ("import warnings; warnings.simplefilter('always')\n"
+                "import open3d, pcdof, numpy as np\n"
+                "from pcdof.lens import ThinLens\n"
+                "ThinLens(50, 2, 1).signed_coc_px(np.ones((4, 4), np.float32), 100.0)\n"  # a parallel kernel
+                "import numba; print(numba.threading_layer())")
+        out = subprocess.run([sys.executable, "-c", code], env=base, capture_output=True, text=True, check=True)
+        assert out.stdout.strip() == "omp"
+        assert "TBB" not in out.stderr, out.stderr
+
+    def test_user_choice_is_kept(self):
+        import os
+        import subprocess
+        import sys
+
+        code = "import pcdof, numba; print(numba.config.THREADING_LAYER_PRIORITY)"
+        env = {**os.environ, "NUMBA_THREADING_LAYER_PRIORITY": "workqueue omp tbb"}
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+        assert out.stdout.strip() == "['workqueue', 'omp', 'tbb']"

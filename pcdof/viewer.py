@@ -55,6 +55,36 @@ PREVIEW_MAX_SIDE = 400
 F_NUMBER_RANGE = (0.95, 22.0)
 #: Colour-by modes of the point cloud.
 COLOR_BY = ("rgb", "coc")
+#: Smallest and largest window side, pixels. 16384 is what common OpenGL drivers draw (Mesa's llvmpipe,
+#: which renders off screen without a GPU, draws a black image beyond it; many GPUs stop there too).
+MIN_WINDOW_SIDE = 64
+MAX_WINDOW_SIDE = 16384
+#: Largest window in all, pixels (8192 x 8192; a 16384 x 4096 off-screen render takes about 4.5 GB).
+MAX_WINDOW_PIXELS = 8192 * 8192
+
+
+def check_window_size(window_size, *, name: str = "window_size") -> tuple[int, int]:
+    """(width, height) in pixels, or InputError naming *name* when the renderer cannot draw that window.
+
+    Each side must lie in [:data:`MIN_WINDOW_SIDE`, :data:`MAX_WINDOW_SIDE`] and the area must not
+    exceed :data:`MAX_WINDOW_PIXELS`.
+    """
+    try:
+        width, height = (int(v) for v in window_size)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be (width, height) in pixels; got {window_size!r}") from None
+    if not (MIN_WINDOW_SIDE <= width <= MAX_WINDOW_SIDE and MIN_WINDOW_SIDE <= height <= MAX_WINDOW_SIDE):
+        raise InputError(f"{name} sides must be in [{MIN_WINDOW_SIDE}, {MAX_WINDOW_SIDE}] pixels; got {width}x{height}")
+    if width * height > MAX_WINDOW_PIXELS:
+        raise InputError(f"{name} must be at most {MAX_WINDOW_PIXELS:,} pixels in all (e.g. 8192x8192); "
+                         f"got {width}x{height}")
+    return width, height
+
+
+def _check_stride(stride) -> int:
+    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
+        raise InputError(f"stride must be an integer >= 1; got {stride!r}")
+    return int(stride)
 
 
 def _check_intrinsics(intrinsics) -> Intrinsics:
@@ -221,8 +251,7 @@ def strided_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -
     from .geometry import depth_to_points
 
     intr = _check_intrinsics(intrinsics)
-    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
-        raise InputError(f"stride must be an integer >= 1; got {stride!r}")
+    stride = _check_stride(stride)
     color = check_color(color, intr.shape)
     depth = np.asarray(depth_m, dtype=np.float32)
     if depth.shape != intr.shape:
@@ -249,8 +278,17 @@ def downscale_for_preview(color, depth_m, fx: float, *, max_side: int = PREVIEW_
     """A smaller copy of colour and depth for live previews, and the matching focal length.
 
     Colour is area-averaged; depth takes the nearest sample (averaging would invent depths
-    between foreground and background). ``fx`` scales with the image, so the circle of
-    confusion in preview pixels is the full-size one times the scale.
+    between foreground and background). One uniform scale, ``max_side / max(H, W)``, applies to
+    both sides and to ``fx``, so the circle of confusion in preview pixels is the full-size one
+    times the scale along both axes (a side that would shrink below 1 pixel stays 1 pixel: its
+    scale cannot follow, but a 1-pixel side has no blur to show across it anyway).
+
+    Parameters
+    ----------
+    color : (H, W, 3) RGB ndarray
+    depth_m : (H, W) float ndarray, metres
+    fx : float, focal length of *color* in pixels
+    max_side : int, largest side of the preview, pixels
 
     Returns
     -------
@@ -265,7 +303,7 @@ def downscale_for_preview(color, depth_m, fx: float, *, max_side: int = PREVIEW_
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
     small_color = cv2.resize(color, size, interpolation=cv2.INTER_AREA)
     small_depth = cv2.resize(np.asarray(depth_m, np.float32), size, interpolation=cv2.INTER_NEAREST)
-    return small_color, small_depth, float(fx) * size[0] / w
+    return small_color, small_depth, float(fx) * scale
 
 
 def render_preview(color, depth_m, lens: ThinLens, fx: float, *, method: str = "physical") -> np.ndarray:
@@ -466,9 +504,17 @@ class FocusViewer:
     # --- output ------------------------------------------------------------------------------
 
     def screenshot(self, path: str | None = None) -> np.ndarray:
-        """Render and return the window as an (H, W, 3) uint8 image; also write it to *path* (PNG) if given."""
+        """Render and return the window as an (H, W, 3) uint8 image; also write it to *path* (PNG) if given.
+
+        InputError (nothing written) when the render comes back empty (all black), as it does for a
+        window larger than the graphics driver can draw.
+        """
         self.plotter.render()  # after the first frame pyvista's screenshot reads the buffer without rendering
         image = self.plotter.screenshot(None, return_img=True)
+        if not image[:, :, :3].any():  # the background is white: all black means the driver drew nothing
+            width, height = self.plotter.window_size
+            raise InputError(f"the renderer drew nothing in a {width}x{height} window (more than the graphics "
+                             "driver can draw); use a smaller window_size (--window-size)")
         if path is not None:
             from .io import write_image
 
@@ -674,10 +720,12 @@ def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *
     intrinsics : Intrinsics, of the colour camera
     lens : ThinLens, the starting lens (focus distance, f-number, focal length)
     coc_limit_px : float, acceptable circle of confusion that bounds the depth-of-field slab, pixels
-    stride : int, keep every stride-th pixel in x and y for the point cloud
+    stride : int, keep every stride-th pixel in x and y for the point cloud; at least one of the
+        pixels it keeps must have a known depth (InputError otherwise: lower the stride)
     color_by : "rgb" or "coc", the starting colouring of the points
     off_screen : bool, render without a window (screenshots, HTML export, tests)
-    window_size : (width, height) pixels
+    window_size : (width, height) pixels, each side in [64, 16384] and at most 8192 x 8192 pixels in
+        all (:func:`check_window_size`)
     preview_max_side : int, largest side of the downscaled preview, pixels
     preview_method : a key of :data:`pcdof.renderer.METHODS` for the preview
     widgets : bool, add the sliders, the checkbox, the key binding and point picking
@@ -685,6 +733,13 @@ def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *
     Returns
     -------
     FocusViewer
+
+    Raises
+    ------
+    InputError
+        Bad inputs, a window the renderer cannot draw, or a *stride* that keeps no pixel with known depth.
+    LensError
+        *lens* is not a ThinLens, or *coc_limit_px* is not a finite number > 0.
     """
     import pyvista as pv
 
@@ -697,20 +752,21 @@ def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *
         raise InputError(f"depth_filled_m must be (H, W) = {intr.shape}; got {depth.shape}")
     if depth.dtype.kind not in "fiu":
         raise InputError(f"depth_filled_m must be numeric; got dtype {depth.dtype}")
-    if not np.any(np.isfinite(depth) & (depth > 0)):
+    known = np.isfinite(depth) & (depth > 0)
+    if not np.any(known):
         raise InputError("depth_filled_m has no known depth (all values are 0, negative or not finite)")
+    stride = _check_stride(stride)
+    if not np.any(known[::stride, ::stride]):
+        raise InputError(f"stride {stride} keeps no pixel with known depth (it keeps "
+                         f"{known[::stride, ::stride].size} of the {intr.width}x{intr.height} pixels); "
+                         "use a smaller stride")
     coc_limit = positive_number("coc_limit_px", coc_limit_px)
     if color_by not in COLOR_BY:
         raise InputError(f"color_by must be one of {list(COLOR_BY)}; got {color_by!r}")
     if isinstance(preview_max_side, bool) or not isinstance(preview_max_side, (int, np.integer)) \
             or preview_max_side < 8:
         raise InputError(f"preview_max_side must be an integer >= 8; got {preview_max_side!r}")
-    try:
-        width, height = (int(v) for v in window_size)
-    except (TypeError, ValueError):
-        raise InputError(f"window_size must be (width, height) in pixels; got {window_size!r}") from None
-    if width < 64 or height < 64:
-        raise InputError(f"window_size must be at least 64x64 pixels; got {width}x{height}")
+    width, height = check_window_size(window_size)
 
     plotter = pv.Plotter(shape=(1, 2), col_weights=[3, 2], off_screen=off_screen, window_size=(width, height),
                          border=False)
@@ -739,12 +795,17 @@ def scene_from_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilater
     """
     from .camera import RGBDFrame
     from .lens import focus_depth_at
-    from .pipeline import fill_stage, register_stage
+    from .pipeline import _check_fill_method, fill_stage, register_stage
 
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
     if not isinstance(lens, ThinLens):
         raise LensError(f"lens must be a ThinLens; got {type(lens).__name__}")
+    _check_fill_method(fill_method)  # the cheap checks before registering and filling
+    if "window_size" in options:
+        check_window_size(options["window_size"])
+    if "stride" in options:
+        _check_stride(options["stride"])
     trace: list = []
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=fill_method)

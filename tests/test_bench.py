@@ -86,3 +86,67 @@ def test_registration_profile_script(capsys):
         assert 0 < ms < 10_000
     quads = int(out.split(" quads drawn")[0].split()[-1])
     assert 0.9 * 639 * 479 < quads <= 639 * 479  # the box scene fills nearly the whole depth image
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["--only", "speed", "--repeats", "0"], "--repeats"),
+    (["--only", "speed", "--repeats", "-3"], "--repeats"),
+    (["--quick", "--only", "dof", "--scenes", "slanted_plane,nosuch"], "--scenes"),
+    (["--only", "dof", "--scenes", ","], "--scenes"),
+    (["--only", " , "], "--only"),
+    (["--only", "dof,bogus"], "--only"),
+    (["--only", "dof", "--size", "0x0"], "--size"),
+    (["--only", "dof", "--depth-size", "64"], "--depth-size"),
+    (["--only", "dof", "--samples", "0"], "--samples"),
+])
+def test_bad_options_fail_before_any_work(tmp_path, monkeypatch, args, flag):
+    from pcdof.bench import dof, fill, registration, speed
+
+    def no_work(*a, **k):
+        raise AssertionError("benchmark work started before the options were checked")
+
+    for module, name in ((dof, "run_dof_bench"), (speed, "pipeline_vs_paper"), (speed, "cost_follows_work"),
+                         (registration, "run_registration_bench"), (fill, "run_fill_bench")):
+        monkeypatch.setattr(module, name, no_work)
+    out = tmp_path / "b"
+    result = CliRunner().invoke(main, ["bench", "-o", str(out), *args])
+    assert result.exit_code == 6, result.output
+    assert result.output.startswith("pcdof: error: ") and result.output.count("\n") == 1 and flag in result.output
+    assert not out.exists()
+
+
+def test_report_path_that_is_a_folder_fails_first_and_cleanly(tmp_path, monkeypatch):
+    from pcdof.bench import fill
+
+    monkeypatch.setattr(fill, "run_fill_bench", lambda *a, **k: pytest.fail("work started"))
+    (tmp_path / "report.json").mkdir()
+    result = CliRunner().invoke(main, ["bench", "-o", str(tmp_path), "--only", "fill", "--quick"])
+    assert result.exit_code == 7, result.output
+    assert "report.json" in result.output and result.output.startswith("pcdof: error: ")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json"]
+
+
+def test_report_writes_are_atomic(tmp_path):
+    from pcdof.cli.bench import _write_text
+    from pcdof.errors import ImageWriteError
+
+    (tmp_path / "report.json").mkdir()
+    with pytest.raises(ImageWriteError, match="report.json"):
+        _write_text(str(tmp_path / "report.json"), "{}")
+    _write_text(str(tmp_path / "report.md"), "# ok\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json", "report.md"]  # no temporary left
+    assert (tmp_path / "report.md").read_text() == "# ok\n"
+
+
+def test_bench_functions_check_their_arguments():
+    from pcdof.bench import dof, speed
+    from pcdof.errors import InputError
+
+    with pytest.raises(InputError, match="repeats"):
+        speed.pipeline_vs_paper(sizes=((32, 24),), repeats=0, progress=False)
+    with pytest.raises(InputError, match="repeats"):
+        speed.cost_follows_work(size=(32, 24), repeats=-1, progress=False)
+    with pytest.raises(InputError, match="scenes"):
+        dof.run_dof_bench(scenes=["slanted_plane", "nosuch"], progress=False)
+    with pytest.raises(InputError, match="repeats"):
+        dof.run_dof_bench(scenes=["slanted_plane"], repeats=0, progress=False)

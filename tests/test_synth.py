@@ -7,6 +7,7 @@ the sensor model with the statistics it promises.
 
 import json
 import math
+import os
 
 import cv2
 import numpy as np
@@ -353,6 +354,19 @@ class TestScenes:
         with pytest.raises(InputError):
             generate_scene(**{**TINY, **bad})
 
+    def test_seed_range(self):
+        # the sensor's dropout noise takes the seed as a signed 64-bit integer: the largest one works
+        # (on a dark glossy plane, where the dropout noise is evaluated), one more is refused up front
+        glossy = Material("flat", (0.03, 0.03, 0.03), dark_glossy=True)
+        rig = kinect_rig((16, 12), (64, 53))
+        sf = make_frame(plane_scene(1.5, glossy), rig, default_lens=ThinLens(50, 2, 1), seed=2**63 - 1)
+        assert sf.seed == 2**63 - 1 and 0 < (sf.depth_m == 0).mean() < 1
+        for bad in (2**63, 2**64, -1):
+            with pytest.raises(InputError, match="seed"):
+                generate_scene("portrait", **TINY, seed=bad)
+            with pytest.raises(InputError, match="seed"):
+                make_frame(plane_scene(1.5), rig, default_lens=ThinLens(50, 2, 1), seed=bad)
+
 
 # ----------------------------------------------------------------------------- sensor model
 class TestSensor:
@@ -447,6 +461,27 @@ class TestWrite:
         names = {p.name for p in tmp_path.iterdir()}
         assert "dof_gt.png" not in names and "color_linear.npy" not in names and "lens.json" in names
 
+    def test_rerun_removes_the_stale_files_of_an_earlier_run(self, portrait_tiny, tmp_path):
+        from pcdof.synth.write import SCENE_FILES
+
+        lens = portrait_tiny.default_lens
+        write_scene(portrait_tiny, tmp_path, lens=lens, gt_samples=4)
+        assert {p.name for p in tmp_path.iterdir()} == set(SCENE_FILES)
+        (tmp_path / "notes.txt").write_text("mine")  # not pcdof's: kept
+        (tmp_path / "sub").mkdir()
+        info = write_scene(portrait_tiny, tmp_path, lens=lens, ground_truth=False, linear=False)
+        names = {p.name for p in tmp_path.iterdir()}
+        assert names == {os.path.basename(f) for f in info["files"]} | {"notes.txt", "sub"}
+        assert not names & {"dof_gt.png", "dof_gt_linear.npy", "color_linear.npy"}
+        assert "ground_truth" not in json.loads((tmp_path / "scene.json").read_text())
+
+    def test_ground_truth_settings_checked_before_writing(self, portrait_tiny, tmp_path):
+        with pytest.raises(InputError, match="gt_samples"):
+            write_scene(portrait_tiny, tmp_path / "a", lens=portrait_tiny.default_lens, gt_samples=0)
+        with pytest.raises(InputError, match="gt_seed"):
+            write_scene(portrait_tiny, tmp_path / "a", lens=portrait_tiny.default_lens, gt_seed=-1)
+        assert not (tmp_path / "a").exists()
+
 
 class TestCli:
     def test_synth_command(self, tmp_path):
@@ -470,6 +505,32 @@ class TestCli:
 
         res = CliRunner().invoke(main, ["synth", *args, "-o", str(tmp_path / "x")])
         assert res.exit_code == code, res.output
+
+    @pytest.mark.parametrize("args, flag", [(["--seed", "18446744073709551616"], "--seed"),
+                                            (["--seed", "9223372036854775808"], "--seed"),
+                                            (["--seed", "-1"], "--seed"), (["--size", "0x0"], "--size"),
+                                            (["--depth-size", "0x0"], "--depth-size"),
+                                            (["--focus-distance", "0"], "--focus-distance")])
+    def test_bad_flags_named_in_one_line(self, tmp_path, args, flag):
+        from pcdof.cli import main
+
+        res = CliRunner().invoke(main, ["synth", "portrait", "-o", str(tmp_path / "x"), "--size", "16x12", *args])
+        assert res.exit_code in (5, 6), res.output
+        assert res.output.startswith("pcdof: error: ") and res.output.count("\n") == 1 and flag in res.output
+        assert not (tmp_path / "x").exists()
+
+    def test_rerun_leaves_no_stale_files(self, tmp_path):
+        from pcdof.cli import main
+
+        out = tmp_path / "scene"
+        common = ["synth", "portrait", "-o", str(out), "--size", "16x12", "--depth-size", "16x14"]
+        assert CliRunner().invoke(main, [*common, "--samples", "4"]).exit_code == 0
+        assert (out / "dof_gt.png").exists() and (out / "dof_gt_linear.npy").exists()
+        res = CliRunner().invoke(main, [*common, "--no-gt", "--no-linear", "--f-number", "4"])
+        assert res.exit_code == 0, res.output
+        assert sorted(p.name for p in out.iterdir()) == ["calib.json", "color.png", "depth.png", "depth_clean.npy",
+                                                         "depth_color_gt.npy", "lens.json", "scene.json"]
+        assert json.loads((out / "lens.json").read_text())["f_number"] == 4
 
 
 class TestBundledSample:

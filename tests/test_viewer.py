@@ -16,12 +16,16 @@ from pcdof.lens import ThinLens
 from pcdof.viewer import (
     COC_BAR_TITLE,
     PLANE_COLOR,
+    MAX_WINDOW_SIDE,
     build_scene,
     dof_slab,
+    downscale_for_preview,
     focal_plane_corners,
     frustum_lines,
     image_corner_pixels,
     image_corner_rays,
+    render_preview,
+    scene_from_frame,
     strided_points,
 )
 
@@ -348,6 +352,76 @@ class TestScene:
         finally:
             viewer.close()
 
+    @pytest.mark.parametrize("size", [(16400, 800), (800, 16385), (20000, 20000), (16384, 8192), (0, 0), (63, 100)])
+    def test_window_size_the_renderer_cannot_draw_is_refused(self, size):
+        # beyond 16384 per side the off-screen renderer returned an all-black image
+        color, depth = two_plane_frame()
+        with pytest.raises(InputError, match="window_size"):
+            build_scene(color, depth, PINHOLE, ThinLens(50, 2, 1), off_screen=True, window_size=size)
+
+    def test_largest_window_side_renders(self):
+        viewer = scene(window_size=(MAX_WINDOW_SIDE, 64))
+        try:
+            image = viewer.screenshot()
+            assert image.shape == (64, MAX_WINDOW_SIDE, 3) and image.max() == 255 and image.std() > 5
+        finally:
+            viewer.close()
+
+    def test_empty_render_is_an_error_and_writes_nothing(self, tmp_path, monkeypatch):
+        viewer = scene()
+        try:
+            monkeypatch.setattr(viewer.plotter, "screenshot", lambda *a, **k: np.zeros((300, 600, 3), np.uint8))
+            with pytest.raises(InputError, match="window_size"):
+                viewer.screenshot(str(tmp_path / "black.png"))
+            assert not list(tmp_path.iterdir())
+        finally:
+            viewer.close()
+
+    def test_stride_that_keeps_no_known_pixel_is_refused(self):
+        color, depth = two_plane_frame()
+        depth[0, 0] = 0  # a stride of 100 keeps pixel (0, 0) only
+        with pytest.raises(InputError, match="stride 100 keeps no pixel with known depth"):
+            build_scene(color, depth, PINHOLE, ThinLens(100, 1.4, 2.0), off_screen=True, stride=100)
+        with pytest.raises(InputError, match="stride"):
+            build_scene(color, depth, PINHOLE, ThinLens(100, 1.4, 2.0), off_screen=True, stride=0)
+        viewer = scene(stride=100, window_size=(200, 100))  # (0, 0) known: one point, no error
+        try:
+            assert len(viewer.points) == 1
+        finally:
+            viewer.close()
+
+    def test_scene_from_frame_checks_fill_method_first(self):
+        from pcdof.camera import RGBDFrame
+
+        color, depth = two_plane_frame()  # hole-free: the fill stage would never look at the method
+        frame = RGBDFrame(color, depth, Rig.registered(PINHOLE))
+        with pytest.raises(InputError, match="fill_method"):
+            scene_from_frame(frame, ThinLens(100, 1.4, 2.0), fill_method="bogus", off_screen=True)
+
+
+class TestPreview:
+    @pytest.mark.parametrize("shape", [(2000, 1), (1, 2000), (3, 1200), (480, 640)])
+    def test_preview_matches_a_downscaled_full_size_render(self, shape):
+        # the preview's blur must be the full-size blur times the scale along both axes, also for a
+        # very narrow image whose short side cannot shrink below 1 pixel
+        h, w = shape
+        rng = np.random.default_rng(1)
+        color = cv2.resize(rng.integers(0, 256, (max(1, h // 20), max(1, w // 20), 3), dtype=np.uint8), (w, h),
+                           interpolation=cv2.INTER_NEAREST)
+        depth = np.full((h, w), 3.0, np.float32)
+        if h >= w:
+            depth[: h // 2] = 1.0
+        else:
+            depth[:, : w // 2] = 1.0
+        lens, fx = ThinLens(50, 2, 1.0), 500.0
+        small_color, small_depth, small_fx = downscale_for_preview(color, depth, fx)
+        scale = 400 / max(h, w)
+        assert small_fx == pytest.approx(fx * scale)
+        expected = cv2.resize(render_preview(color, depth, lens, fx), small_color.shape[1::-1],
+                              interpolation=cv2.INTER_AREA)
+        preview = render_preview(small_color, small_depth, lens, small_fx)
+        assert np.abs(preview.astype(float) - expected.astype(float)).mean() < 3
+
 
 def plane_pixels(image, tol=8):
     """Number of pixels within *tol* grey levels of the focal plane's colour."""
@@ -420,6 +494,20 @@ class TestCli:
         assert result.exit_code == 6 and "--html" in result.output
         result = run_cli(["view", *frame_files, "--screenshot", str(tmp_path / "x.html")])
         assert result.exit_code == 6 and "--screenshot" in result.output
+
+    @pytest.mark.parametrize("size", ["16400x800", "20000x20000", "0x0"])
+    def test_window_size_flag_is_checked_first(self, frame_files, tmp_path, size):
+        out = tmp_path / "o.png"
+        result = run_cli(["view", *frame_files, "--window-size", size, "--screenshot", str(out)])
+        assert result.exit_code == 6, result.output
+        assert "--window-size" in result.output and "Traceback" not in result.output
+        assert not out.exists()
+
+    def test_fill_method_is_checked(self, frame_files, tmp_path):
+        out = tmp_path / "o.png"
+        result = run_cli(["view", *frame_files, "--fill-method", "bogus", "--screenshot", str(out)])
+        assert result.exit_code == 2 and "--fill-method" in result.output
+        assert not out.exists()
 
     def test_focus_at_pixel(self, frame_files, tmp_path, monkeypatch):
         import pcdof.viewer as viewer_module

@@ -12,6 +12,7 @@ method itself) and is scored against the ray-traced thin-lens image:
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import statistics
@@ -23,6 +24,7 @@ import numpy as np
 from ..color import linear_to_srgb, to_float
 from ..lens import PaperLens, ThinLens
 from ..metrics import depth_edge_band, psnr, ssim_map
+from . import check_repeats, check_scenes, save_figure
 
 #: f-number multipliers of the scene's own lens: the benchmark's lens settings
 SETTINGS = {"wide": 1.0, "stopped-down": 2.5}
@@ -85,11 +87,12 @@ def ground_truth(sf, lens, *, samples, seed, cache_dir=None, name="", size=None,
     if path and os.path.exists(path):
         return np.load(path)
     gt = render_thin_lens(sf, lens, samples=samples, seed=seed + 1)
-    if path:
-        os.makedirs(cache_dir, exist_ok=True)
-        tmp = path + ".tmp.npy"
-        np.save(tmp, gt)
-        os.replace(tmp, path)
+    if path:  # atomic: a temporary file, then a rename (missing folders are created)
+        from ..io._files import atomic_write_bytes
+
+        buf = io.BytesIO()
+        np.save(buf, gt, allow_pickle=False)
+        atomic_write_bytes(path, buf.getvalue())
     return gt
 
 
@@ -107,12 +110,17 @@ def score(image, gt_srgb, band) -> dict:
 
 def run_dof_bench(*, scenes=None, size=(320, 240), depth_size=(256, 212), settings=None, methods=None,
                   repeats: int = 5, samples=None, seed: int = 0, cache_dir=None, progress: bool = True) -> list[dict]:
-    """Score every method on every scene and lens setting. Returns one row per (scene, setting, method)."""
+    """Score every method on every scene and lens setting. Returns one row per (scene, setting, method).
+
+    *scenes* are names of :data:`pcdof.synth.SCENES` (None = all), *repeats* the timed runs per
+    measurement (>= 1); both are checked before any work (InputError).
+    """
     from tqdm.auto import tqdm
 
     from ..synth import SCENES, generate_scene
 
-    scenes = list(scenes or SCENES)
+    repeats = check_repeats(repeats)
+    scenes = check_scenes(scenes) or list(SCENES)
     settings = dict(settings or SETTINGS)
     methods = [METHODS[m] for m in (methods or METHODS)]
     rows = []
@@ -135,7 +143,7 @@ def run_dof_bench(*, scenes=None, size=(320, 240), depth_size=(256, 212), settin
                 m.run(sf, lens)  # warm-up (JIT compilation, caches), not timed
                 times = []
                 image = None
-                for _ in range(max(1, repeats)):
+                for _ in range(repeats):
                     t0 = time.perf_counter()
                     image, stages = m.run(sf, lens)
                     times.append((time.perf_counter() - t0, stages))
@@ -228,7 +236,7 @@ def pareto_plot(rows: list[dict], path: str) -> None:
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        save_figure(fig, path)
+    finally:
+        plt.close(fig)

@@ -7,13 +7,13 @@ excluded); ratios, not absolute times, are what carries between machines.
 from __future__ import annotations
 
 import math
-import os
 import statistics
 import time
 
 import numpy as np
 
 from ..lens import PaperLens, ThinLens
+from . import check_repeats, check_scenes, save_figure
 
 
 def _median_ms(fn, repeats):
@@ -28,8 +28,14 @@ def _median_ms(fn, repeats):
 
 def pipeline_vs_paper(*, sizes=((640, 480), (1920, 1080)), depth_size=(512, 424), scene="portrait",
                       repeats: int = 7, progress: bool = True) -> list[dict]:
-    """Median ms of pcdof's full pipeline (register + fill + render) and of the paper's method, run alternately."""
+    """Median ms of pcdof's full pipeline (register + fill + render) and of the paper's method, run alternately.
+
+    *repeats* (>= 1, checked before any work): timed runs of each method per size.
+    """
     from tqdm.auto import tqdm
+
+    repeats = check_repeats(repeats)
+    check_scenes([scene], "scene")
 
     from ..pipeline import run
     from ..synth import generate_scene
@@ -87,8 +93,14 @@ def lens_for_share(depth_m, fx, share: float, *, focal_length_mm=50.0, focus_bey
 
 def cost_follows_work(*, size=(640, 480), depth_size=(512, 424), scene="slanted_plane",
                       shares=(0.0, 0.25, 0.5, 0.75, 1.0), repeats: int = 7, progress: bool = True) -> list[dict]:
-    """Render-stage time as the out-of-focus share of the picture grows (registered, filled depth)."""
+    """Render-stage time as the out-of-focus share of the picture grows (registered, filled depth).
+
+    *repeats* (>= 1, checked before any work): timed renders per share.
+    """
     from tqdm.auto import tqdm
+
+    repeats = check_repeats(repeats)
+    check_scenes([scene], "scene")
 
     from ..pipeline import render_from_depth, run
     from ..synth import generate_scene
@@ -123,7 +135,7 @@ def cost_plot(rows: list[dict], path: str) -> None:
     ax.set_title("cost follows the work")
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        save_figure(fig, path)
+    finally:
+        plt.close(fig)

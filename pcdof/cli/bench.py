@@ -10,7 +10,8 @@ import platform
 
 import click
 
-from ._common import handle_errors, make_output_folder
+from ..errors import InputError
+from ._common import check_output_file, check_output_folder, handle_errors, make_output_folder
 
 PARTS = ("dof", "speed", "registration", "fill")
 
@@ -27,10 +28,10 @@ def versions() -> dict:
 
 
 def _write_text(path: str, text: str) -> None:
-    tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
+    """Write UTF-8 *text* atomically (ImageWriteError on failure, no temporary file left behind)."""
+    from ..io._files import atomic_write_bytes
+
+    atomic_write_bytes(path, text.encode("utf-8"))
 
 
 def _write_csv(path: str, rows: list[dict]) -> None:
@@ -44,12 +45,18 @@ def _write_csv(path: str, rows: list[dict]) -> None:
     _write_text(path, buf.getvalue())
 
 
-def _parse_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise click.BadParameter(f"expected WIDTHxHEIGHT, e.g. 320x240; got {text!r}") from None
-    return w, h
+def _split(text: str) -> list[str]:
+    return [p.strip() for p in text.split(",") if p.strip()]
+
+
+def _output_files(parts) -> list[str]:
+    """The files a run of *parts* writes into its output folder."""
+    files = ["report.json", "report.md"]
+    if "dof" in parts:
+        files += ["dof.csv", "pareto.png"]
+    if "speed" in parts:
+        files += ["cost.png"]
+    return files
 
 
 @click.command("bench")
@@ -58,18 +65,36 @@ def _parse_size(text: str) -> tuple[int, int]:
 @click.option("--only", default=",".join(PARTS), show_default=True, help="Comma-separated parts to run.")
 @click.option("--size", default="320x240", show_default=True, help="Colour size of the ground-truth scenes.")
 @click.option("--depth-size", default="256x212", show_default=True, help="Depth camera size of the scenes.")
-@click.option("--repeats", type=int, default=5, show_default=True, help="Timed repeats per measurement.")
-@click.option("--samples", type=int, default=None, help="Aperture samples for the ground truth (default: adaptive).")
+@click.option("--repeats", type=int, default=5, show_default=True, help="Timed repeats per measurement (>= 1).")
+@click.option("--samples", type=int, default=None,
+              help="Aperture samples for the ground truth, >= 1 (default: adaptive).")
 @click.option("--scenes", default=None, help="Comma-separated scene names (default: all).")
 @handle_errors
 def command(output, quick, only, size, depth_size, repeats, samples, scenes):
-    """Run the benchmarks and write JSON, CSV, Markdown tables and plots into OUTPUT."""
-    parts = [p.strip() for p in only.split(",") if p.strip()]
+    """Run the benchmarks and write JSON, CSV, Markdown tables and plots into OUTPUT.
+
+    Every option is checked before any work (--scenes applies to the dof part; --quick overrides
+    --size, --depth-size and --repeats, which are checked all the same).
+    """
+    from ..bench import check_repeats, check_scenes
+    from ..synth.rig import parse_size
+
+    parts = _split(only)
     bad = [p for p in parts if p not in PARTS]
     if bad:
-        raise click.BadParameter(f"unknown part(s) {bad}; choose from {', '.join(PARTS)}", param_hint="--only")
-    size, depth_size = _parse_size(size), _parse_size(depth_size)
-    scene_list = [s.strip() for s in scenes.split(",")] if scenes else None
+        raise InputError(f"--only: unknown part(s) {', '.join(map(repr, bad))}; choose from {', '.join(PARTS)}")
+    if not parts:
+        raise InputError(f"--only selects no part; choose from {', '.join(PARTS)}")
+    size, depth_size = parse_size(size, "--size"), parse_size(depth_size, "--depth-size")
+    check_repeats(repeats, "--repeats")
+    if samples is not None and samples < 1:
+        raise InputError(f"--samples must be an integer >= 1; got {samples}")
+    scene_list = check_scenes(_split(scenes), "--scenes") if scenes is not None else None
+    check_output_folder(output, "output")
+    for name in _output_files(parts):
+        check_output_file(os.path.join(output, name), "output")
+    if "dof" in parts:
+        check_output_folder(os.path.join(output, "cache"), "output")
     if quick:
         size, depth_size, repeats = (96, 72), (80, 66), 1
         scene_list = scene_list or ["portrait", "slanted_plane"]

@@ -35,8 +35,8 @@ class _LazyChoice(click.Choice):
 @click.option("-o", "--output", required=True, type=click.Path(readable=False), help="Output folder.")
 @click.option("--size", default="640x480", show_default=True, metavar="WxH", help="Colour image size.")
 @click.option("--depth-size", default="512x424", show_default=True, metavar="WxH", help="Depth image size.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Scene layout and sensor noise seed.")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Scene layout and sensor noise seed, 0 to 2**63 - 1.")
 @click.option("--focal-length", "focal_length_mm", type=float, default=None,
               help="Ground-truth lens focal length in mm (default: the scene's lens).")
 @click.option("--f-number", type=float, default=None, help="Ground-truth lens f-number (default: the scene's).")
@@ -57,11 +57,22 @@ def command(name, output, size, depth_size, seed, focal_length_mm, f_number, foc
             aperture_rotation_deg, samples, ground_truth, linear):
     """Generate synthetic scene NAME into OUTPUT: colour, sensor depth, exact depths, calibration and lens,
     and (unless --no-gt) the ray-traced thin-lens ground truth (an unknown NAME lists the scenes).
+
+    A rerun into the same OUTPUT removes the files of an earlier run that this one does not write
+    (e.g. dof_gt.png after --no-gt); other files in OUTPUT are left alone.
     """
+    from ..errors import LensError
     from ..lens import ThinLens
     from ..synth import generate_scene, write_scene
+    from ..synth.frame import check_seed
+    from ..synth.rig import parse_size
+    from .render import check_positive_flags
 
     check_output_folder(output, "output")
+    size, depth_size = parse_size(size, "--size"), parse_size(depth_size, "--depth-size")
+    check_seed(seed, "--seed")
+    check_positive_flags({"--focal-length": focal_length_mm, "--f-number": f_number,
+                          "--focus-distance": focus_distance_m}, LensError)
     sf = generate_scene(name, color_size=size, depth_size=depth_size, seed=seed)
     base = sf.default_lens
     lens = ThinLens(

@@ -9,6 +9,7 @@ import sys
 import click
 
 from ..errors import InputError
+from ..fill import FILL_METHODS
 from ._common import check_output_file, handle_errors
 from .render import IMAGE_SUFFIXES, check_lens_flags, lens_options
 
@@ -44,14 +45,16 @@ def has_display() -> bool:
               help="Colour the points by their RGB or by their circle of confusion.")
 @click.option("--stride", type=click.IntRange(min=1), default=2, show_default=True,
               help="Keep every N-th pixel in x and y for the point cloud.")
-@click.option("--fill-method", default="joint-bilateral", show_default=True, help="Depth hole filling method.")
+@click.option("--fill-method", type=click.Choice(list(FILL_METHODS)), default="joint-bilateral", show_default=True,
+              help="Depth hole filling method.")
 @click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
 @click.option("--screenshot", type=click.Path(readable=False), default=None,
               help="Render off screen (no display needed) and write this PNG.")
 @click.option("--html", "html_path", type=click.Path(readable=False), default=None,
               help="Write a standalone interactive HTML page of the scene (no display needed).")
 @click.option("--window-size", type=str, default="1500x750", show_default=True, callback=parse_size,
-              metavar="WxH", help="Window (and screenshot) size in pixels.")
+              metavar="WxH", help="Window (and screenshot) size in pixels: sides 64 to 16384, at most 8192x8192 "
+                                  "pixels in all.")
 @handle_errors
 def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, focus_at, aperture_blades,
             aperture_rotation_deg, coc_limit_px, color_by, stride, fill_method, depth_scale, screenshot, html_path,
@@ -65,8 +68,9 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
     """
     from .. import io
     from ..lens import ThinLens
-    from ..viewer import scene_from_frame
+    from ..viewer import check_window_size, scene_from_frame
 
+    window_size = check_window_size(window_size, name="--window-size")
     if screenshot:
         check_output_file(screenshot, "--screenshot")
     if html_path:

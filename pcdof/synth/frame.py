@@ -18,6 +18,15 @@ from .sensor import DepthSensorModel, simulate_depth
 
 #: default colour pixel filter: the mean of 4 x 4 rays over each pixel's square
 PIXEL_SAMPLES = 4
+#: largest scene seed: the sensor's dropout noise takes the seed as a 64-bit signed integer
+MAX_SEED = 2**63 - 1
+
+
+def check_seed(seed, name: str = "seed") -> int:
+    """*seed* as an int in [0, :data:`MAX_SEED`], or InputError naming *name*."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+        raise InputError(f"{name} must be an integer in [0, 2**63 - 1]; got {seed!r}")
+    return int(seed)
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,7 +81,7 @@ def make_frame(scene: Scene, rig: Rig, *, default_lens: ThinLens, seed: int = 0,
     scene : Scene
     rig : Rig, its colour camera must have no distortion
     default_lens : ThinLens
-    seed : int, seed of the sensor noise and dropouts
+    seed : int in [0, 2**63 - 1], seed of the sensor noise and dropouts
     name, description, metadata : carried into the frame
     sensor : DepthSensorModel, default ``DepthSensorModel()``
     pixel_samples : int, the colour pixel filter: 1 = point samples at the pixel centres, k > 1 =
@@ -89,6 +98,7 @@ def make_frame(scene: Scene, rig: Rig, *, default_lens: ThinLens, seed: int = 0,
         raise InputError(f"rig must be a Rig; got {type(rig).__name__}")
     if not isinstance(default_lens, ThinLens):
         raise InputError(f"default_lens must be a ThinLens; got {type(default_lens).__name__}")
+    seed = check_seed(seed)
     color_linear, depth_color = render_pinhole(scene, rig.color, pixel_samples=pixel_samples)
     rng = np.random.default_rng([int(seed), 1])
     depth, clean = simulate_depth(scene, rig, rng=rng, model=sensor, dropout_seed=int(seed))
@@ -107,7 +117,7 @@ def generate_scene(name: str, *, color_size=(640, 480), depth_size=DEPTH_SIZE, s
     name : str, a key of :data:`SCENES`
     color_size : (W, H) or "WxH", colour image size in pixels (intrinsics scale with it)
     depth_size : (w, h) or "wxh", depth image size in pixels (default 512x424)
-    seed : int, the same seed gives the same scene, images and sensor noise
+    seed : int in [0, 2**63 - 1], the same seed gives the same scene, images and sensor noise
     max_range_m : float, the depth sensor's range (default :data:`pcdof.synth.rig.MAX_RANGE_M`)
     sensor : DepthSensorModel
     pixel_samples : int, colour pixel filter (see :func:`make_frame`; default a 4 x 4 box filter)
@@ -124,8 +134,7 @@ def generate_scene(name: str, *, color_size=(640, 480), depth_size=DEPTH_SIZE, s
     """
     if name not in SCENES:
         raise InputError(f"scene must be one of {sorted(SCENES)}; got {name!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InputError(f"seed must be an integer >= 0; got {seed!r}")
+    seed = check_seed(seed)
     cs = parse_size(color_size, "color_size")
     ds = parse_size(depth_size, "depth_size")
     kwargs = {} if max_range_m is None else {"max_range_m": max_range_m}

@@ -276,9 +276,9 @@ def _check_samples(samples, name="samples") -> int:
     return int(samples)
 
 
-def _check_seed(seed) -> int:
+def _check_seed(seed, name="seed") -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**57:
-        raise InputError(f"seed must be an integer in [0, 2**57); got {seed!r}")
+        raise InputError(f"{name} must be an integer in [0, 2**57); got {seed!r}")
     return int(seed)
 
 

@@ -28,6 +28,8 @@ def parse_size(size, name: str) -> tuple[int, int]:
     if isinstance(size, str):
         parts = size.lower().split("x")
         try:
+            if len(parts) != 2:
+                raise ValueError
             size = tuple(int(p) for p in parts)
         except ValueError:
             raise InputError(f"{name} must look like WIDTHxHEIGHT (e.g. 640x480); got {size!r}") from None

@@ -10,7 +10,11 @@ from ..color import encode_from_linear
 from ..errors import ImageWriteError, InputError
 from ..io import write_depth, write_image, write_json
 from ..lens import ThinLens
-from .render import TARGET_PSNR_DB, max_coc_px, render_ground_truth
+from .render import TARGET_PSNR_DB, _check_samples, _check_seed, max_coc_px, render_ground_truth
+
+#: Every file :func:`write_scene` can write; a run removes those of them it did not write.
+SCENE_FILES = ("color.png", "color_linear.npy", "depth.png", "depth_clean.npy", "depth_color_gt.npy", "calib.json",
+               "lens.json", "dof_gt.png", "dof_gt_linear.npy", "scene.json")
 
 
 def lens_to_dict(lens: ThinLens) -> dict:
@@ -32,6 +36,10 @@ def write_scene(synth_frame, outdir, *, lens: ThinLens | None = None, gt_samples
     ``scene.json`` (name, seed, description, metadata, ground-truth settings); with *linear*:
     ``color_linear.npy`` (float32 linear radiance). With *lens* given, the ray-traced ground truth:
     ``dof_gt.png`` (sRGB uint8) and, with *linear*, ``dof_gt_linear.npy``.
+
+    Once all of them are written, the files of :data:`SCENE_FILES` that this run did not write
+    (left by an earlier run with other settings, e.g. ``dof_gt.png`` before ``ground_truth=False``)
+    are removed, so the folder holds one consistent set; no other file is touched.
 
     Parameters
     ----------
@@ -58,6 +66,10 @@ def write_scene(synth_frame, outdir, *, lens: ThinLens | None = None, gt_samples
 
     if not isinstance(synth_frame, SyntheticFrame):
         raise InputError(f"synth_frame must be a SyntheticFrame; got {type(synth_frame).__name__}")
+    if lens is not None and ground_truth:  # the ground truth's settings, before any file is written
+        if gt_samples is not None:
+            _check_samples(gt_samples, "gt_samples")
+        _check_seed(gt_seed, "gt_seed")
     outdir = os.fspath(outdir)
     try:
         os.makedirs(outdir, exist_ok=True)
@@ -95,4 +107,20 @@ def write_scene(synth_frame, outdir, *, lens: ThinLens | None = None, gt_samples
         info["ground_truth"] = record
         scene_info["ground_truth"] = record
     write_json(out("scene.json"), scene_info)
+    _remove_stale(outdir, files)
     return info
+
+
+def _remove_stale(outdir: str, written: list) -> None:
+    """Remove the files of :data:`SCENE_FILES` in *outdir* that are not in *written* (folders are left alone)."""
+    for name in SCENE_FILES:
+        path = os.path.join(outdir, name)
+        if path in written or not os.path.lexists(path) or os.path.isdir(path):
+            continue
+        try:
+            os.remove(path)
+        except FileNotFoundError:
+            pass
+        except OSError as err:
+            raise ImageWriteError(f"cannot remove the stale file {path} (from an earlier run): "
+                                  f"{err.strerror or err}") from None

@@ -33,6 +33,13 @@ def _color_to_uint8(cols: np.ndarray) -> np.ndarray:
     return np.rint(unit * 255).astype(np.uint8)
 
 
+def check_stride(stride) -> int:
+    """*stride* (keep every stride-th pixel in x and y) as an int >= 1; else an InputError."""
+    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
+        raise InputError(f"stride must be an integer >= 1; got {stride!r}")
+    return int(stride)
+
+
 def colored_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Back-project registered depth to 3-D points with the colour of their pixel.
 
@@ -59,8 +66,7 @@ def colored_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -
     """
     if not isinstance(intrinsics, Intrinsics):
         raise InputError(f"intrinsics must be an Intrinsics; got {type(intrinsics).__name__}")
-    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
-        raise InputError(f"stride must be an integer >= 1; got {stride!r}")
+    stride = check_stride(stride)
     depth, _ = as_depth_m(depth_m, intrinsics.shape, name="depth_m")
     color = check_color(color, intrinsics.shape)
     if stride > 1:

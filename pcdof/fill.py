@@ -677,6 +677,12 @@ FILL_METHODS = {
 }
 
 
+def check_fill_method(method, name: str = "method") -> None:
+    """InputError naming *name* unless *method* is one of :data:`FILL_METHODS`' names (a str)."""
+    if not isinstance(method, str) or method not in FILL_METHODS:
+        raise InputError(f"{name} must be one of {sorted(FILL_METHODS)}; got {method!r}")
+
+
 def fill_depth(depth_m, color, *, method: str = "joint-bilateral", **options) -> np.ndarray:
     """Fill every unknown pixel of a registered depth map.
 
@@ -706,8 +712,7 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", **options) ->
     >>> fill_depth(d, np.zeros((1, 3, 3), np.uint8)).tolist()
     [[1.0, 2.0, 2.0]]
     """
-    if not isinstance(method, str) or method not in FILL_METHODS:
-        raise InputError(f"method must be one of {sorted(FILL_METHODS)}; got {method!r}")
+    check_fill_method(method)
     fn = FILL_METHODS[method]
     try:
         return fn(depth_m, color, **options)

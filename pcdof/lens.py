@@ -250,6 +250,31 @@ def _alpha_eq1(z: np.ndarray, lens: PaperLens, max_range_m: float) -> np.ndarray
 PAPER_WEIGHTS = {"eq2": _alpha_eq2, "eq1": _alpha_eq1}
 
 
+def parse_focus_pixel(focus_at, name: str = "focus_at") -> tuple[float, float] | None:
+    """*focus_at* as an (x, y) pair of finite floats, colour pixels (None stays None); else an InputError."""
+    if focus_at is None:
+        return None
+    try:
+        x, y = (finite_number(name, v, InputError) for v in focus_at)
+    except (TypeError, ValueError):  # not a pair, or an entry that is not a finite number
+        raise InputError(f"{name} must be an (x, y) pixel of finite numbers; got {_short(focus_at)}") from None
+    return x, y
+
+
+def pixel_inside(x: float, y: float, width: int, height: int) -> bool:
+    """Whether (x, y) rounds to a pixel of a width x height image (pixel i spans [i - 0.5, i + 0.5))."""
+    return -0.5 <= x < width - 0.5 and -0.5 <= y < height - 0.5
+
+
+def check_radius_px(radius_px) -> int:
+    """*radius_px* (a window half-size, pixels) as an int >= 0 (integral floats accepted); else an InputError."""
+    integral = isinstance(radius_px, (int, np.integer)) or (
+        isinstance(radius_px, (float, np.floating)) and float(radius_px).is_integer())
+    if isinstance(radius_px, (bool, np.bool_)) or not integral or radius_px < 0:
+        raise InputError(f"radius_px must be an integer >= 0; got {_short(radius_px)}")
+    return int(radius_px)
+
+
 def focus_depth_at(depth_m, x: float, y: float, *, radius_px: int = 7) -> float:
     """Robust focus distance at pixel (x, y): the median of known depths in a window around it.
 
@@ -273,12 +298,9 @@ def focus_depth_at(depth_m, x: float, y: float, *, radius_px: int = 7) -> float:
         raise InputError(f"depth_m must be (H, W); got shape {z.shape}")
     x = finite_number("x (focus pixel column)", x, InputError)
     y = finite_number("y (focus pixel row)", y, InputError)
-    integral = isinstance(radius_px, (int, np.integer)) or (
-        isinstance(radius_px, (float, np.floating)) and float(radius_px).is_integer())
-    if isinstance(radius_px, (bool, np.bool_)) or not integral or radius_px < 0:
-        raise InputError(f"radius_px must be an integer >= 0; got {_short(radius_px)}")
+    check_radius_px(radius_px)
     h, w = z.shape
-    if not (-0.5 <= x < w - 0.5 and -0.5 <= y < h - 0.5):  # pixel i spans [i - 0.5, i + 0.5)
+    if not pixel_inside(x, y, w, h):
         raise InputError(f"focus pixel ({x:g}, {y:g}) is outside the image of size {w}x{h}")
     xi, yi = int(math.floor(x + 0.5)), int(math.floor(y + 0.5))
     r = min(int(radius_px), max(h, w))  # a larger window only covers the whole image again

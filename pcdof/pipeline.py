@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .camera import RGBDFrame, _short, check_color
+from .camera import RGBDFrame, check_color
 from .errors import InputError, LensError
-from .lens import PaperLens, ThinLens, _depth_array, finite_number, focus_depth_at
-from .renderer import METHODS, check_quality, render_image
+from .lens import PaperLens, ThinLens, _depth_array, focus_depth_at, parse_focus_pixel
+from .renderer import check_method, check_quality, render_image
 
 
 @dataclass
@@ -144,20 +144,9 @@ def _check_lens(lens) -> None:
         raise LensError(f"lens must be a ThinLens or PaperLens; got {type(lens).__name__}")
 
 
-def _focus_pixel(focus_at) -> tuple[float, float] | None:
-    """*focus_at* as an (x, y) pair of floats (None stays None); else an InputError."""
-    if focus_at is None:
-        return None
-    try:
-        x, y = (finite_number("focus_at", v, InputError) for v in focus_at)
-    except (TypeError, ValueError):  # not a pair, or an entry that is not a finite number
-        raise InputError(f"focus_at must be an (x, y) pixel of finite numbers; got {_short(focus_at)}") from None
-    return x, y
-
-
 def _resolve_lens(lens, focus_at, depth_registered_m, depth_filled_m):
     _check_lens(lens)
-    pixel = _focus_pixel(focus_at)
+    pixel = parse_focus_pixel(focus_at)
     if pixel is None:
         return lens
     source = depth_registered_m if np.any(depth_registered_m > 0) else depth_filled_m
@@ -165,18 +154,6 @@ def _resolve_lens(lens, focus_at, depth_registered_m, depth_filled_m):
     if isinstance(lens, ThinLens):
         return lens.with_focus(d)
     return PaperLens(d, lens.sigma, lens.blur_sigma_px, lens.weight, lens.eq1_aperture, lens.max_range_m)
-
-
-def _check_method(method) -> None:
-    if not isinstance(method, str) or method not in METHODS:
-        raise InputError(f"method must be one of {sorted(METHODS)}; got {_short(method)}")
-
-
-def _check_fill_method(fill_method) -> None:
-    from .fill import FILL_METHODS
-
-    if not isinstance(fill_method, str) or fill_method not in FILL_METHODS:
-        raise InputError(f"fill_method must be one of {sorted(FILL_METHODS)}; got {fill_method!r}")
 
 
 def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = "joint-bilateral",
@@ -195,14 +172,16 @@ def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = 
     """
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
-    _check_method(method)
+    check_method(method)
     _check_lens(lens)
     if method == "physical" and isinstance(lens, PaperLens):
         raise LensError("the physical method needs a ThinLens; a PaperLens only works with method='paper'")
     # checked here, not when the stage runs: a stage with nothing to do must not hide a bad name
-    _check_fill_method(fill_method)
+    from .fill import check_fill_method
+
+    check_fill_method(fill_method, "fill_method")
     check_quality(quality)
-    _focus_pixel(focus_at)
+    parse_focus_pixel(focus_at)
     trace: list[StageTrace] = []
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=fill_method)
@@ -223,7 +202,7 @@ def render(frame: RGBDFrame, lens, *, method: str = "physical", **options) -> np
 def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "physical",
                       max_range_m: float = 10.0, linear: bool = False, quality: str = "balanced"):
     """Render from an already registered, hole-free depth (previews, sliders). Returns (image, trace)."""
-    _check_method(method)
+    check_method(method)
     color = check_color(color)
     depth = np.asarray(_depth_array(depth_filled_m, "depth_filled_m"), np.float32)
     if depth.shape != color.shape[:2]:

@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from .camera import check_color
+from .camera import _short, check_color
 from .color import decode_to_linear, encode_from_linear, from_float, to_float
 from .errors import InputError, LensError
 from .lens import MAX_COC_PX, PaperLens, ThinLens
@@ -930,6 +930,12 @@ def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=Fals
 METHODS = {"physical": render_physical, "paper": render_paper}
 
 
+def check_method(method) -> None:
+    """InputError unless *method* is one of :data:`METHODS`' names (a str: lists and other unhashables too)."""
+    if not isinstance(method, str) or method not in METHODS:
+        raise InputError(f"method must be one of {sorted(METHODS)}; got {_short(method)}")
+
+
 def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.0, linear=False,
                  quality="balanced", signed_coc=None):
     """Render a registered, hole-free RGB-D pair. Returns (image, info); see :data:`METHODS`.
@@ -940,8 +946,7 @@ def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.
         an unknown *method* or *quality*, a colour image that :func:`pcdof.camera.check_color`
         refuses, or a depth map of another size than the colour image
     """
-    if not isinstance(method, str) or method not in METHODS:
-        raise InputError(f"method must be one of {sorted(METHODS)}; got {method!r}")
+    check_method(method)
     check_quality(quality)
     color = check_color(color)
     depth_m = np.asarray(depth_m, np.float32)

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Intrinsics, check_color
+from .cloud import check_stride
 from .color import to_float
 from .errors import ImageWriteError, InputError, LensError
 from .lens import ThinLens, positive_number
@@ -79,12 +80,6 @@ def check_window_size(window_size, *, name: str = "window_size") -> tuple[int, i
         raise InputError(f"{name} must be at most {MAX_WINDOW_PIXELS:,} pixels in all (e.g. 8192x8192); "
                          f"got {width}x{height}")
     return width, height
-
-
-def _check_stride(stride) -> int:
-    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
-        raise InputError(f"stride must be an integer >= 1; got {stride!r}")
-    return int(stride)
 
 
 def _check_intrinsics(intrinsics) -> Intrinsics:
@@ -251,7 +246,7 @@ def strided_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -
     from .geometry import depth_to_points
 
     intr = _check_intrinsics(intrinsics)
-    stride = _check_stride(stride)
+    stride = check_stride(stride)
     color = check_color(color, intr.shape)
     depth = np.asarray(depth_m, dtype=np.float32)
     if depth.shape != intr.shape:
@@ -755,7 +750,7 @@ def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *
     known = np.isfinite(depth) & (depth > 0)
     if not np.any(known):
         raise InputError("depth_filled_m has no known depth (all values are 0, negative or not finite)")
-    stride = _check_stride(stride)
+    stride = check_stride(stride)
     if not np.any(known[::stride, ::stride]):
         raise InputError(f"stride {stride} keeps no pixel with known depth (it keeps "
                          f"{known[::stride, ::stride].size} of the {intr.width}x{intr.height} pixels); "
@@ -794,26 +789,24 @@ def scene_from_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilater
     FocusViewer
     """
     from .camera import RGBDFrame
-    from .lens import focus_depth_at
-    from .pipeline import _check_fill_method, fill_stage, register_stage
+    from .fill import check_fill_method
+    from .lens import focus_depth_at, parse_focus_pixel
+    from .pipeline import fill_stage, register_stage
 
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
     if not isinstance(lens, ThinLens):
         raise LensError(f"lens must be a ThinLens; got {type(lens).__name__}")
-    _check_fill_method(fill_method)  # the cheap checks before registering and filling
+    check_fill_method(fill_method, "fill_method")  # the cheap checks before registering and filling
+    pixel = parse_focus_pixel(focus_at)
     if "window_size" in options:
         check_window_size(options["window_size"])
     if "stride" in options:
-        _check_stride(options["stride"])
+        check_stride(options["stride"])
     trace: list = []
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=fill_method)
-    if focus_at is not None:
-        try:
-            x, y = (float(v) for v in focus_at)
-        except (TypeError, ValueError):
-            raise InputError(f"focus_at must be an (x, y) pixel; got {focus_at!r}") from None
+    if pixel is not None:
         source = registered if np.any(registered > 0) else filled
-        lens = lens.with_focus(focus_depth_at(source, x, y))
+        lens = lens.with_focus(focus_depth_at(source, *pixel))
     return build_scene(frame.color, filled, frame.rig.color, lens, **options)

@@ -55,7 +55,7 @@ import numpy as np
 
 from ..camera import RGBDFrame, Rig
 from ..errors import ImageWriteError, InputError, PcdofError
-from ..lens import PaperLens, ThinLens, focus_depth_at
+from ..lens import PaperLens, ThinLens, check_radius_px, focus_depth_at, parse_focus_pixel, pixel_inside
 from .inputs import DEFAULT_MAX_DIFFERENCE_S, FramePair, Sequence, discover, load_rig
 from .schedule import LensSchedule, build_schedule, parse_keyframes, smooth_focus_track
 
@@ -330,8 +330,7 @@ def measure_focus_track(sequence: Sequence, rig: Rig, xy, *, n_frames: int | Non
     from ..register import needs_registration, reproject_depth
 
     x, y = _check_xy(xy, rig)
-    if isinstance(radius_px, (bool, np.bool_)) or not isinstance(radius_px, (int, np.integer)) or radius_px < 0:
-        raise InputError(f"radius_px must be an integer >= 0; got {radius_px!r}")  # once, not once per frame
+    check_radius_px(radius_px)  # once, not once per frame
     n = len(sequence) if n_frames is None else min(int(n_frames), len(sequence))
     registered = not needs_registration(rig)[0]
     raw = np.full(n, np.nan)
@@ -349,12 +348,9 @@ def measure_focus_track(sequence: Sequence, rig: Rig, xy, *, n_frames: int | Non
 
 
 def _check_xy(xy, rig: Rig) -> tuple[float, float]:
-    try:
-        x, y = (float(v) for v in xy)
-    except (TypeError, ValueError):
-        raise InputError(f"focus_at must be an (x, y) pixel; got {xy!r}") from None
+    x, y = parse_focus_pixel(xy)
     w, h = rig.color.width, rig.color.height
-    if not (-0.5 <= x < w - 0.5 and -0.5 <= y < h - 0.5):  # pixel i spans [i - 0.5, i + 0.5)
+    if not pixel_inside(x, y, w, h):
         raise InputError(f"focus_at ({x:g}, {y:g}) is outside the colour image of size {w}x{h}")
     return x, y
 
@@ -646,7 +642,7 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     is one of the sequence's input files. Ctrl-C or SIGTERM: the workers stop, the report says
     "interrupted", and KeyboardInterrupt (:class:`Terminated` for SIGTERM) is raised.
     """
-    from ..renderer import METHODS
+    from ..renderer import check_method
 
     if not isinstance(sequence, Sequence):
         raise InputError(f"sequence must be a Sequence; got {type(sequence).__name__}")
@@ -656,8 +652,7 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
         raise InputError(f"schedule must be a LensSchedule; got {type(schedule).__name__}")
     if len(schedule) > len(sequence):
         raise InputError(f"schedule has {len(schedule)} frames but the sequence only {len(sequence)}")
-    if method not in METHODS:
-        raise InputError(f"method must be one of {sorted(METHODS)}; got {method!r}")
+    check_method(method)
     if method == "physical" and isinstance(schedule.template, PaperLens):
         raise InputError("the physical method needs a ThinLens; a PaperLens only works with method='paper'")
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:

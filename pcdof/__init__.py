@@ -1,6 +1,12 @@
-"""pcdof: physically plausible shallow depth of field from one RGB-D frame."""
+"""pcdof: physically plausible shallow depth of field from one RGB-D frame.
 
+``import pcdof`` is cheap: the public names below are loaded on first use (PEP 562), so a
+command or script pays for numba, OpenCV and the kernels only when it calls into them.
+"""
+
+import importlib as _importlib
 import os as _os
+import sys as _sys
 
 # OpenMP (numba's parallel kernels, Open3D) keeps its threads spinning after each parallel region,
 # by default for 300 000 iterations. On a machine with few cores those spinning threads take the
@@ -12,7 +18,6 @@ import os as _os
 SPINCOUNT_SET = "GOMP_SPINCOUNT" not in _os.environ and "OMP_WAIT_POLICY" not in _os.environ
 if SPINCOUNT_SET:
     _os.environ["GOMP_SPINCOUNT"] = "10000"
-
 
 
 def _writable_folder(path: str) -> bool:
@@ -39,46 +44,69 @@ def _numba_cache_fallback(candidates, fallback: str):
     return fallback if _writable_folder(fallback) else None
 
 
-import numba as _numba  # noqa: E402 - after GOMP_SPINCOUNT, which the OpenMP runtime reads when it loads
+def _user_cache_dir() -> str:
+    """numba's per-user cache folder on this platform (what its ``AppDirs('numba').user_cache_dir`` gives)."""
+    if _sys.platform == "darwin":
+        return _os.path.expanduser("~/Library/Caches/numba")
+    if _os.name == "nt":
+        return _os.path.join(_os.environ.get("LOCALAPPDATA", _os.path.expanduser("~")), "numba", "Cache")
+    return _os.path.join(_os.environ.get("XDG_CACHE_HOME") or _os.path.expanduser("~/.cache"), "numba")
 
-# numba's parallel kernels use OpenMP (the layer the spin count above tunes). Its default order tries
-# TBB first, which warns on every run when Open3D's older bundled TBB is already loaded (ray casting
-# in pcdof.synth); a layer or order the user has chosen is left alone.
-if "NUMBA_THREADING_LAYER" not in _os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in _os.environ:
-    _numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
-if not _os.environ.get("NUMBA_CACHE_DIR"):
-    import tempfile as _tempfile
+def _configure_numba() -> None:
+    """Threading layer and cache folder for numba, set through its environment variables.
 
-    from numba.misc.appdirs import AppDirs as _AppDirs
+    numba reads them when it is first imported; pcdof imports it lazily (inside the stage
+    modules), so setting the variables here, before any of that, is enough. When numba is
+    already loaded (the caller imported it first) its live config is set as well. Choices the
+    user made (the same variables) are left alone.
+    """
+    numba = _sys.modules.get("numba")
+    # numba's default order tries TBB first, which warns on every run when Open3D's older bundled
+    # TBB is already loaded (ray casting in pcdof.synth); the layer used is OpenMP either way.
+    if "NUMBA_THREADING_LAYER" not in _os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in _os.environ:
+        _os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = "omp tbb workqueue"
+        if numba is not None:
+            numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+    if not _os.environ.get("NUMBA_CACHE_DIR"):
+        import tempfile
 
-    _cache = _numba_cache_fallback(
-        [_os.path.join(_os.path.dirname(_os.path.abspath(__file__)), "__pycache__"),
-         _AppDirs(appname="numba", appauthor=False).user_cache_dir],
-        _os.path.join(_tempfile.gettempdir(), f"pcdof-numba-cache-{_os.getuid() if hasattr(_os, 'getuid') else 0}"))
-    if _cache is not None:
-        _os.environ["NUMBA_CACHE_DIR"] = _cache
-        _numba.config.CACHE_DIR = _cache
+        uid = _os.getuid() if hasattr(_os, "getuid") else 0
+        cache = _numba_cache_fallback(
+            [_os.path.join(_os.path.dirname(_os.path.abspath(__file__)), "__pycache__"), _user_cache_dir()],
+            _os.path.join(tempfile.gettempdir(), f"pcdof-numba-cache-{uid}"))
+        if cache is not None:
+            _os.environ["NUMBA_CACHE_DIR"] = cache
+            if numba is not None:
+                numba.config.CACHE_DIR = cache
 
-from .camera import Intrinsics, RGBDFrame, Rig
-from .errors import (
-    CalibrationError,
-    ImageReadError,
-    ImageWriteError,
-    InputError,
-    LensError,
-    PcdofError,
-)
-from .cloud import colored_points, write_ply
-from .io import load_frame, read_calibration, read_color, read_depth, write_depth, write_image, write_json
-from .lens import PaperLens, ThinLens, focus_depth_at
-from .register import register_depth
-from .fill import fill_depth
-from .pipeline import RenderResult, StageTrace, render, run
 
-__all__ = [
-    "Intrinsics", "Rig", "RGBDFrame", "ThinLens", "PaperLens", "focus_depth_at",
-    "load_frame", "read_calibration", "read_color", "read_depth", "write_image", "write_depth", "write_json",
-    "colored_points", "write_ply", "register_depth", "fill_depth", "render", "run", "RenderResult", "StageTrace",
-    "PcdofError", "InputError", "CalibrationError", "LensError", "ImageReadError", "ImageWriteError",
-]
+_configure_numba()
+
+#: public name -> the module that defines it (loaded on first attribute access)
+_EXPORTS = {
+    "Intrinsics": "camera", "Rig": "camera", "RGBDFrame": "camera",
+    "CalibrationError": "errors", "ImageReadError": "errors", "ImageWriteError": "errors",
+    "InputError": "errors", "LensError": "errors", "PcdofError": "errors",
+    "colored_points": "cloud", "write_ply": "cloud",
+    "load_frame": "io", "read_calibration": "io", "read_color": "io", "read_depth": "io",
+    "write_depth": "io", "write_image": "io", "write_json": "io",
+    "ThinLens": "lens", "PaperLens": "lens", "focus_depth_at": "lens",
+    "register_depth": "register", "fill_depth": "fill",
+    "RenderResult": "pipeline", "StageTrace": "pipeline", "render": "pipeline", "run": "pipeline",
+}
+
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'pcdof' has no attribute {name!r}")
+    value = getattr(_importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value  # later look-ups are plain attribute reads
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

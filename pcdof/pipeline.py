@@ -6,15 +6,17 @@ work to do, times it, and records what was skipped and why (``pcdof render --exp
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .camera import RGBDFrame, check_color
-from .errors import InputError, LensError
-from .lens import PaperLens, ThinLens, _depth_array, focus_depth_at, parse_focus_pixel
-from .renderer import check_method, check_quality, render_image
+from .errors import InputError
+from .lens import ThinLens, _depth_array, focus_depth_at
+from .options import as_options
+from .renderer import check_method, render_image
 
 
 @dataclass
@@ -139,64 +141,45 @@ def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", 
     return image, coc
 
 
-def _check_lens(lens) -> None:
-    if not isinstance(lens, (ThinLens, PaperLens)):
-        raise LensError(f"lens must be a ThinLens or PaperLens; got {type(lens).__name__}")
-
-
 def _resolve_lens(lens, focus_at, depth_registered_m, depth_filled_m):
-    _check_lens(lens)
-    pixel = parse_focus_pixel(focus_at)
-    if pixel is None:
+    """*lens* focused at the robust depth around pixel *focus_at* (None: *lens* unchanged)."""
+    if focus_at is None:
         return lens
     source = depth_registered_m if np.any(depth_registered_m > 0) else depth_filled_m
-    d = focus_depth_at(source, *pixel)
-    if isinstance(lens, ThinLens):
-        return lens.with_focus(d)
-    return PaperLens(d, lens.sigma, lens.blur_sigma_px, lens.weight, lens.eq1_aperture, lens.max_range_m)
+    return dataclasses.replace(lens, focus_distance_m=focus_depth_at(source, *focus_at))
 
 
-def run(frame: RGBDFrame, lens, *, method: str = "physical", fill_method: str = "joint-bilateral",
-        focus_at=None, linear: bool = False, quality: str = "balanced") -> RenderResult:
+def run(frame: RGBDFrame, lens, **options) -> RenderResult:
     """Register, fill, and render one frame.
 
     Parameters
     ----------
     frame : RGBDFrame
-    lens : ThinLens (physical or paper method) or PaperLens (paper method)
-    method : a key of :data:`pcdof.renderer.METHODS`
-    fill_method : a key of :data:`pcdof.fill.FILL_METHODS`
-    focus_at : optional (x, y) colour pixel; focus at the robust depth around it
-    linear : colour holds linear light (float, may exceed 1) instead of sRGB
-    quality : physical method's speed/accuracy trade-off, a key of :data:`pcdof.renderer.QUALITIES`
+    lens : a :class:`pcdof.options.RenderOptions`, or a ThinLens / PaperLens with the options as
+        keywords: ``method`` (a key of :data:`pcdof.renderer.METHODS`), ``fill_method`` (a key of
+        :data:`pcdof.fill.FILL_METHODS`), ``focus_at`` ((x, y) colour pixel: focus at the robust
+        depth there), ``linear`` (colour is linear light), ``quality`` (a key of
+        :data:`pcdof.renderer.QUALITIES`); see :class:`~pcdof.options.RenderOptions`
     """
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
-    check_method(method)
-    _check_lens(lens)
-    if method == "physical" and isinstance(lens, PaperLens):
-        raise LensError("the physical method needs a ThinLens; a PaperLens only works with method='paper'")
-    # checked here, not when the stage runs: a stage with nothing to do must not hide a bad name
-    from .fill import check_fill_method
-
-    check_fill_method(fill_method, "fill_method")
-    check_quality(quality)
-    parse_focus_pixel(focus_at)
+    # every option is checked here, not when its stage runs: a stage with nothing to do must not hide a bad value
+    opts = as_options(lens, **options)
     trace: list[StageTrace] = []
     registered = register_stage(frame, trace)
-    filled = fill_stage(registered, frame.color, trace, method=fill_method)
-    lens = _resolve_lens(lens, focus_at, registered, filled)
-    image, coc = render_stages(frame.color, filled, lens, frame.rig.color.fx, trace, method=method,
-                               max_range_m=frame.rig.max_range_m, linear=linear, quality=quality)
+    filled = fill_stage(registered, frame.color, trace, method=opts.fill_method)
+    lens = _resolve_lens(opts.lens, opts.focus_at, registered, filled)
+    image, coc = render_stages(frame.color, filled, lens, frame.rig.color.fx, trace, method=opts.method,
+                               max_range_m=frame.rig.max_range_m, linear=opts.linear, quality=opts.quality)
     return RenderResult(image, registered, filled, coc, lens, trace)
 
 
-def render(frame: RGBDFrame, lens, *, method: str = "physical", **options) -> np.ndarray:
-    """Render *frame* with *lens*; returns an image of the input colour's dtype and shape.
+def render(frame: RGBDFrame, lens, **options) -> np.ndarray:
+    """Render *frame*; returns an image of the input colour's dtype and shape.
 
-    Options are those of :func:`run` (``fill_method``, ``focus_at``, ``linear``).
+    *lens* and *options* are those of :func:`run` (a RenderOptions, or a lens and keyword options).
     """
-    return run(frame, lens, method=method, **options).image
+    return run(frame, lens, **options).image
 
 
 def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "physical",

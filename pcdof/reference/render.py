@@ -1,0 +1,288 @@
+"""Reference renderers: the physical thin-lens renderer as an exact per-source scatter, and the paper method.
+
+Physical renderer, the rules stated here (those of :func:`pcdof.renderer.render_layers_linear`):
+
+1. The signed CoC is cleaned (NaN -> 0, clipped to +-``MAX_COC_PX``); a source's footprint radius is
+   max(|c| / 2, ``MIN_SOURCE_RADIUS_PX``).
+2. Layers: key 0 for |c| < ``LAYER_EDGES_PX[0]``, +-k for ``edges[k-1] <= |c| < edges[k]`` (negative in
+   front of focus); layers are visited by ascending key, i.e. from near to far.
+3. Each source spreads weight (colour, 1) / (aperture area) over its footprint (a disc, or the regular
+   polygon with ``blades`` vertices at angles rotation - 90 deg + 360 deg i / blades, circumradius r).
+   The anti-aliased edge: on each pixel row the footprint's strip (area a, centroid x_c) is laid out as
+   the interval [x_c - a/2, x_c + a/2] of that row, and each pixel gets its overlap with the interval.
+   So every source carries exactly its energy (less what falls off the image).
+4. A layer is first extended behind the nearer layers' pixels that are not yet opaque (partial
+   occlusion): a hidden pixel within r_front + r_max + 1 pixels (Euclidean) of the layer takes the
+   colour and radius of its nearest layer pixel (ties: first in raster order). r_front is the largest
+   radius of the blurred layers composited so far; nothing is extended in front of the first layer
+   or while r_front is 0.
+5. Compositing front to back: a blurred layer with coverage a at a pixel of transmittance t adds
+   t * alpha / a times its premultiplied colour, alpha = min(1, a) (1 from a >= 1 - 1e-4; nothing below
+   a = 1e-6); the in-focus layer is an opaque copy. The output is the accumulated colour over the
+   accumulated opacity, or the input pixel where no light arrived (opacity <= 1e-6).
+
+No tiles, no reduced resolution, no convolution: every source is scattered, at full resolution, with
+the exact strip areas (closed form for the disc, polygon clipping for the polygon) where the fast code
+interpolates a table.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+from ..color import decode_to_linear, encode_from_linear, to_float
+from ..renderer import LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, SHARP_COC_PX
+from ..lens import MAX_COC_PX
+from .coc import paper_alpha, signed_coc_px
+
+
+# ----------------------------------------------------------------------------- aperture footprint
+def _polygon(blades: int, rotation_rad: float, r: float) -> np.ndarray:
+    """(blades, 2) vertices (x, y) of the regular polygon of circumradius r (image y points down)."""
+    a = rotation_rad + 2.0 * np.pi * np.arange(blades) / blades
+    return r * np.stack([np.cos(a), np.sin(a)], axis=1)
+
+
+def _clip_band(poly: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """The convex polygon *poly* cut to lo <= y <= hi (Sutherland-Hodgman, two half-planes)."""
+    for bound, sign in ((lo, 1.0), (hi, -1.0)):  # keep sign * (y - bound) >= 0
+        out = []
+        n = len(poly)
+        for i in range(n):
+            p, q = poly[i], poly[(i + 1) % n]
+            p_in, q_in = sign * (p[1] - bound) >= 0, sign * (q[1] - bound) >= 0
+            if p_in:
+                out.append(p)
+            if p_in != q_in:
+                out.append(p + (bound - p[1]) / (q[1] - p[1]) * (q - p))
+        poly = np.array(out).reshape(-1, 2)
+        if len(poly) < 3:
+            return np.zeros((0, 2))
+    return poly
+
+
+def _area_centroid_x(poly: np.ndarray) -> tuple[float, float]:
+    """Area and centroid x of a simple polygon (shoelace formula)."""
+    if len(poly) < 3:
+        return 0.0, 0.0
+    x, y = poly[:, 0], poly[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = 0.5 * cross.sum()
+    if area == 0.0:
+        return 0.0, 0.0
+    return abs(area), float(((x + xn) * cross).sum() / (6.0 * area))
+
+
+def _disc_g(u: float) -> float:
+    """u sqrt(1 - u^2) + asin(u): the unit disc's area below height u, up to a constant."""
+    u = min(max(u, -1.0), 1.0)
+    return u * math.sqrt(max(1.0 - u * u, 0.0)) + math.asin(u)
+
+
+def strip(dy: int, r: float, blades: int, rotation_rad: float) -> tuple[float, float]:
+    """(area, centroid x) of the aperture of radius r centred on a pixel, on the pixel row dy rows below."""
+    lo, hi = max(dy - 0.5, -r), min(dy + 0.5, r)
+    if hi <= lo:
+        return 0.0, 0.0
+    if blades == 0:
+        return r * r * (_disc_g(hi / r) - _disc_g(lo / r)), 0.0
+    return _area_centroid_x(_clip_band(_polygon(blades, rotation_rad, r), lo, hi))
+
+
+def unit_area(blades: int) -> float:
+    """Area of the aperture of circumradius 1: pi for the disc, (N / 2) sin(2 pi / N) for the N-gon."""
+    return math.pi if blades == 0 else 0.5 * blades * math.sin(2.0 * math.pi / blades)
+
+
+@functools.lru_cache(maxsize=4096)
+def footprint(r: float, blades: int, rotation_rad: float) -> np.ndarray:
+    """Coverage of each pixel by the aperture of radius r centred on pixel (R, R): (2R+1, 2R+1), R = ceil(r + 0.5).
+
+    Row by row, the strip's area is laid out as an interval centred on its centroid and each pixel
+    gets its overlap with it (rule 3 of the module docstring). Sums to the aperture's area. Cached
+    (read-only result): the sources of a layer often share a radius.
+    """
+    R = int(math.ceil(r + 0.5))
+    out = np.zeros((2 * R + 1, 2 * R + 1))
+    px = np.arange(-R, R + 1, dtype=np.float64)
+    for dy in range(-R, R + 1):
+        area, centre = strip(dy, r, blades, rotation_rad)
+        if area <= 0.0:
+            continue
+        a, b = centre - 0.5 * area, centre + 0.5 * area
+        out[dy + R] = np.clip(np.minimum(b, px + 0.5) - np.maximum(a, px - 0.5), 0.0, None)
+    out.setflags(write=False)
+    return out
+
+
+# ----------------------------------------------------------------------------- layers
+def layer_keys(signed_coc: np.ndarray) -> np.ndarray:
+    """Signed layer key per pixel: 0 for |c| < edges[0], +-k for edges[k-1] <= |c| < edges[k]."""
+    k = np.searchsorted(LAYER_EDGES_PX, np.abs(signed_coc), side="right")
+    return np.where(signed_coc < 0, -k, k)
+
+
+def scatter(lin: np.ndarray, radius: np.ndarray, member: np.ndarray, blades: int, rotation_rad: float) -> np.ndarray:
+    """Scatter every member pixel over its own footprint: (H, W, C + 1) premultiplied colour and coverage.
+
+    Each source spreads (colour, 1) / (unit_area r^2) over :func:`footprint` (r at least
+    ``MIN_SOURCE_RADIUS_PX``); what falls off the image is lost.
+    """
+    h, w, nc = lin.shape
+    buf = np.zeros((h, w, nc + 1))
+    unit = unit_area(blades)
+    for y, x in zip(*np.nonzero(member)):
+        r = max(float(radius[y, x]), MIN_SOURCE_RADIUS_PX)
+        k = footprint(r, blades, rotation_rad) / (unit * r * r)
+        R = k.shape[0] // 2
+        y0, y1, x0, x1 = max(0, y - R), min(h, y + R + 1), max(0, x - R), min(w, x + R + 1)
+        kk = k[y0 - y + R: y1 - y + R, x0 - x + R: x1 - x + R]
+        buf[y0:y1, x0:x1, :nc] += kk[:, :, None] * lin[y, x]
+        buf[y0:y1, x0:x1, nc] += kk
+    return buf
+
+
+def extend_behind(lin, radius, member, hidden, reach_px):
+    """Give each hidden pixel within *reach_px* (Euclidean) of *member* its nearest member's colour and radius.
+
+    Returns new (lin, radius, member); ties between equally near members go to the first in raster order.
+    """
+    src = np.flatnonzero(member.ravel())
+    tgt = np.flatnonzero(hidden.ravel() & ~member.ravel())
+    if src.size == 0 or tgt.size == 0:
+        return lin, radius, member
+    w = member.shape[1]
+    sy, sx = np.divmod(src, w)
+    lin, radius, member = lin.copy(), radius.copy(), member.copy()
+    flat_lin, flat_r, flat_m = lin.reshape(-1, lin.shape[2]), radius.reshape(-1), member.reshape(-1)
+    for part in np.array_split(tgt, max(1, tgt.size // 256)):
+        ty, tx = np.divmod(part, w)
+        d2 = (ty[:, None] - sy[None, :]) ** 2 + (tx[:, None] - sx[None, :]) ** 2
+        best = np.argmin(d2, axis=1)  # the first of equal minima: raster order
+        near = d2[np.arange(part.size), best] <= reach_px * reach_px
+        chosen = src[best[near]]
+        flat_lin[part[near]] = flat_lin[chosen]
+        flat_r[part[near]] = flat_r[chosen]
+        flat_m[part[near]] = True
+    return lin, radius, member
+
+
+def _composite_layer(buf, acc, acc_a, trans) -> None:
+    """Front-to-back "over" of a scattered layer (premultiplied colour, coverage) behind acc."""
+    cover = buf[:, :, -1]
+    sel = (trans > 0) & (cover > 1e-6)
+    alpha = np.where(cover >= 1.0 - 1e-4, 1.0, cover)
+    f = np.where(sel, trans * alpha / np.where(sel, cover, 1.0), 0.0)
+    acc += f[:, :, None] * buf[:, :, :-1]
+    acc_a += np.where(sel, trans * alpha, 0.0)
+    trans[sel] *= 1.0 - alpha[sel]
+
+
+def render_layers_linear(lin, signed_coc, *, blades: int = 0, rotation_deg: float = 0.0,
+                         extend_behind_layers: bool = True) -> np.ndarray:
+    """Physical depth of field in linear light (the rules of the module docstring).
+
+    Parameters
+    ----------
+    lin : (H, W, C) float ndarray, linear radiance
+    signed_coc : (H, W) float ndarray, signed CoC diameter, pixels (< 0 in front of focus; NaN = 0)
+    blades, rotation_deg : aperture polygon (0 = disc)
+    extend_behind_layers : continue each layer behind nearer, not yet opaque layers (partial occlusion)
+
+    Returns
+    -------
+    (H, W, C) float64 ndarray, linear radiance
+    """
+    lin = np.asarray(lin, np.float64)
+    coc = np.clip(np.nan_to_num(np.asarray(signed_coc, np.float32).astype(np.float64), nan=0.0),
+                  -MAX_COC_PX, MAX_COC_PX)
+    radius = 0.5 * np.abs(coc)
+    keys = layer_keys(coc)
+    rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
+    h, w, nc = lin.shape
+    acc, acc_a, trans = np.zeros((h, w, nc)), np.zeros((h, w)), np.ones((h, w))
+    order = np.unique(keys)  # ascending: near to far
+    rank = np.searchsorted(order, keys)
+    r_front = 0.0
+    for li, key in enumerate(order):
+        member = rank == li
+        r_max = float(radius[member].max())
+        src, src_r = lin, radius
+        hidden = (rank < li) & (trans > 0)
+        if extend_behind_layers and li > 0 and r_front > 0 and hidden.any():
+            src, src_r, member = extend_behind(lin, radius, member, hidden, math.ceil(r_front + r_max + 1))
+        if key == 0:  # in focus: an opaque copy
+            sel = member & (trans > 0)
+            acc[sel] += trans[sel, None] * src[sel]
+            acc_a[sel] += trans[sel]
+            trans[sel] = 0.0
+            continue
+        _composite_layer(scatter(src, src_r, member, blades, rot), acc, acc_a, trans)
+        r_front = max(r_front, r_max)
+    lit = acc_a > 1e-6
+    return np.where(lit[:, :, None], acc / np.where(lit, acc_a, 1.0)[:, :, None], lin)
+
+
+def render_physical(color, depth_m, lens, *, fx: float, linear: bool = False) -> np.ndarray:
+    """Thin-lens depth of field of an sRGB (or, with *linear*, linear) image; float64 in the image's encoding.
+
+    The image is returned unchanged when the largest |CoC| is below ``SHARP_COC_PX``. Decoding and
+    encoding are those of :mod:`pcdof.color`; the result is not rounded to the input's dtype.
+    """
+    coc = signed_coc_px(depth_m, lens, fx)
+    src = color[:, :, None] if color.ndim == 2 else color
+    if np.abs(coc).max() < SHARP_COC_PX:
+        return to_float(src).astype(np.float64)
+    lin = to_float(src) if linear else decode_to_linear(src)
+    out = render_layers_linear(lin, coc, blades=lens.aperture_blades, rotation_deg=lens.aperture_rotation_deg)
+    if linear:
+        return out
+    return to_float(encode_from_linear(out.astype(np.float32), np.float32)).astype(np.float64)
+
+
+# ----------------------------------------------------------------------------- paper method
+def gaussian_kernel(sigma_px: float) -> np.ndarray:
+    """Sampled Gaussian of standard deviation *sigma_px* over +-ceil(3 sigma) pixels, summing to 1."""
+    k = int(math.ceil(3.0 * sigma_px))
+    x = np.arange(-k, k + 1, dtype=np.float64)
+    g = np.exp(-x * x / (2.0 * sigma_px * sigma_px))
+    return g / g.sum()
+
+
+def _reflect(i: np.ndarray, n: int) -> np.ndarray:
+    """Index reflected at the borders with the edge pixel repeated (fedcba|abcdef, OpenCV BORDER_REFLECT)."""
+    if n == 1:
+        return np.zeros_like(i)
+    period = 2 * n
+    i = np.mod(i, period)
+    return np.where(i < n, i, period - 1 - i)
+
+
+def gaussian_blur(image: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Separable Gaussian blur (:func:`gaussian_kernel`) with reflected borders, float64, by explicit sums."""
+    g = gaussian_kernel(sigma_px)
+    k = g.size // 2
+    out = np.asarray(image, np.float64)
+    for axis in (0, 1):
+        n = out.shape[axis]
+        acc = np.zeros_like(out)
+        for t, wt in enumerate(g):
+            idx = _reflect(np.arange(n) + t - k, n)
+            acc += wt * np.take(out, idx, axis=axis)
+        out = acc
+    return out
+
+
+def render_paper(color, depth_m, lens, *, max_range_m: float = 10.0) -> np.ndarray:
+    """Seed paper eq. 3: out = B alpha + O (1 - alpha) in the image's own encoding; float64 in [0, 1] units.
+
+    B is :func:`gaussian_blur` with ``lens.blur_sigma_px``; alpha is :func:`pcdof.reference.coc.paper_alpha`.
+    """
+    src = to_float(color[:, :, None] if color.ndim == 2 else color).astype(np.float64)
+    blurred = gaussian_blur(src, lens.blur_sigma_px)
+    alpha = paper_alpha(depth_m, lens, max_range_m)[:, :, None]
+    return blurred * alpha + src * (1.0 - alpha)

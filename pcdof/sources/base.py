@@ -1,0 +1,231 @@
+"""The frame-source seam: anything that yields colour + depth frames of one rig.
+
+A :class:`FrameSource` knows its :class:`~pcdof.camera.Rig`, how many frames it has, and how to
+read frame *i* as a :class:`SourceFrame` (colour, depth in metres on the depth camera's grid, the two
+timestamps). A format is one module with one subclass that implements four small methods
+(:meth:`~FrameSource._read_color`, :meth:`~FrameSource._read_depth`, :meth:`~FrameSource._streams`,
+:meth:`~FrameSource._close`) and pairs its streams once, in its constructor; the registry in
+:mod:`pcdof.sources` picks the format of a path.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import math
+import os
+
+import numpy as np
+
+from ..camera import Rig, RGBDFrame
+from ..errors import CalibrationError, ImageReadError, InputError, PcdofError
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SourceFrame:
+    """One paired colour and depth frame of a source.
+
+    Attributes
+    ----------
+    index : int, the frame's position in the source (0-based)
+    color : (H, W, 3) uint8 ndarray, RGB, ``rig.color`` size
+    depth_m : (h, w) float32 ndarray, metres, 0 = unknown, in the depth camera's pixel grid
+    rig : Rig
+    color_time_s, depth_time_s : float, seconds on the recording's clock
+    """
+
+    index: int
+    color: np.ndarray
+    depth_m: np.ndarray
+    rig: Rig
+    color_time_s: float
+    depth_time_s: float
+
+    @property
+    def timestamp_s(self) -> float:
+        """The colour image's time, seconds: the frame's time (depth-of-field images are colour images)."""
+        return self.color_time_s
+
+    def rgbd(self) -> RGBDFrame:
+        """The frame as the :class:`~pcdof.camera.RGBDFrame` the rest of pcdof takes."""
+        return RGBDFrame(self.color, self.depth_m, self.rig)
+
+
+def frame_period_s(times) -> float | None:
+    """Median interval of a sorted stream of timestamps, seconds (None for fewer than two)."""
+    t = np.asarray(times, dtype=np.float64)
+    if t.size < 2:
+        return None
+    gaps = np.diff(np.sort(t))
+    gaps = gaps[gaps > 0]
+    return float(np.median(gaps)) if gaps.size else None
+
+
+def pair_by_time(color_times, depth_times, *, max_difference_s: float | None = None,
+                 periods_s=(None, None)) -> tuple[np.ndarray, float]:
+    """Pair colour and depth frames by nearest timestamp, each frame used at most once.
+
+    Parameters
+    ----------
+    color_times, depth_times : (n,), (m,) float ndarray, seconds
+    max_difference_s : float, largest accepted |t_color - t_depth|; default one frame period of the
+        slower stream (from *periods_s*, else the median interval): streams at that rate always have a
+        frame within half a period, and a whole one allows for a dropped frame or a late start
+    periods_s : (float or None, float or None), the streams' nominal frame periods (1 / fps)
+
+    Returns
+    -------
+    pairs : (k, 2) int64 ndarray, (colour index, depth index), in colour-time order
+    max_difference_s : float, the tolerance used
+    """
+    from ..batch.inputs import associate  # TUM associate.py's greedy nearest-time pairing
+
+    if max_difference_s is None:
+        periods = [p if p else frame_period_s(t) for p, t in zip(periods_s, (color_times, depth_times))]
+        periods = [p for p in periods if p]
+        max_difference_s = max(periods) if periods else math.inf
+    elif isinstance(max_difference_s, bool) or not isinstance(max_difference_s, (int, float)) or not (
+            math.isfinite(max_difference_s) and max_difference_s > 0):
+        raise InputError(f"max_difference_s must be a finite number of seconds > 0; got {max_difference_s!r}")
+    if math.isinf(max_difference_s):  # one frame in each stream, no rate known: they belong together
+        return np.zeros((1, 2), np.int64) if len(color_times) and len(depth_times) else np.zeros((0, 2), np.int64), \
+            max_difference_s
+    return associate(color_times, depth_times, max_difference=float(max_difference_s)), float(max_difference_s)
+
+
+class FrameSource(abc.ABC):
+    """A sequence of paired colour and depth frames from one rig.
+
+    Subclasses set :attr:`format` and call ``super().__init__`` with the rig, the streams' timestamps,
+    and the pairs; they implement the reading of one colour or depth image by its stream index.
+
+    Use as a context manager (``with open_source(path) as src: ...``), or call :meth:`close`.
+    """
+
+    #: the registry name of the format
+    format: str = ""
+
+    def __init__(self, path: str, rig: Rig, color_times, depth_times, pairs, *, max_difference_s: float,
+                 override: Rig | None = None, override_path: str | None = None) -> None:
+        self.path = path
+        self.color_times = np.asarray(color_times, dtype=np.float64)
+        self.depth_times = np.asarray(depth_times, dtype=np.float64)
+        self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        self.max_difference_s = max_difference_s
+        self.calibration_from = "recording"
+        if override is not None:
+            rig = _override(rig, override, override_path, path)
+            self.calibration_from = override_path or "caller"
+        self.rig = rig
+        if len(self.pairs) == 0:
+            raise ImageReadError(f"{path}: no colour frame has a depth frame within {max_difference_s:.4g} s "
+                                 f"({len(self.color_times)} colour, {len(self.depth_times)} depth frames)")
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self.frame(i)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release the file; frames can no longer be read."""
+        self._close()
+
+    def index_at(self, time_s: float) -> int:
+        """Index of the frame whose colour time is nearest *time_s* (seconds on the recording's clock)."""
+        if isinstance(time_s, bool) or not isinstance(time_s, (int, float, np.number)) or not math.isfinite(time_s):
+            raise InputError(f"time_s must be a finite number of seconds; got {time_s!r}")
+        times = self.color_times[self.pairs[:, 0]]
+        return int(np.argmin(np.abs(times - float(time_s))))
+
+    def frame_at(self, time_s: float) -> SourceFrame:
+        """The frame whose colour time is nearest *time_s*."""
+        return self.frame(self.index_at(time_s))
+
+    def check_index(self, index) -> int:
+        """*index* as an int in [-len, len); InputError naming the file otherwise."""
+        n = len(self)
+        if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)):
+            raise InputError(f"{self.path}: frame index must be an integer; got {index!r}")
+        if not -n <= index < n:
+            raise InputError(f"{self.path}: frame index {index} is out of range: the recording has {n} frame"
+                             f"{'s' if n != 1 else ''} (0..{n - 1})")
+        return int(index) % n
+
+    def frame(self, index) -> SourceFrame:
+        """Read frame *index*: ImageReadError naming the file and the frame when it cannot be decoded."""
+        i = self.check_index(index)
+        ci, di = (int(v) for v in self.pairs[i])
+        try:
+            color = self._read_color(ci)
+            depth = self._read_depth(di)
+        except PcdofError as err:
+            raise ImageReadError(f"{self.path}: frame {i}: {err}") from None
+        shapes = ((color.shape[:2], self.rig.color.shape, "colour"), (depth.shape, self.rig.depth.shape, "depth"))
+        for got, want, what in shapes:
+            if tuple(got) != tuple(want):
+                raise ImageReadError(f"{self.path}: frame {i}: the {what} image is {got[1]}x{got[0]}; the "
+                                     f"calibration says {want[1]}x{want[0]}")
+        return SourceFrame(i, color, depth, self.rig, float(self.color_times[ci]), float(self.depth_times[di]))
+
+    def info(self) -> dict:
+        """Plain description: format, frames, streams, pairing and calibration (JSON-ready)."""
+        paired = np.abs(self.color_times[self.pairs[:, 0]] - self.depth_times[self.pairs[:, 1]])
+        return {
+            "path": self.path,
+            "format": self.format,
+            "frames": len(self),
+            "streams": self._streams(),
+            "pairing": {"max_difference_s": self.max_difference_s, "largest_difference_s": float(paired.max()),
+                        "unpaired_color": len(self.color_times) - len(self), "unpaired_depth": len(self.depth_times) - len(self)},
+            "calibration_from": self.calibration_from,
+            "baseline_mm": self.rig.baseline_m * 1000.0,
+            "calibration": self.rig.to_dict(),
+        }
+
+    @abc.abstractmethod
+    def _read_color(self, i: int) -> np.ndarray:
+        """Colour image *i* of the colour stream: (H, W, 3) uint8 RGB; PcdofError if undecodable."""
+
+    @abc.abstractmethod
+    def _read_depth(self, i: int) -> np.ndarray:
+        """Depth image *i* of the depth stream: (h, w) float32 metres, 0 = unknown; PcdofError if undecodable."""
+
+    @abc.abstractmethod
+    def _streams(self) -> dict:
+        """name -> plain dict (encoding, size, frames, fps, ...) of the source's streams."""
+
+    def _close(self) -> None:
+        """Release what the source holds open (nothing by default)."""
+
+
+def _override(recorded: Rig, rig: Rig, override_path: str | None, path: str) -> Rig:
+    """*rig* in place of the recording's calibration: same image sizes required; depth units stay the recording's."""
+    where = override_path or "calib"
+    for name in ("color", "depth"):
+        a, b = getattr(rig, name), getattr(recorded, name)
+        if a.shape != b.shape:
+            raise CalibrationError(f"{where}: its {name} camera is {a.width}x{a.height} but the {name} stream of "
+                                   f"{path} is {b.width}x{b.height}")
+    # the recording's integers are converted with the recording's own units; a calibration file's
+    # depth_scale describes integer depth *files*, which a recording is not
+    return dataclasses.replace(rig, depth_scale=recorded.depth_scale)
+
+
+def float32_value(value: float) -> float:
+    """The shortest decimal that reads back as the same float32 (0.0010000000474974513 -> 0.001)."""
+    return float(str(np.float32(value)))
+
+
+def file_size(path: str) -> int:
+    try:
+        return os.path.getsize(path)
+    except OSError as err:
+        raise ImageReadError(f"cannot read recording {path}: {err.strerror or err}") from None

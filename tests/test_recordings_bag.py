@@ -13,7 +13,8 @@ from click.testing import CliRunner
 pytest.importorskip("rosbags")
 
 from pcdof.camera import Rig  # noqa: E402
-from pcdof.cli import main  # noqa: E402
+from pcdof.cli.export import command as export_command  # noqa: E402
+from pcdof.cli.info import command as info_command  # noqa: E402
 from pcdof.errors import ImageReadError, InputError  # noqa: E402
 from pcdof.io import load_frame  # noqa: E402
 from pcdof.register import register_depth  # noqa: E402
@@ -89,10 +90,10 @@ def test_registered_depth_aligns_with_colour_edges(frame):
 
 
 def test_cli_info_and_export(tmp_path, frame):
-    result = CliRunner().invoke(main, ["info", BAG])
+    result = CliRunner().invoke(info_command, [BAG])
     assert result.exit_code == 0, result.output
     assert "realsense-bag, 1 colour+depth frames" in result.output and "baseline 14.34 mm" in result.output
-    result = CliRunner().invoke(main, ["export", BAG, "-o", str(tmp_path / "out")])
+    result = CliRunner().invoke(export_command, [BAG, "-o", str(tmp_path / "out")])
     assert result.exit_code == 0, result.output
     out = tmp_path / "out"
     back = load_frame(out / "color/000000.png", out / "depth/000000.png", out / "calib.json")

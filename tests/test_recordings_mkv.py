@@ -12,7 +12,8 @@ from click.testing import CliRunner
 
 pytest.importorskip("av")
 
-from pcdof.cli import main  # noqa: E402
+from pcdof.cli.export import command as export_command  # noqa: E402
+from pcdof.cli.info import command as info_command  # noqa: E402
 from pcdof.errors import CalibrationError, ImageReadError, InputError  # noqa: E402
 from pcdof.io import load_frame, read_calibration, write_depth, write_image, write_json  # noqa: E402
 from pcdof.register import register_depth  # noqa: E402
@@ -156,7 +157,7 @@ class TestBadRecordings:
             with pytest.raises(ImageReadError, match=r"bad\.mkv: frame 1: its colour image .* cannot be decoded"):
                 src.frame(1)
         out = tmp_path / "out"
-        result = CliRunner().invoke(main, ["export", path, "-o", str(out)])
+        result = CliRunner().invoke(export_command, [path, "-o", str(out)])
         assert result.exit_code == 10, result.output
         assert "frame 1" in result.output and "wrote 2 of 3 frames" in result.output
         assert sorted(os.listdir(out / "color")) == ["000000.png", "000002.png"]
@@ -177,15 +178,15 @@ def _corrupt_frame(tmp_path, scene, frames, k):
 
 class TestCli:
     def test_info(self, recording):
-        result = CliRunner().invoke(main, ["info", recording])
+        result = CliRunner().invoke(info_command, [recording])
         assert result.exit_code == 0, result.output
         assert "azure-kinect, 3 colour+depth frames" in result.output and "1280x720" in result.output
-        result = CliRunner().invoke(main, ["info", recording, "--json"])
+        result = CliRunner().invoke(info_command, [recording, "--json"])
         assert json.loads(result.output)["frames"] == N
 
     def test_export_raw_reads_back_as_the_recording(self, recording, frames, scene, tmp_path):
         out = tmp_path / "out"
-        result = CliRunner().invoke(main, ["export", recording, "-o", str(out), "--frames", "1:3"])
+        result = CliRunner().invoke(export_command, [recording, "-o", str(out), "--frames", "1:3"])
         assert result.exit_code == 0, result.output
         assert sorted(os.listdir(out / "depth")) == ["000001.png", "000002.png"]
         frame = load_frame(out / "color/000001.png", out / "depth/000001.png", out / "calib.json")
@@ -195,7 +196,7 @@ class TestCli:
 
     def test_export_registered(self, recording, tmp_path):
         out = tmp_path / "reg"
-        result = CliRunner().invoke(main, ["export", recording, "-o", str(out), "--registered", "--frames", "0"])
+        result = CliRunner().invoke(export_command, [recording, "-o", str(out), "--registered", "--frames", "0"])
         assert result.exit_code == 0, result.output
         frame = load_frame(out / "color/000000.png", out / "depth/000000.png", out / "calib.json")
         assert frame.rig.is_registered and frame.depth_m.shape == (720, 1280)
@@ -204,7 +205,7 @@ class TestCli:
         np.testing.assert_allclose(frame.depth_m, expected, atol=0.0005 + 1e-6)  # millimetre PNG
 
     def test_export_refuses_bad_frames_and_overwriting_input(self, recording, tmp_path):
-        result = CliRunner().invoke(main, ["export", recording, "-o", str(tmp_path / "o"), "--frames", "7"])
+        result = CliRunner().invoke(export_command, [recording, "-o", str(tmp_path / "o"), "--frames", "7"])
         assert result.exit_code != 0 and "3 frames" in result.output
         assert not (tmp_path / "o").exists()
 
@@ -214,6 +215,6 @@ def test_export_never_overwrites_the_recording(recording, tmp_path):
     (out / "color").mkdir(parents=True)
     os.link(recording, out / "color" / "000000.png")
     before = open(recording, "rb").read()
-    result = CliRunner().invoke(main, ["export", recording, "-o", str(out), "--frames", "0"])
+    result = CliRunner().invoke(export_command, [recording, "-o", str(out), "--frames", "0"])
     assert result.exit_code != 0 and "refusing to overwrite the input RECORDING" in result.output
     assert open(recording, "rb").read() == before

@@ -3,13 +3,14 @@
 The scene is drawn in the colour camera's frame (OpenCV: x right, y down, z forward, metres):
 
 * the coloured point cloud of the registered, hole-filled depth;
-* the camera frustum, apex at the origin, out to the far plane ``z_far`` (the scene's largest depth,
-  or the focus distance when that is farther);
+* the camera frustum, apex at the origin, out to the far plane ``z_far`` (the 90th percentile of the
+  scene's depths, :func:`scene_far_m`, or the focus distance when that is farther);
 * the focal plane ``z = d_f``, clipped to the frustum: the rectangle through the back-projections
   of the four image corners at depth ``d_f``;
 * the depth-of-field slab between the near and far depths where the thin-lens circle of confusion
-  ``c(z) = A * fx * |1/d_f - 1/z|`` equals an acceptable size (1 px by default); a far limit at
-  infinity (focus past the hyperfocal distance) is clipped at ``z_far``.
+  ``c(z) = A * fx * |1/d_f - 1/z|`` equals an acceptable size (1 px by default); a far limit beyond
+  ``z_far`` (at infinity past the hyperfocal distance) is clipped there. It is drawn as an outline and
+  a light tint on the faces turned away from the viewer only, so the points inside it keep their colours.
 
 Image corners are the outer pixel edges ``(-0.5, -0.5)``, ``(W - 0.5, -0.5)``, ``(W - 0.5, H - 0.5)``,
 ``(-0.5, H - 0.5)`` (pixel centres are integers, OpenCV). They are back-projected through the
@@ -19,11 +20,11 @@ straight between those corner rays; with lens distortion the true image borders 
 in space, which the drawing ignores. Where the distortion model has no inverse at a corner the
 pinhole ray (distortion ignored) is used for that corner.
 
-The geometry is pure numpy (:func:`image_corner_rays`, :func:`focal_plane_corners`, :func:`dof_slab`,
-:func:`frustum_lines`); :func:`build_scene` puts it into a PyVista plotter and returns a
-:class:`FocusViewer` whose methods (:meth:`FocusViewer.set_focus`, :meth:`FocusViewer.set_f_number`,
-:meth:`FocusViewer.pick_point`, :meth:`FocusViewer.toggle_coc_colors`) are what the sliders, the point
-picker and the checkbox call, so a test can drive the interaction without a display.
+The geometry, the framing and the numbers are pure numpy (:func:`image_corner_rays`, :func:`focal_plane_corners`,
+:func:`dof_slab`, :func:`frustum_lines`, :func:`fit_camera`, :func:`lens_numbers`, :func:`prepare_frame`): this module.
+The PyVista user interface (:class:`FocusScene`, :class:`FocusViewer`, :func:`build_scene`,
+:func:`scene_from_frame`) is :mod:`pcdof.viewer_ui`, the static HTML page :mod:`pcdof.viewer_html`, the browser
+viewer :mod:`pcdof.web`; the interface's names stay importable from here.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ SLAB_COLOR = (0, 191, 255)  # deep sky blue
 FRUSTUM_COLOR = (60, 60, 60)
 #: Opacity of the focal plane's and the depth-of-field slab's faces.
 PLANE_OPACITY = 0.35
-SLAB_OPACITY = 0.15
+SLAB_OPACITY = 0.12
 #: Title of the circle-of-confusion scalar bar.
 COC_BAR_TITLE = "CoC (px)"
 #: Largest side of the live 2-D preview, pixels (the preview is rendered on a downscaled copy).
@@ -320,473 +321,161 @@ def render_preview(color, depth_m, lens: ThinLens, fx: float, *, method: str = "
     image, _trace = render_from_depth(color, depth_m, lens, fx, method=method)
     return _to_uint8_rgb(np.asarray(image))
 
-
 # --------------------------------------------------------------------------------------------------
-# PyVista scene
+# Scene extent, framing and the numbers shown next to the scene
 # --------------------------------------------------------------------------------------------------
-
-def _quad_mesh(corners: np.ndarray):
-    import pyvista as pv
-
-    return pv.PolyData(np.asarray(corners, np.float64), faces=np.array([4, 0, 1, 2, 3]))
-
-
-def _slab_mesh(corners: np.ndarray):
-    import pyvista as pv
-
-    # the six faces of the hexahedron, outward order does not matter for a translucent box
-    faces = np.array([[4, 0, 1, 2, 3], [4, 4, 5, 6, 7], [4, 0, 1, 5, 4],
-                      [4, 1, 2, 6, 5], [4, 2, 3, 7, 6], [4, 3, 0, 4, 7]]).ravel()
-    return pv.PolyData(np.asarray(corners, np.float64), faces=faces)
-
 
 #: The twelve edges of a hexahedron in :attr:`DofSlab.corners` order.
-_HEX_EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4],
-                       [0, 4], [1, 5], [2, 6], [3, 7]], dtype=np.int64)
+HEX_EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4],
+                      [0, 4], [1, 5], [2, 6], [3, 7]], dtype=np.int64)
+#: The six quadrilateral faces of a hexahedron in :attr:`DofSlab.corners` order (orientation not yet fixed).
+_HEX_FACES = np.array([[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
+#: Percentile of the scene's depths that bounds the drawn frustum and slab: nine in ten points lie inside.
+#: The farthest tenth (a window or a far wall behind the subject, and the hole filling's guesses there:
+#: in the bundled TUM frame the filled depth's 95th percentile is 6.4 m against a 2.5 m median) would
+#: otherwise stretch both and shrink the subject to a speck; those points are still drawn.
+FAR_PERCENTILE = 90.0
 
 
-def _lines_mesh(points: np.ndarray, segments: np.ndarray):
-    import pyvista as pv
-
-    lines = np.concatenate([np.full((len(segments), 1), 2), segments], axis=1).ravel()
-    return pv.PolyData(np.asarray(points, np.float64), lines=lines)
-
-
-class FocusViewer:
-    """A PyVista scene of the point cloud, frustum, focal plane, depth-of-field slab and live preview.
-
-    Build it with :func:`build_scene`. The state is ``lens`` (the current ThinLens) and
-    ``coc_colors`` (points coloured by circle of confusion instead of RGB); the methods below
-    change it and update every actor, the scalar bar, the status text and the preview.
-
-    Attributes
-    ----------
-    plotter : pyvista.Plotter, two subplots: (0, 0) the 3-D scene, (0, 1) the 2-D preview
-    intrinsics : Intrinsics, of the colour camera
-    lens : ThinLens, current lens
-    coc_limit_px : float, acceptable circle of confusion, pixels
-    z_max_m : float, metres, the scene's largest depth
-    points : (N, 3) float64, metres; colors : (N, 3) uint8
-    plane_mesh, slab_mesh, frustum_mesh, cloud_mesh, preview_mesh : pyvista.PolyData / ImageData
-    preview_image : (h, w, 3) uint8, the current preview photograph
-    slab : DofSlab, the current slab
-    """
-
-    def __init__(self, plotter, color, depth_filled_m, intrinsics, lens, *, coc_limit_px, stride, color_by,
-                 preview_max_side, preview_method, widgets):
-        import pyvista as pv
-
-        self.plotter = plotter
-        self.intrinsics = intrinsics
-        self.lens = lens
-        self.coc_limit_px = coc_limit_px
-        self.preview_method = preview_method
-        self.coc_colors = color_by == "coc"
-        depth = np.asarray(depth_filled_m, np.float32)
-        known = depth[np.isfinite(depth) & (depth > 0)]
-        self.z_min_m = float(known.min())
-        self.z_max_m = float(known.max())
-        self.points, self.colors = strided_points(color, depth, intrinsics, stride=stride)
-        self._preview_inputs = downscale_for_preview(color, depth, intrinsics.fx, max_side=preview_max_side)
-        self.preview_image = render_preview(*self._preview_inputs[:2], lens, self._preview_inputs[2],
-                                            method=preview_method)
-        self._preview_lens = lens
-        self.slab = dof_slab(intrinsics, lens, coc_limit_px=coc_limit_px, z_max_m=self.z_max_m)
-        self.focus_slider = self.f_number_slider = self.coc_checkbox = None
-
-        # --- 3-D scene ------------------------------------------------------------------------
-        plotter.subplot(0, 0)
-        self.cloud_mesh = pv.PolyData(self.points)
-        self.cloud_mesh.point_data["rgb"] = self.colors
-        self.cloud_mesh.point_data["coc_px"] = self._coc_of_points()
-        point_size = max(2.0, min(6.0, 1.5 * stride))
-        self.rgb_actor = plotter.add_mesh(self.cloud_mesh, scalars="rgb", rgb=True, point_size=point_size,
-                                          style="points", lighting=False, name="cloud_rgb", reset_camera=False)
-        coc_view = self.cloud_mesh.copy(deep=False)
-        self.coc_actor = plotter.add_mesh(
-            coc_view, scalars="coc_px", cmap="viridis", clim=self._coc_clim(), point_size=point_size,
-            style="points", lighting=False, name="cloud_coc", reset_camera=False,
-            scalar_bar_args={"title": COC_BAR_TITLE, "vertical": True, "position_x": 0.88, "position_y": 0.3,
-                             "height": 0.5, "width": 0.06, "fmt": "%.1f"})
-        self._coc_view = coc_view
-        frustum_points, segments = frustum_lines(intrinsics, self._z_far())
-        self.frustum_mesh = _lines_mesh(frustum_points, segments)
-        plotter.add_mesh(self.frustum_mesh, color=FRUSTUM_COLOR, line_width=2, lighting=False, pickable=False,
-                         name="frustum", reset_camera=False)
-        self.plane_mesh = _quad_mesh(focal_plane_corners(intrinsics, lens.focus_distance_m))
-        plotter.add_mesh(self.plane_mesh, color=PLANE_COLOR, opacity=PLANE_OPACITY, lighting=False,
-                         pickable=False, name="focal_plane", reset_camera=False)
-        self.plane_outline = self.plane_mesh.copy(deep=False)
-        plotter.add_mesh(self.plane_outline, color=PLANE_COLOR, style="wireframe", line_width=3, lighting=False,
-                         pickable=False, name="focal_plane_outline", reset_camera=False)
-        self.slab_mesh = _slab_mesh(self.slab.corners)
-        plotter.add_mesh(self.slab_mesh, color=SLAB_COLOR, opacity=SLAB_OPACITY, lighting=False, pickable=False,
-                         name="dof_slab", reset_camera=False)
-        self.slab_outline = _lines_mesh(self.slab.corners, _HEX_EDGES)
-        plotter.add_mesh(self.slab_outline, color=SLAB_COLOR, line_width=1, lighting=False, pickable=False,
-                         name="dof_slab_outline", reset_camera=False)
-        self._set_3d_camera()
-
-        # --- 2-D preview ----------------------------------------------------------------------
-        plotter.subplot(0, 1)
-        ph, pw = self.preview_image.shape[:2]
-        self.preview_mesh = pv.ImageData(dimensions=(pw + 1, ph + 1, 1))
-        self.preview_mesh.cell_data["rgb"] = self._preview_cells()
-        plotter.add_mesh(self.preview_mesh, scalars="rgb", rgb=True, lighting=False, pickable=False,
-                         name="preview", show_scalar_bar=False)
-        self._set_preview_camera()
-        plotter.add_text(f"preview ({pw} x {ph} px): sliders update it when released", position=(0.06, 0.3),
-                         viewport=True, font_size=9, color="black", name="preview_caption")
-        plotter.subplot(0, 0)
-
-        self._apply_color_mode()
-        self._update_text()
-        if widgets:
-            self._add_widgets()
-
-    # --- state changes (called by the widgets, the picker and tests) -----------------------------
-
-    def set_focus(self, focus_distance_m: float, *, preview: bool = True) -> None:
-        """Focus at *focus_distance_m* metres: move plane and slab, recolour points, re-render the preview.
-
-        ``preview=False`` (while a slider is dragged) leaves the preview for :meth:`refresh_preview`.
-        """
-        d_f = positive_number("focus_distance_m", focus_distance_m)
-        self.lens = self.lens.with_focus(d_f)
-        self._sync_slider(self.focus_slider, d_f)
-        self._update(preview=preview)
-
-    def set_f_number(self, f_number: float, *, preview: bool = True) -> None:
-        """Set the f-number N (aperture A = f/N): resize the slab, recolour points, re-render the preview.
-
-        ``preview=False`` (while a slider is dragged) leaves the preview for :meth:`refresh_preview`.
-        """
-        n = positive_number("f_number", f_number)
-        lens = self.lens
-        self.lens = ThinLens(lens.focal_length_mm, n, lens.focus_distance_m, lens.aperture_blades,
-                             lens.aperture_rotation_deg)
-        self._sync_slider(self.f_number_slider, n)
-        self._update(preview=preview)
-
-    def refresh_preview(self) -> None:
-        """Re-render the preview photograph for the current lens (skipped when it is already current)."""
-        if self._preview_lens == self.lens:
-            return
-        small_color, small_depth, small_fx = self._preview_inputs
-        self.preview_image = render_preview(small_color, small_depth, self.lens, small_fx,
-                                            method=self.preview_method)
-        self._preview_lens = self.lens
-        self.preview_mesh.cell_data["rgb"] = self._preview_cells()
-        self.plotter.render()
-
-    def pick_point(self, point) -> None:
-        """Focus on a picked 3-D point (camera frame): the focus distance becomes its z-depth."""
-        p = np.asarray(point, dtype=np.float64).ravel()
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise InputError(f"point must be 3 finite coordinates (x, y, z) in metres; got {point!r}")
-        if p[2] <= 0:
-            raise InputError(f"picked point must lie in front of the camera (z > 0); got z = {p[2]}")
-        self.set_focus(float(p[2]))
-
-    def toggle_coc_colors(self, on: bool | None = None) -> None:
-        """Colour points by circle of confusion (True) or by RGB (False); None flips the current mode."""
-        self.coc_colors = (not self.coc_colors) if on is None else bool(on)
-        if self.coc_checkbox is not None:
-            self.coc_checkbox.GetRepresentation().SetState(int(self.coc_colors))
-        self._apply_color_mode()
-        self.plotter.render()
-
-    # --- output ------------------------------------------------------------------------------
-
-    def screenshot(self, path: str | None = None) -> np.ndarray:
-        """Render and return the window as an (H, W, 3) uint8 image; also write it to *path* (PNG) if given.
-
-        InputError (nothing written) when the render comes back empty (all black), as it does for a
-        window larger than the graphics driver can draw.
-        """
-        self.plotter.render()  # after the first frame pyvista's screenshot reads the buffer without rendering
-        image = self.plotter.screenshot(None, return_img=True)
-        if not image[:, :, :3].any():  # the background is white: all black means the driver drew nothing
-            width, height = self.plotter.window_size
-            raise InputError(f"the renderer drew nothing in a {width}x{height} window (more than the graphics "
-                             "driver can draw); use a smaller window_size (--window-size)")
-        if path is not None:
-            from .io import write_image
-
-            write_image(path, np.ascontiguousarray(image[:, :, :3]))
-        return image[:, :, :3]
-
-    def export_html(self, path: str) -> None:
-        """Write the scene as a standalone interactive HTML page (vtk.js; needs ``trame-pyvista``).
-
-        The page shows both panels (3-D scene and preview) at the current settings; the sliders,
-        checkbox and picking are not part of it. Written to a temporary file, then renamed.
-        """
-        component = getattr(self.plotter, "trame", None)
-        export = component.export_html if component is not None else self.plotter.export_html
-        path = os.fspath(path)
-        folder = os.path.dirname(os.path.abspath(path))
-        # the exporter appends ".html" to other names, so the temporary name ends in it too
-        tmp = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.{secrets.token_hex(4)}.html")
-        try:
-            os.makedirs(folder, exist_ok=True)  # like the image writers: missing folders are created
-            export(tmp)
-            os.replace(tmp, path)
-        except ImportError as err:
-            raise ImageWriteError(f"cannot export {path!r}: {err}") from None
-        except OSError as err:
-            raise ImageWriteError(f"cannot write {path!r}: {err.strerror or err}") from None
-        finally:
-            if os.path.exists(tmp):
-                os.remove(tmp)
-
-    def show(self) -> None:
-        """Open the interactive window (blocks until it is closed)."""
-        self.plotter.show()
-
-    def close(self) -> None:
-        self.plotter.close()
-
-    # --- internals ---------------------------------------------------------------------------
-
-    def _z_far(self) -> float:
-        return max(self.z_max_m, self.lens.focus_distance_m)
-
-    def _coc_of_points(self) -> np.ndarray:
-        return self.lens.coc_px(self.points[:, 2].astype(np.float32), self.intrinsics.fx)
-
-    def _coc_clim(self) -> tuple[float, float]:
-        coc = self.cloud_mesh.point_data["coc_px"] if hasattr(self, "cloud_mesh") else self._coc_of_points()
-        top = float(np.percentile(coc, 99)) if coc.size else 0.0
-        return 0.0, max(top, 4.0 * self.coc_limit_px)
-
-    def _preview_cells(self) -> np.ndarray:
-        # ImageData cells run x fastest from the bottom row; image rows run from the top.
-        return np.ascontiguousarray(self.preview_image[::-1]).reshape(-1, 3)
-
-    def _update(self, *, preview: bool = True) -> None:
-        """Recompute geometry and colours (and the preview) for the current lens and redraw."""
-        self.slab = dof_slab(self.intrinsics, self.lens, coc_limit_px=self.coc_limit_px, z_max_m=self.z_max_m)
-        corners = focal_plane_corners(self.intrinsics, self.lens.focus_distance_m)
-        self.plane_mesh.points = corners
-        self.plane_outline.points = corners
-        self.slab_mesh.points = self.slab.corners
-        self.slab_outline.points = self.slab.corners
-        self.frustum_mesh.points = frustum_lines(self.intrinsics, self._z_far())[0]
-        coc = self._coc_of_points()
-        self.cloud_mesh.point_data["coc_px"] = coc
-        self._coc_view.point_data["coc_px"] = coc
-        self.coc_actor.mapper.scalar_range = self._coc_clim()
-        self._update_text()
-        if preview:
-            self.refresh_preview()
-        self.plotter.render()
-
-    def _apply_color_mode(self) -> None:
-        self.rgb_actor.SetVisibility(not self.coc_colors)
-        self.coc_actor.SetVisibility(self.coc_colors)
-        bars = self.plotter.scalar_bars
-        if COC_BAR_TITLE in bars.keys():
-            bars[COC_BAR_TITLE].SetVisibility(self.coc_colors)
-
-    def _status(self) -> str:
-        lens, slab = self.lens, self.slab
-        far = "inf" if math.isinf(slab.far_m) else f"{slab.far_m:.2f} m"
-        return (f"focus {lens.focus_distance_m:.2f} m   f/{lens.f_number:.3g}   f = {lens.focal_length_mm:.3g} mm\n"
-                f"in focus (CoC <= {self.coc_limit_px:g} px): {slab.near_m:.2f} m to {far}")
-
-    def _update_text(self) -> None:
-        self.plotter.subplot(0, 0)
-        self.plotter.add_text(self._status(), position="upper_left", font_size=10, color="black", name="status")
-
-    def _set_3d_camera(self, direction=(1.0, -0.6, -0.25)) -> None:
-        # oblique view from the right of, above and slightly behind the camera (y points down), framing the apex and
-        # the bulk of the points (a few far outliers would otherwise shrink the scene to a speck)
-        z = self.points[:, 2]
-        lo_z, hi_z = np.percentile(z, [2, 90]) if len(z) else (0.0, self._z_far())
-        bulk = self.points[(z >= lo_z) & (z <= hi_z)]
-        pts = np.concatenate([bulk, np.zeros((1, 3)), self.plane_mesh.points])
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        mid = 0.5 * (lo + hi)
-        radius = 0.5 * float(np.linalg.norm(hi - lo))
-        d = np.asarray(direction, float)
-        position = mid + d / np.linalg.norm(d) * radius * 2.6
-        self.plotter.camera_position = [tuple(position), tuple(mid), (0.0, -1.0, 0.0)]
-        self.plotter.renderer.ResetCameraClippingRange()
-        self.plotter.render()
-
-    def _viewport_size(self, renderer) -> tuple[float, float]:
-        x0, y0, x1, y1 = renderer.GetViewport()
-        w, h = self.plotter.window_size
-        return (x1 - x0) * w, (y1 - y0) * h
-
-    def _set_preview_camera(self) -> None:
-        # parallel projection; the photograph sits in the upper part, the sliders go below it
-        renderer = self.plotter.renderer
-        ph, pw = self.preview_image.shape[:2]
-        vw, vh = self._viewport_size(renderer)
-        aspect = vw / max(vh, 1.0)
-        top_share = 0.66
-        half = max(ph / (2 * top_share), pw / (2 * 0.94 * aspect))
-        centre_y = ph + 0.03 * 2 * half - half
-        camera = renderer.camera
-        camera.parallel_projection = True
-        camera.focal_point = (pw / 2, centre_y, 0.0)
-        camera.position = (pw / 2, centre_y, 10.0 * max(pw, ph))
-        camera.up = (0.0, 1.0, 0.0)
-        camera.parallel_scale = half
-        renderer.ResetCameraClippingRange()
-
-    def _add_widgets(self) -> None:
-        plotter = self.plotter
-        preview = plotter.renderers[1]
-        x0, _, x1, _ = preview.GetViewport()
-        lens = self.lens
-        plotter.subplot(0, 1)
-        lo = min(self.z_min_m, lens.focus_distance_m)
-        hi = max(self.z_max_m, lens.focus_distance_m)
-        self.focus_slider = plotter.add_slider_widget(
-            self._on_focus_slider, [lo, hi], value=lens.focus_distance_m, title="focus distance (m)",
-            interaction_event="always", color="black", fmt="%.2f", style="modern")
-        n_lo, n_hi = min(F_NUMBER_RANGE[0], lens.f_number), max(F_NUMBER_RANGE[1], lens.f_number)
-        self.f_number_slider = plotter.add_slider_widget(
-            self._on_f_number_slider, [n_lo, n_hi], value=lens.f_number, title="f-number",
-            interaction_event="always", color="black", fmt="%.1f", style="modern")
-        # slider end points are window fractions offset by the preview's viewport origin: put them under it
-        for slider, y in ((self.focus_slider, 0.2), (self.f_number_slider, 0.07)):
-            # geometry follows the drag; the (slower) preview is rendered when the slider is released
-            slider.AddObserver("EndInteractionEvent", lambda *_: self.refresh_preview())
-            rep = slider.GetRepresentation()
-            rep.GetPoint1Coordinate().SetValue(0.08 * (x1 - x0), y)
-            rep.GetPoint2Coordinate().SetValue(0.92 * (x1 - x0), y)
-            rep.SetTitleHeight(0.025)
-            rep.SetLabelHeight(0.025)
-        plotter.subplot(0, 0)
-        self.coc_checkbox = plotter.add_checkbox_button_widget(
-            self.toggle_coc_colors, value=self.coc_colors, position=(10.0, 10.0), size=28, border_size=3,
-            color_on=(253, 231, 37), color_off="lightgrey", background_color="grey")
-        plotter.add_text("colour by circle of confusion (key c); right-click a point (or press p) to focus on it",
-                         position=(46, 16), font_size=9, color="black", name="help", viewport=False)
-        plotter.add_key_event("c", self.toggle_coc_colors)
-        # a tight tolerance (fraction of the window diagonal): the picker takes the nearest point to the
-        # camera within it, so a wide one grabs foreground points far from the cursor
-        plotter.enable_point_picking(callback=self.pick_point, show_message=False, show_point=True, tolerance=0.004,
-                                     color="magenta", point_size=12, left_clicking=False)
-        plotter.add_key_event("p", self._pick_under_cursor)
-
-    def _pick_under_cursor(self) -> None:
-        # the same pick a right-click launches; its end-pick observer calls pick_point
-        iren = self.plotter.iren
-        x, y = iren.get_event_position()
-        iren.picker.Pick(x, y, 0, self.plotter.renderers[0])
-
-    def _on_focus_slider(self, value: float) -> None:
-        if not math.isclose(value, self.lens.focus_distance_m, rel_tol=1e-9):
-            self.set_focus(value, preview=False)
-
-    def _on_f_number_slider(self, value: float) -> None:
-        if not math.isclose(value, self.lens.f_number, rel_tol=1e-9):
-            self.set_f_number(value, preview=False)
-
-    @staticmethod
-    def _sync_slider(slider, value: float) -> None:
-        if slider is None:
-            return
-        rep = slider.GetRepresentation()
-        if value < rep.GetMinimumValue():
-            rep.SetMinimumValue(value)
-        if value > rep.GetMaximumValue():
-            rep.SetMaximumValue(value)
-        if not math.isclose(rep.GetValue(), value, rel_tol=1e-9):
-            rep.SetValue(value)
-
-
-def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *, coc_limit_px: float = 1.0,
-                stride: int = 2, color_by: str = "rgb", off_screen: bool = False,
-                window_size: tuple[int, int] = (1500, 750), preview_max_side: int = PREVIEW_MAX_SIDE,
-                preview_method: str = "physical", widgets: bool = True) -> FocusViewer:
-    """Build the focal-plane inspection scene.
+def hex_faces_outward(corners) -> np.ndarray:
+    """The six faces of the hexahedron *corners*, each wound counter-clockwise seen from outside.
 
     Parameters
     ----------
-    color : (H, W, 3) RGB ndarray (uint8, uint16 or float in [0, 1]), the colour image
-    depth_filled_m : (H, W) float ndarray, metres, registered to the colour camera and hole-filled
-        (zeros are allowed and shown as no point)
-    intrinsics : Intrinsics, of the colour camera
-    lens : ThinLens, the starting lens (focus distance, f-number, focal length)
-    coc_limit_px : float, acceptable circle of confusion that bounds the depth-of-field slab, pixels
-    stride : int, keep every stride-th pixel in x and y for the point cloud; at least one of the
-        pixels it keeps must have a known depth (InputError otherwise: lower the stride)
-    color_by : "rgb" or "coc", the starting colouring of the points
-    off_screen : bool, render without a window (screenshots, HTML export, tests)
-    window_size : (width, height) pixels, each side in [64, 16384] and at most 8192 x 8192 pixels in
-        all (:func:`check_window_size`)
-    preview_max_side : int, largest side of the downscaled preview, pixels
-    preview_method : a key of :data:`pcdof.renderer.METHODS` for the preview
-    widgets : bool, add the sliders, the checkbox, the key binding and point picking
+    corners : (8, 3) float ndarray, metres, :attr:`DofSlab.corners` order (near face, then far face)
 
     Returns
     -------
-    FocusViewer
-
-    Raises
-    ------
-    InputError
-        Bad inputs, a window the renderer cannot draw, or a *stride* that keeps no pixel with known depth.
-    LensError
-        *lens* is not a ThinLens, or *coc_limit_px* is not a finite number > 0.
+    (6, 4) int64 ndarray, indices into *corners*; the right-hand normal of each face points away from
+    the hexahedron's centre, so front-face culling leaves exactly the faces turned away from the viewer.
     """
-    import pyvista as pv
+    pts = np.asarray(corners, np.float64)
+    if pts.shape != (8, 3) or not np.all(np.isfinite(pts)):
+        raise InputError(f"corners must be (8, 3) finite coordinates; got shape {pts.shape}")
+    centre = pts.mean(axis=0)
+    faces = _HEX_FACES.copy()
+    for k, face in enumerate(faces):
+        p = pts[face]
+        normal = np.cross(p[1] - p[0], p[2] - p[0]) + np.cross(p[2] - p[0], p[3] - p[0])
+        if np.dot(normal, p.mean(axis=0) - centre) < 0:
+            faces[k] = face[::-1]
+    return faces
 
+
+def scene_far_m(depth_m, *, percentile: float = FAR_PERCENTILE) -> float:
+    """Depth that bounds the drawn scene: the *percentile*-th percentile of the known depths, metres.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float ndarray, metres, 0 or non-finite = unknown (at least one known value)
+    percentile : float in (0, 100]
+
+    Returns
+    -------
+    float, metres (> 0)
+    """
+    depth = np.asarray(depth_m, np.float64)
+    known = depth[np.isfinite(depth) & (depth > 0)]
+    if known.size == 0:
+        raise InputError("depth_m has no known depth (all values are 0, negative or not finite)")
+    if not 0 < percentile <= 100:
+        raise InputError(f"percentile must be in (0, 100]; got {percentile!r}")
+    return float(np.percentile(known, percentile))
+
+
+def fit_camera(points, direction, *, view_angle_deg: float = 30.0, aspect: float = 1.0,
+               margin: float = 1.08) -> tuple[np.ndarray, np.ndarray]:
+    """Camera position and focal point that keep every one of *points* inside a perspective view.
+
+    The view looks along ``-direction`` at the centre of the points' bounding box, from the distance at
+    which the sphere around that centre through the farthest point fits the narrower of the two field
+    angles (vertical *view_angle_deg*, horizontal from *aspect*), times *margin*.
+
+    Parameters
+    ----------
+    points : (N, 3) float ndarray, metres (N >= 1)
+    direction : (3,) float, from the focal point towards the camera (any length > 0)
+    view_angle_deg : float, the vertical field of view in degrees, in (0, 180)
+    aspect : float, width / height of the view (> 0)
+    margin : float >= 1, extra distance factor
+
+    Returns
+    -------
+    position, focal_point : (3,) float64 ndarrays, metres
+
+    References
+    ----------
+    A sphere of radius r is inside a cone of half angle a seen from distance r / sin(a).
+    """
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    d = np.asarray(direction, np.float64).ravel()
+    if len(pts) == 0 or not np.all(np.isfinite(pts)):
+        raise InputError(f"points must be (N >= 1, 3) finite coordinates; got shape {pts.shape}")
+    if d.shape != (3,) or not np.all(np.isfinite(d)) or not np.linalg.norm(d) > 0:
+        raise InputError(f"direction must be 3 finite numbers, not all 0; got {direction!r}")
+    half_v = math.radians(positive_number("view_angle_deg", view_angle_deg, InputError)) / 2
+    if not half_v < math.pi / 2:
+        raise InputError(f"view_angle_deg must be below 180; got {view_angle_deg!r}")
+    aspect = positive_number("aspect", aspect, InputError)
+    half_h = math.atan(math.tan(half_v) * aspect)
+    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    radius = max(float(np.linalg.norm(pts - centre, axis=1).max()), 1e-6)
+    distance = margin * radius / math.sin(min(half_v, half_h))
+    return centre + d / np.linalg.norm(d) * distance, centre
+
+
+def lens_numbers(lens: ThinLens, intrinsics: Intrinsics, *, z_min_m: float, z_max_m: float,
+                 coc_limit_px: float = 1.0) -> dict:
+    """The numbers shown beside the scene: focus, depth-of-field limits and the largest blur.
+
+    Parameters
+    ----------
+    lens : ThinLens
+    intrinsics : Intrinsics, of the colour camera (``fx`` turns the aperture into pixels)
+    z_min_m, z_max_m : float, metres, the nearest and farthest depth in the scene
+    coc_limit_px : float, acceptable circle of confusion, pixels
+
+    Returns
+    -------
+    dict with ``focus_m``, ``near_m``, ``far_m`` (``inf`` past the hyperfocal distance), ``max_blur_px`` (the
+    largest circle of confusion of a scene depth: c(z) is monotonic on each side of the focus, so it is
+    reached at ``z_min_m`` or ``z_max_m``), ``f_number``, ``focal_length_mm``, ``aperture_blades``, ``coc_limit_px``.
+    """
     intr = _check_intrinsics(intrinsics)
     if not isinstance(lens, ThinLens):
         raise LensError(f"lens must be a ThinLens; got {type(lens).__name__}")
-    check_color(color, intr.shape)
-    depth = np.asarray(depth_filled_m)
-    if depth.ndim != 2 or depth.shape != intr.shape:
-        raise InputError(f"depth_filled_m must be (H, W) = {intr.shape}; got {depth.shape}")
-    if depth.dtype.kind not in "fiu":
-        raise InputError(f"depth_filled_m must be numeric; got dtype {depth.dtype}")
-    known = np.isfinite(depth) & (depth > 0)
-    if not np.any(known):
-        raise InputError("depth_filled_m has no known depth (all values are 0, negative or not finite)")
-    stride = check_stride(stride)
-    if not np.any(known[::stride, ::stride]):
-        raise InputError(f"stride {stride} keeps no pixel with known depth (it keeps "
-                         f"{known[::stride, ::stride].size} of the {intr.width}x{intr.height} pixels); "
-                         "use a smaller stride")
-    coc_limit = positive_number("coc_limit_px", coc_limit_px)
-    if color_by not in COLOR_BY:
-        raise InputError(f"color_by must be one of {list(COLOR_BY)}; got {color_by!r}")
-    if isinstance(preview_max_side, bool) or not isinstance(preview_max_side, (int, np.integer)) \
-            or preview_max_side < 8:
-        raise InputError(f"preview_max_side must be an integer >= 8; got {preview_max_side!r}")
-    width, height = check_window_size(window_size)
-
-    plotter = pv.Plotter(shape=(1, 2), col_weights=[3, 2], off_screen=off_screen, window_size=(width, height),
-                         border=False)
-    plotter.set_background("white")
-    return FocusViewer(plotter, color, depth, intr, lens, coc_limit_px=coc_limit, stride=stride, color_by=color_by,
-                       preview_max_side=int(preview_max_side), preview_method=preview_method, widgets=widgets)
+    z = np.array([positive_number("z_min_m", z_min_m, InputError), positive_number("z_max_m", z_max_m, InputError)])
+    near, far = lens.dof_limits_m(intr.fx, coc_limit_px)
+    return {"focus_m": lens.focus_distance_m, "near_m": near, "far_m": far,
+            "max_blur_px": float(np.max(lens.coc_px(z.astype(np.float32), intr.fx))),
+            "f_number": lens.f_number, "focal_length_mm": lens.focal_length_mm,
+            "aperture_blades": lens.aperture_blades, "coc_limit_px": float(coc_limit_px)}
 
 
-def scene_from_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral", focus_at=None,
-                     **options) -> FocusViewer:
-    """Register and fill the depth of *frame*, then :func:`build_scene` in its colour camera.
+def lens_summary(numbers: dict) -> str:
+    """Two short lines for :func:`lens_numbers`' output: the lens, then the depth of field and the largest blur."""
+    far = "inf" if math.isinf(numbers["far_m"]) else f"{numbers['far_m']:.2f} m"
+    return (f"focus {numbers['focus_m']:.2f} m  f/{numbers['f_number']:.3g}  {numbers['focal_length_mm']:.3g} mm\n"
+            f"sharp (CoC <= {numbers['coc_limit_px']:g} px): {numbers['near_m']:.2f} m to {far}; "
+            f"max blur {numbers['max_blur_px']:.1f} px")
+
+
+def prepare_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral", focus_at=None):
+    """Register and fill the depth of *frame* once, for a viewer that then only changes the lens.
 
     Parameters
     ----------
     frame : RGBDFrame
     lens : ThinLens, the starting lens
     fill_method : a key of :data:`pcdof.fill.FILL_METHODS`
-    focus_at : optional (x, y) colour pixel; focus at the robust depth around it
+    focus_at : optional (x, y) colour pixel; the lens is focused at the robust depth around it
         (:func:`pcdof.lens.focus_depth_at` on the registered depth, or the filled one where
         registration left nothing known)
-    **options : keyword options of :func:`build_scene`
 
     Returns
     -------
-    FocusViewer
+    registered_m, filled_m : (H, W) float32 ndarrays, metres, colour camera grid (0 = unknown in the first)
+    lens : ThinLens, focused at *focus_at* when given
     """
     from .camera import RGBDFrame
     from .fill import check_fill_method
@@ -799,14 +488,27 @@ def scene_from_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilater
         raise LensError(f"lens must be a ThinLens; got {type(lens).__name__}")
     check_fill_method(fill_method, "fill_method")  # the cheap checks before registering and filling
     pixel = parse_focus_pixel(focus_at)
-    if "window_size" in options:
-        check_window_size(options["window_size"])
-    if "stride" in options:
-        check_stride(options["stride"])
     trace: list = []
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=fill_method)
     if pixel is not None:
-        source = registered if np.any(registered > 0) else filled
-        lens = lens.with_focus(focus_depth_at(source, *pixel))
-    return build_scene(frame.color, filled, frame.rig.color, lens, **options)
+        lens = lens.with_focus(focus_depth_at(focus_source(registered, filled), *pixel))
+    return registered, filled, lens
+
+
+def focus_source(registered_m, filled_m) -> np.ndarray:
+    """The depth a picked pixel is focused on: the registered one (measured), or the filled one when
+    registration left nothing known."""
+    return registered_m if np.any(np.asarray(registered_m) > 0) else filled_m
+
+
+#: The PyVista user interface lives in :mod:`pcdof.viewer_ui`; its public names stay importable from here.
+_UI_NAMES = ("FocusScene", "FocusViewer", "build_scene", "scene_from_frame")
+
+
+def __getattr__(name):
+    if name in _UI_NAMES:
+        from . import viewer_ui
+
+        return getattr(viewer_ui, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -510,7 +510,7 @@ class TestCli:
         assert not out.exists()
 
     def test_focus_at_pixel(self, frame_files, tmp_path, monkeypatch):
-        import pcdof.viewer as viewer_module
+        import pcdof.viewer_ui as viewer_module
 
         seen = {}
         original = viewer_module.build_scene

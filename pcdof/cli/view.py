@@ -10,7 +10,7 @@ import click
 
 from ..errors import InputError
 from ..fill import FILL_METHODS
-from ._common import check_output_file, handle_errors
+from ._common import check_output_file, check_output_folder, handle_errors
 from .render import IMAGE_SUFFIXES, check_lens_flags, lens_options
 
 HTML_SUFFIXES = (".html", ".htm")
@@ -55,22 +55,33 @@ def has_display() -> bool:
 @click.option("--window-size", type=str, default="1500x750", show_default=True, callback=parse_size,
               metavar="WxH", help="Window (and screenshot) size in pixels: sides 64 to 16384, at most 8192x8192 "
                                   "pixels in all.")
+@click.option("--serve", is_flag=True, help="Serve the viewer to a web browser (no display needed) instead.")
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to serve on with --serve; anything but the loopback lets other machines in.")
+@click.option("--port", type=click.IntRange(1, 65535), default=8080, show_default=True, help="Port for --serve.")
+@click.option("--output-dir", type=click.Path(readable=False), default=None,
+              help="With --serve: folder where the download button also saves the full-resolution PNG.")
 @handle_errors
 def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, focus_at, aperture_blades,
             aperture_rotation_deg, coc_limit_px, color_by, stride, fill_method, depth_scale, screenshot, html_path,
-            window_size):
+            window_size, serve, host, port, output_dir):
     """Inspect the focal plane and depth of field of COLOR + DEPTH in 3-D.
 
     Opens a window with the point cloud in the colour camera's frame, the camera frustum, the focal
     plane, the depth-of-field slab and a live preview of the photograph, with sliders for the focus
     distance and the f-number. Right-click a point (or press p over it) to focus on it, c to colour points by their
-    circle of confusion. With --screenshot or --html nothing opens: the scene is written instead.
+    circle of confusion. With --screenshot or --html nothing opens: the scene is written instead. With --serve
+    the same viewer is served to a web browser (http://127.0.0.1:8080/ by default; Ctrl-C stops it).
     """
     from .. import io
     from ..lens import ThinLens
     from ..viewer import check_window_size, scene_from_frame
 
     window_size = check_window_size(window_size, name="--window-size")
+    if serve and (screenshot or html_path):
+        raise InputError("--serve cannot be combined with --screenshot or --html")
+    if output_dir and not serve:
+        raise InputError("--output-dir is for --serve (the download button's folder)")
     if screenshot:
         check_output_file(screenshot, "--screenshot")
     if html_path:
@@ -81,7 +92,9 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
         raise InputError(f"--html must end in one of {', '.join(HTML_SUFFIXES)}; got {html_path!r}")
     check_lens_flags(focus_distance_m, focus_at, {"--focal-length": focal_length_mm, "--f-number": f_number,
                                                   "--coc-limit": coc_limit_px})
-    off_screen = bool(screenshot or html_path)
+    off_screen = bool(screenshot or html_path or serve)
+    if output_dir:
+        check_output_folder(output_dir, "--output-dir")
     if not off_screen and not has_display():
         raise InputError("no display to open a window on (DISPLAY is not set); "
                          "use --screenshot OUT.png or --html OUT.html")
@@ -97,6 +110,11 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
     lens = ThinLens(focal_length_mm, f_number, provisional, aperture_blades, aperture_rotation_deg)
     if focus_distance_m is None and focus_at is None:
         focus_at = ((frame.rig.color.width - 1) / 2, (frame.rig.color.height - 1) / 2)
+    if serve:
+        serve_frame(frame, lens, fill_method=fill_method, focus_at=focus_at, coc_limit_px=coc_limit_px,
+                    stride=stride, color_by=color_by, source_name=os.path.basename(color), host=host, port=port,
+                    output_dir=output_dir)
+        return
     viewer = scene_from_frame(frame, lens, fill_method=fill_method, focus_at=focus_at, coc_limit_px=coc_limit_px,
                               stride=stride, color_by=color_by, off_screen=off_screen, window_size=window_size)
     try:
@@ -105,7 +123,7 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
             viewer.screenshot(screenshot)
         if html_path:
             try:
-                viewer.export_html(html_path)
+                viewer.export_html(html_path, source_name=os.path.basename(color))
             except BaseException:
                 if screenshot:  # both outputs or neither
                     os.remove(screenshot)
@@ -117,3 +135,19 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
             viewer.show()
     finally:
         viewer.close()
+
+
+def serve_frame(frame, lens, *, fill_method, focus_at, coc_limit_px, stride, color_by, source_name, host, port,
+                output_dir) -> None:
+    """Register and fill *frame* once, then serve the browser viewer until interrupted."""
+    from ..viewer import prepare_frame
+    from ..web.app import WebViewer
+    from ..web.session import ViewSession
+
+    registered, filled, lens = prepare_frame(frame, lens, fill_method=fill_method, focus_at=focus_at)
+    session = ViewSession(frame.color, registered, filled, frame.rig.color, lens, coc_limit_px=coc_limit_px)
+    app = WebViewer(session, stride=stride, color_by=color_by, source_name=source_name, output_dir=output_dir)
+    shown = f"[{host}]" if ":" in host else host
+    app.ctrl.on_server_ready.add(
+        lambda **_: click.echo(f"pcdof: serving the viewer on http://{shown}:{port}/ (Ctrl-C to stop)", err=True))
+    app.start(host=host, port=port)

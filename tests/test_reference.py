@@ -1,0 +1,474 @@
+"""Every fast path of every stage against the plain reference of :mod:`pcdof.reference`.
+
+The references are whole-frame numpy code stating each stage's rules; the fast paths (numba kernels,
+threads, tiles, block and scanline rasterisation, reduced-resolution layers, convolution of uniform
+tiles) must give their answer within the tolerance stated for that path below. Paths that are exact
+by design get float-rounding tolerances; approximations by design get the bound they are built to.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+import zlib
+
+import cv2
+import numba
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from pcdof import fill as fast_fill
+from pcdof import renderer
+from pcdof.camera import Intrinsics, Rig
+from pcdof.color import decode_to_linear
+from pcdof.lens import PaperLens, ThinLens
+from pcdof.reference import coc as ref_coc
+from pcdof.reference import fill as ref_fill
+from pcdof.reference import register as ref_register
+from pcdof.reference import render as ref_render
+from pcdof.register import reproject_depth
+from pcdof.tiles import TileMap, classify_tiles
+
+# ---------------------------------------------------------------------------------------------
+# Tolerances, one per path (README developer section, "Reference implementations").
+
+#: registration, all paths (threads, bands, per-centre / 4x4 block / scanline rasterisation): relative
+#: depth error where both have depth, and the number of colour pixels allowed to differ beyond it or in
+#: coverage: the fast path stores projected vertices in float32, so a pixel centre within that rounding
+#: of a triangle edge may go either way (seen: 1 pixel in 370 random frames, the rest bit-for-bit within 2e-7)
+REG_REL_TOL = 1e-5
+REG_MAX_DIFFERING_PX = 2
+#: fill, serial and parallel kernels: relative depth error (float32 rounding of the same arithmetic)
+FILL_REL_TOL = 1e-6
+#: CoC: relative error of the float32 result
+COC_REL_TOL = 1e-6
+#: render, exact scatter (no tiles, full resolution): absolute error in linear light (values <= 1); the
+#: fast path interpolates a 4096-entry table of the aperture's strip areas and accumulates in float32
+RENDER_EXACT_ATOL = 1e-5
+#: render, partial-occlusion extension: the fast path finds the nearest layer pixel with OpenCV's
+#: distance transform, whose choice among equally near pixels differs from the reference's (first in
+#: raster order); on colour varying by at most 0.004 per pixel the chosen colours differ by a few steps
+RENDER_EXTEND_ATOL = 0.02
+#: render, tiles (copy tiles bit-exact; uniform tiles convolved with one kernel per 4 % radius bin) and
+#: reduced-resolution quality tiers: PSNR (dB, peak 1) against the reference
+RENDER_MIN_PSNR_DB = {"exact": 60.0, "high": 50.0, "balanced": 44.0, "fast": 36.0}
+#: paper method: absolute error of the float32 result (values in [0, 1])
+PAPER_ATOL = 1e-5
+
+
+def psnr(a, b) -> float:
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
+
+
+# ---------------------------------------------------------------------------------------------
+# registration
+
+
+def _rig(depth_size, color_size, *, fd, fc, distorted, rng) -> Rig:
+    """A rig with a random small rotation, a few-cm baseline and sub-pixel principal points."""
+    (dw, dh), (cw, ch) = depth_size, color_size
+    ddist = (-0.0999, 0.3907, 0.0019, -0.0019, -0.5103) if distorted else ()
+    cdist = (0.2080, -0.5861, 0.0007, 0.0010, 0.4986) if distorted else ()
+    depth = Intrinsics(dw, dh, fd, fd * 1.002, dw / 2 + rng.uniform(-1, 1), dh / 2 + rng.uniform(-1, 1), ddist)
+    color = Intrinsics(cw, ch, fc, fc * 0.998, cw / 2 + rng.uniform(-1, 1), ch / 2 + rng.uniform(-1, 1), cdist)
+    rvec = rng.normal(0, 0.01, 3)
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T[:3, 3] = (rng.uniform(-0.06, -0.02), rng.uniform(-0.005, 0.005), rng.uniform(-0.005, 0.005))
+    return Rig(color, depth, T)
+
+
+def _depth_scene(shape, rng) -> np.ndarray:
+    """A slanted plane with a box in front, thin structures, an isolated pixel, holes, NaN, inf, negatives."""
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    d = (rng.uniform(0.8, 3.0) + rng.uniform(-0.02, 0.02) * xx + rng.uniform(-0.02, 0.02) * yy).astype(np.float32)
+    d = np.maximum(d, 0.3)
+    y0, x0 = rng.integers(0, h // 2), rng.integers(0, w // 2)
+    d[y0:y0 + h // 3, x0:x0 + w // 3] = rng.uniform(0.4, 0.7)  # a depth step
+    d[:, rng.integers(0, w)] = rng.uniform(0.4, 0.9)  # one-pixel-wide structures
+    d[rng.integers(0, h), :] = rng.uniform(0.4, 0.9)
+    d[rng.integers(0, h), rng.integers(0, w)] = 0.35  # an isolated near pixel
+    d[rng.random((h, w)) < 0.05] = 0.0
+    d[rng.random((h, w)) < 0.01] = np.nan
+    d[rng.random((h, w)) < 0.005] = np.inf
+    d[rng.random((h, w)) < 0.005] = -1.0
+    return d
+
+
+def _assert_registration_matches(out, ref, min_coverage=0.2):
+    assert out.shape == ref.shape and np.count_nonzero(ref) > min_coverage * ref.size
+    with np.errstate(divide="ignore", invalid="ignore"):
+        differs = ((out > 0) != (ref > 0)) | (np.abs(out - ref) > REG_REL_TOL * ref)
+    assert np.count_nonzero(differs) <= REG_MAX_DIFFERING_PX, [(tuple(p), out[tuple(p)], ref[tuple(p)])
+                                                               for p in np.argwhere(differs)[:5]]
+
+
+#: (depth size, colour size, depth f, colour f): a depth grid 4x coarser than the colour grid (quads
+#: drawn by scanlines), 2x coarser (4x4 blocks), equal, and 2x finer (pixel centres tested one by one)
+REG_GEOMETRIES = {
+    "coarse4x-scanline": ((24, 20), (96, 80), 22.0, 84.0),
+    "coarse2x-block": ((48, 40), (96, 80), 44.0, 84.0),
+    "equal": ((64, 48), (64, 48), 58.0, 56.0),
+    "finer-centres": ((96, 80), (48, 40), 88.0, 42.0),
+}
+
+
+@pytest.fixture
+def threads(request):
+    """Run with numba.set_num_threads(request.param) (clipped to the pool), restored afterwards."""
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(request.param, numba.config.NUMBA_NUM_THREADS))
+    yield numba.get_num_threads()
+    numba.set_num_threads(before)
+
+
+@pytest.mark.parametrize("threads", [1, 2], indirect=True, ids=["1-thread", "2-threads"])
+@pytest.mark.parametrize("geometry", list(REG_GEOMETRIES))
+@pytest.mark.parametrize("distorted", [False, True], ids=["pinhole", "distorted"])
+def test_registration_matches_reference(geometry, distorted, threads):
+    depth_size, color_size, fd, fc = REG_GEOMETRIES[geometry]
+    rng = np.random.default_rng(zlib.crc32(f"{geometry} {distorted}".encode()))
+    rig = _rig(depth_size, color_size, fd=fd, fc=fc, distorted=distorted, rng=rng)
+    depth = _depth_scene(rig.depth.shape, rng)
+    _assert_registration_matches(reproject_depth(depth, rig), ref_register.reproject_depth(depth, rig))
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1), geometry=st.sampled_from(list(REG_GEOMETRIES)), distorted=st.booleans(),
+       ratio=st.sampled_from([None, 0.005, 0.03, 0.3]))
+def test_registration_matches_reference_on_random_frames(seed, geometry, distorted, ratio):
+    depth_size, color_size, fd, fc = REG_GEOMETRIES[geometry]
+    rng = np.random.default_rng(seed)
+    rig = _rig(depth_size, color_size, fd=fd, fc=fc, distorted=distorted, rng=rng)
+    depth = _depth_scene(rig.depth.shape, rng)
+    _assert_registration_matches(reproject_depth(depth, rig, max_depth_ratio=ratio),
+                                 ref_register.reproject_depth(depth, rig, max_depth_ratio=ratio))
+
+
+def test_registration_bands_and_chunks_match_reference(monkeypatch):
+    """Every split of the work into bands of colour rows and chunks of depth rows gives the reference."""
+    import pcdof.register as register_mod
+
+    rng = np.random.default_rng(7)
+    rig = _rig((48, 40), (96, 80), fd=44.0, fc=84.0, distorted=True, rng=rng)
+    depth = _depth_scene(rig.depth.shape, rng)
+    ref = ref_register.reproject_depth(depth, rig)
+    for n in (1, 3, 80):
+        monkeypatch.setattr(register_mod, "_n_bands", lambda height, n=n: n)
+        monkeypatch.setattr(register_mod, "_n_chunks", lambda height, n=n: min(n, 40))
+        _assert_registration_matches(reproject_depth(depth, rig), ref)
+
+
+def test_registration_adversarial_frames_match_reference():
+    """Points behind the colour camera, an all-unknown row, a lone known pixel, depth at 1 mm."""
+    rng = np.random.default_rng(11)
+    rig = _rig((48, 40), (64, 48), fd=44.0, fc=56.0, distorted=True, rng=rng)
+    T = np.array(rig.T_color_from_depth)
+    T[2, 3] = -0.5  # colour camera 0.5 m in front of the depth camera: near points fall behind it
+    rig = Rig(rig.color, rig.depth, T)
+    depth = _depth_scene(rig.depth.shape, rng)
+    depth[:, :10] = 0.3  # behind the colour camera
+    depth[20, :] = 0.0
+    depth[30:33, 30:33] = 0.0
+    depth[31, 31] = 1.1  # alone in a hole
+    depth[0, :5] = 0.001
+    _assert_registration_matches(reproject_depth(depth, rig), ref_register.reproject_depth(depth, rig), 0.05)
+
+
+# ---------------------------------------------------------------------------------------------
+# fill
+
+
+def _fill_frame(rng, h=40, w=48):
+    """Slanted wall, a nearer box of another colour, a disocclusion beside it, a sensor hole, speckle, NaN."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    depth = (rng.uniform(1.2, 3.0) + rng.uniform(-0.01, 0.01) * xx + 0.004 * yy).astype(np.float32)
+    color = np.empty((h, w, 3), np.float64)
+    color[...] = rng.uniform(0.5, 0.9, 3)
+    y0, x0 = rng.integers(2, h // 2), rng.integers(2, w // 2)
+    box = (slice(y0, y0 + h // 3), slice(x0, x0 + w // 3))
+    depth[box] = rng.uniform(0.5, 0.9) + 0.002 * xx[box]
+    color[box] = rng.uniform(0.05, 0.4, 3)
+    color = np.clip(color + rng.normal(0, 0.02, color.shape), 0, 1)
+    depth[y0 - 2: y0 + h // 3 + 2, x0 + w // 3: x0 + w // 3 + rng.integers(3, 9)] = 0.0  # disocclusion
+    depth[rng.random((h, w)) < rng.uniform(0.0, 0.2)] = 0.0
+    hy, hx = rng.integers(0, h - 8), rng.integers(0, w - 12)
+    depth[hy:hy + 8, hx:hx + 12] = 0.0  # a large sensor hole: the median cleanup runs inside it
+    depth[rng.integers(0, h), rng.integers(0, w)] = np.nan
+    if not (depth > 0).any():
+        depth[0, 0] = 1.0
+    return depth, color
+
+
+def _assert_fill_matches(out, ref):
+    assert out.dtype == np.float32 and np.all(out > 0)
+    rel = np.abs(out.astype(np.float64) - ref) / ref
+    assert rel.max() <= FILL_REL_TOL, (rel.max(), np.unravel_index(np.argmax(rel), rel.shape))
+
+
+FILL_PATHS = {
+    "public": lambda d, c, use_color: fast_fill.FILL_METHODS["joint-bilateral" if use_color else "nearest-background"](
+        d, (c * 255).round().astype(np.uint8) if use_color else None),
+    "serial": lambda d, c, use_color: fast_fill._fill_directional(
+        d, c, use_color=use_color, edge_ratio=fast_fill.DEFAULT_EDGE_RATIO, sigma_color=fast_fill.DEFAULT_SIGMA_COLOR,
+        background_bias=fast_fill.DEFAULT_BACKGROUND_BIAS, parallel=False),
+    "parallel": lambda d, c, use_color: fast_fill._fill_directional(
+        d, c, use_color=use_color, edge_ratio=fast_fill.DEFAULT_EDGE_RATIO, sigma_color=fast_fill.DEFAULT_SIGMA_COLOR,
+        background_bias=fast_fill.DEFAULT_BACKGROUND_BIAS, parallel=True),
+}
+
+
+def _ref_fill(depth, color, use_color, path):
+    if path == "public" and use_color:
+        color = (color * 255).round() / 255  # the uint8 guide the public path was given
+    return ref_fill.fill_directional(depth, color if use_color else None, use_color=use_color)
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1), use_color=st.booleans(), path=st.sampled_from(list(FILL_PATHS)))
+def test_fill_matches_reference_on_random_frames(seed, use_color, path):
+    depth, color = _fill_frame(np.random.default_rng(seed))
+    _assert_fill_matches(FILL_PATHS[path](depth, color, use_color), _ref_fill(depth, color, use_color, path))
+
+
+@pytest.mark.parametrize("path", list(FILL_PATHS))
+@pytest.mark.parametrize("use_color", [True, False], ids=["joint-bilateral", "nearest-background"])
+@pytest.mark.parametrize("case", ["lone-known-pixel", "known-border-only", "checkerboard", "one-row"])
+def test_fill_adversarial_frames_match_reference(case, use_color, path):
+    rng = np.random.default_rng(5)
+    h, w = (1, 40) if case == "one-row" else (24, 30)
+    depth = np.zeros((h, w), np.float32)
+    color = rng.uniform(0, 1, (h, w, 3))
+    if case == "lone-known-pixel":  # most holes see it on no line: the nearest-known fallback
+        depth[7, 11] = 2.0
+    elif case == "known-border-only":
+        depth[0, :], depth[-1, :], depth[:, 0], depth[:, -1] = 1.0, 3.0, 2.0, 0.7
+    elif case == "checkerboard":
+        yy, xx = np.mgrid[0:h, 0:w]
+        depth = np.where((yy + xx) % 2 == 0, 1.0 + 0.5 * (xx > w // 2), 0.0).astype(np.float32)
+    else:
+        depth[0, ::7] = rng.uniform(0.5, 4.0, depth[0, ::7].shape)
+    _assert_fill_matches(FILL_PATHS[path](depth, color, use_color), _ref_fill(depth, color, use_color, path))
+
+
+# ---------------------------------------------------------------------------------------------
+# circle of confusion
+
+
+@settings(max_examples=60, deadline=None)
+@given(focal_mm=st.floats(1.0, 1000.0), f_number=st.floats(0.5, 64.0), focus_m=st.floats(0.05, 100.0),
+       fx=st.floats(10.0, 5000.0), seed=st.integers(0, 2**32 - 1))
+def test_coc_matches_reference(focal_mm, f_number, focus_m, fx, seed):
+    rng = np.random.default_rng(seed)
+    z = np.exp(rng.uniform(np.log(1e-4), np.log(1e4), (8, 9))).astype(np.float32)
+    z.flat[:6] = [0.0, np.nan, np.inf, -1.0, focus_m, 1e-30]
+    lens = ThinLens(focal_mm, f_number, focus_m)
+    fast, ref = lens.signed_coc_px(z, fx), ref_coc.signed_coc_px(z, lens, fx)
+    assert fast.dtype == np.float32 and np.all(np.isfinite(fast))
+    np.testing.assert_allclose(fast, ref, rtol=COC_REL_TOL, atol=1e-30)
+
+
+@settings(max_examples=30, deadline=None)
+@given(focus_m=st.floats(0.1, 20.0), sigma=st.floats(0.01, 2.0), weight=st.sampled_from(["eq1", "eq2"]),
+       aperture=st.floats(0.1, 10.0), max_range=st.floats(1.0, 20.0), seed=st.integers(0, 2**32 - 1))
+def test_paper_weights_match_reference(focus_m, sigma, weight, aperture, max_range, seed):
+    z = np.random.default_rng(seed).uniform(0.0, 25.0, (6, 7)).astype(np.float32)
+    z.flat[:4] = [0.0, np.nan, np.inf, focus_m]
+    lens = PaperLens(focus_m, sigma=sigma, weight=weight, eq1_aperture=aperture)
+    np.testing.assert_allclose(lens.alpha(z, max_range), ref_coc.paper_alpha(z, lens, max_range), atol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# render
+
+
+def _untiled(shape) -> TileMap:
+    """A tile map with no copy tiles and no uniform tiles: the renderer scatters every pixel."""
+    th, tw = -(-shape[0] // 16), -(-shape[1] // 16)
+    inf = np.full((th, tw), np.inf, np.float32)
+    return TileMap(shape, 16, -inf, inf, np.zeros((th, tw), bool))
+
+
+def _coc_scene(name, h, w, rng) -> np.ndarray:
+    yy, xx = np.mgrid[0:h, 0:w]
+    if name == "box":  # a blurred foreground over a blurred background, an in-focus stripe
+        c = np.full((h, w), 9.0, np.float32)
+        c[h // 4: 3 * h // 4, w // 3: 2 * w // 3] = -20.0
+        c[:, -w // 5: -w // 5 + 4] = 0.3
+    elif name == "thin":  # one-pixel lines in front of focus
+        c = np.full((h, w), 5.0, np.float32)
+        c[h // 2, :], c[:, w // 2] = -15.0, -15.0
+    elif name == "ramp":  # a slanted plane through the focus plane: every layer, both sides
+        c = np.tile(np.linspace(-30, 30, w, dtype=np.float32), (h, 1))
+    elif name == "random":  # independent depth per pixel: layers interleave everywhere
+        c = rng.uniform(-12, 12, (h, w)).astype(np.float32)
+    elif name == "extreme":  # beyond MAX_COC_PX (clamped), NaN, in focus elsewhere
+        c = np.full((h, w), 0.2, np.float32)
+        c[10:14, 10:14] = -600.0
+        c[-8:, -8:] = np.nan
+    else:  # "large": one large blur everywhere
+        c = np.full((h, w), 40.0, np.float32)
+    return c
+
+
+def _texture(rng, h, w, smooth=1.5):
+    return cv2.GaussianBlur(rng.random((h, w, 3)).astype(np.float32), (0, 0), smooth)
+
+
+def _render_fast(lin, coc, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # CoC clamped to MAX_COC_PX
+        return renderer.render_layers_linear(lin, coc, **kwargs)
+
+
+APERTURES = {"disc": (0, 0.0), "pentagon": (5, 17.0), "octagon": (8, 0.0)}
+SCENES = ["box", "thin", "ramp", "random", "extreme", "large"]
+
+
+@pytest.mark.parametrize("aperture", list(APERTURES))
+@pytest.mark.parametrize("scene", SCENES)
+def test_exact_scatter_matches_reference(scene, aperture):
+    """quality="exact", no tiles, no extension: only table interpolation and float32 accumulation differ."""
+    h, w = 48, 56
+    rng = np.random.default_rng(SCENES.index(scene))
+    lin, coc = _texture(rng, h, w), _coc_scene(scene, h, w, rng)
+    blades, rot = APERTURES[aperture]
+    out, info = _render_fast(lin, coc, blades=blades, rotation_deg=rot, quality="exact", tiles=_untiled((h, w)),
+                             extend_behind=False)
+    ref = ref_render.render_layers_linear(lin, coc, blades=blades, rotation_deg=rot, extend_behind_layers=False)
+    assert all(layer["scale"] == 1 and layer.get("kernels", 0) == 0 for layer in info["layers"])
+    np.testing.assert_allclose(out, ref, atol=RENDER_EXACT_ATOL, rtol=0)
+
+
+@pytest.mark.parametrize("scene", ["box", "thin", "ramp", "random"])
+def test_extension_behind_foreground_matches_reference(scene):
+    """Partial occlusion on, smooth colour: differs only by which of equally near layer pixels is continued."""
+    h, w = 48, 56
+    rng = np.random.default_rng(3)
+    yy, xx = np.mgrid[0:h, 0:w]
+    lin = np.stack([0.2 + 0.004 * xx, 0.3 + 0.004 * yy, 0.5 + 0.002 * (xx - yy)], axis=-1).astype(np.float32)
+    coc = _coc_scene(scene, h, w, rng)
+    out, info = _render_fast(lin, coc, quality="exact", tiles=_untiled((h, w)))
+    ref = ref_render.render_layers_linear(lin, coc)
+    assert scene == "ramp" or any(layer.get("extended") for layer in info["layers"])
+    np.testing.assert_allclose(out, ref, atol=RENDER_EXTEND_ATOL, rtol=0)
+    assert psnr(out, ref) > 60.0
+
+
+@pytest.mark.parametrize("quality", list(RENDER_MIN_PSNR_DB))
+@pytest.mark.parametrize("scene", ["box", "ramp", "large", "random"])
+def test_tiled_and_reduced_resolution_paths_approximate_reference(scene, quality):
+    """Default tiles (copy + convolved uniform tiles) and each quality tier's reduced-resolution layers."""
+    h, w = 64, 80
+    rng = np.random.default_rng(20 + SCENES.index(scene))
+    lin, coc = _texture(rng, h, w), _coc_scene(scene, h, w, rng)
+    out, info = _render_fast(lin, coc, quality=quality, extend_behind=False)
+    ref = ref_render.render_layers_linear(lin, coc, extend_behind_layers=False)
+    assert psnr(out, ref) > RENDER_MIN_PSNR_DB[quality], (psnr(out, ref), info["layers"])
+    if quality != "exact" and scene != "random":  # |c| < 12 in "random": too small to reduce
+        assert any(layer["scale"] > 1 for layer in info["layers"])  # the reduced path ran
+    if scene == "large" and quality == "exact":
+        assert sum(layer.get("kernels", 0) for layer in info["layers"]) > 0  # the convolution path ran
+
+
+@pytest.mark.parametrize("quality", list(RENDER_MIN_PSNR_DB))
+def test_every_path_conserves_a_point_source_like_reference(quality):
+    h, w = 64, 80
+    lin = np.zeros((h, w, 1), np.float32)
+    lin[31, 40] = 1.0
+    coc = np.full((h, w), 24.0, np.float32)
+    out, _ = _render_fast(lin, coc, quality=quality)
+    ref = ref_render.render_layers_linear(lin, coc)
+    assert ref.sum() == pytest.approx(1.0, rel=1e-9)
+    assert out.sum() == pytest.approx(ref.sum(), rel=1e-3)
+
+
+def test_copy_tiles_are_the_input_in_fast_path_and_reference():
+    """Copy tiles are exact by design: the reference also returns the input there (no blur reaches them)."""
+    h, w = 64, 80
+    rng = np.random.default_rng(9)
+    lin, coc = _texture(rng, h, w), np.full((h, w), 0.4, np.float32)
+    coc[40:, 50:] = -14.0  # a blurred foreground corner; its reach keeps the tiles around it from being copied
+    coc[:20, :30] = 6.0
+    tiles = classify_tiles(coc)
+    assert tiles.copy.any() and not tiles.copy.all()
+    mask = tiles.pixel_mask(tiles.copy)
+    out, _ = _render_fast(lin, coc, quality="exact", tiles=tiles)
+    ref = ref_render.render_layers_linear(lin, coc)
+    np.testing.assert_array_equal(out[mask], lin[mask])
+    np.testing.assert_array_equal(ref[mask], lin[mask].astype(np.float64))
+    np.testing.assert_allclose(out, ref, atol=RENDER_EXTEND_ATOL)
+
+
+@pytest.mark.parametrize("blades", [0, 6])
+def test_render_physical_uint8_matches_reference(blades):
+    """The whole physical renderer on an sRGB uint8 frame: decoding, tiles, scatter, encoding (within 1 code)."""
+    h, w = 48, 64
+    rng = np.random.default_rng(4)
+    color = (_texture(rng, h, w) * 255).round().astype(np.uint8)
+    yy, xx = np.mgrid[0:h, 0:w]
+    depth = (1.2 + 0.045 * xx).astype(np.float32)  # a plane slanting away from the focus plane
+    lens = ThinLens(50.0, 1.4, 1.2, aperture_blades=blades, aperture_rotation_deg=10.0)
+    out, info = renderer.render_physical(color, depth, lens, fx=600.0, quality="exact")
+    ref = ref_render.render_physical(color, depth, lens, fx=600.0)
+    assert len(info["layers"]) > 5
+    assert np.abs(out.astype(np.float64) - ref * 255).max() <= 1.0
+
+
+@pytest.mark.parametrize("lens", [PaperLens(1.5), PaperLens(1.5, weight="eq1", eq1_aperture=3.0),
+                                  PaperLens(2.0, sigma=0.05, blur_sigma_px=2.3, max_range_m=4.0)],
+                         ids=["eq2", "eq1", "narrow"])
+@pytest.mark.parametrize("grey", [False, True], ids=["rgb", "grey"])
+def test_paper_method_matches_reference(lens, grey):
+    rng = np.random.default_rng(2)
+    h, w = 40, 48
+    color = rng.random((h, w) if grey else (h, w, 3)).astype(np.float32)
+    depth = rng.uniform(0.3, 6.0, (h, w)).astype(np.float32)
+    depth[0, :3] = [0.0, np.nan, np.inf]
+    out, _ = renderer.render_paper(color, depth, lens, max_range_m=10.0)
+    ref = ref_render.render_paper(color, depth, lens, max_range_m=10.0)
+    np.testing.assert_allclose(out, ref.reshape(out.shape), atol=PAPER_ATOL, rtol=0)
+
+
+# ---------------------------------------------------------------------------------------------
+# the references themselves against independent answers
+
+
+@pytest.mark.parametrize("blades, rotation", [(0, 0.0), (3, 0.0), (5, 0.4), (8, 1.0), (64, 0.0)])
+@pytest.mark.parametrize("r", [0.5, 1.7, 6.3])
+def test_reference_footprint_carries_the_aperture_area(blades, rotation, r):
+    k = ref_render.footprint(r, blades, rotation)
+    assert k.sum() == pytest.approx(ref_render.unit_area(blades) * r * r, rel=1e-12)
+    table = renderer.aperture_table(blades, rotation)  # the fast path's numerical integration
+    assert table[0, -1] - table[0, 0] == pytest.approx(ref_render.unit_area(blades), rel=1e-6)
+
+
+def test_reference_gaussian_is_opencvs():
+    img = np.random.default_rng(0).random((30, 37, 3)).astype(np.float32)
+    for sigma in (0.7, 2.0, 4.0):
+        k = 2 * int(math.ceil(3 * sigma)) + 1
+        cvb = cv2.GaussianBlur(img, (k, k), sigma, borderType=cv2.BORDER_REFLECT)
+        np.testing.assert_allclose(ref_render.gaussian_blur(img, sigma), cvb, atol=2e-6)
+
+
+def test_reference_registration_of_a_fronto_parallel_plane_is_its_depth():
+    """Analytic check of the reference: a plane z = 2 m seen by a pure-translation rig stays at 2 m."""
+    depth_i = Intrinsics(40, 30, 36.0, 36.0, 19.5, 14.5)
+    color_i = Intrinsics(48, 36, 44.0, 44.0, 23.5, 17.5)
+    T = np.eye(4)
+    T[0, 3] = -0.05
+    ref = ref_register.reproject_depth(np.full((30, 40), 2.0, np.float32), Rig(color_i, depth_i, T))
+    assert np.count_nonzero(ref) > 0.7 * ref.size
+    np.testing.assert_allclose(ref[ref > 0], 2.0, rtol=1e-12)
+
+
+def test_reference_linear_light_round_trip():
+    color = np.random.default_rng(1).integers(0, 256, (8, 9, 3), dtype=np.uint8)
+    lens = ThinLens(50.0, 8.0, 2.0)
+    out = ref_render.render_physical(color, np.full((8, 9), 2.0, np.float32), lens, fx=50.0)
+    np.testing.assert_allclose(out, color / 255.0, atol=1e-7)  # in focus everywhere: the input
+    assert decode_to_linear(color).dtype == np.float32

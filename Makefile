@@ -1,12 +1,13 @@
 # pcdof: two commands from a fresh clone.
-#   make demo  - set everything up, render the bundled sample into out/demo/
-#   make test  - set everything up, run the test suite
+#   make demo        - set everything up, render every bundled frame into out/demo/ (side-by-side pictures)
+#   make demo-batch  - render the bundled sequence with a focus pull into out/demo-batch/ (frames and a video)
+#   make test        - set everything up, run the test suite
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-slow bench stress setup sysdeps chromium clean
+.PHONY: demo demo-batch test test-slow bench stress setup sysdeps chromium clean
 
 setup: sysdeps $(STAMP)
 
@@ -43,6 +44,13 @@ $(STAMP): pyproject.toml
 
 demo: setup
 	$(VENV)/bin/pcdof demo -o out/demo
+	@echo "next: make demo-batch (a focus pull on the bundled sequence, written as a video)"
+
+# data/sequence: six frames of a still scene; focus pulled from the subject (1.49 m) to the wall (3.12 m)
+demo-batch: setup
+	$(VENV)/bin/pcdof batch data/sequence/frames.txt -o out/demo-batch --focal-length 135 --f-number 1.4 \
+	    --focus-keyframes 0:1.49,5:3.12 --easing smoothstep --video out/demo-batch/focus_pull.mp4 --fps 3
+	@echo "look at out/demo-batch/focus_pull.mp4 (the video) and out/demo-batch/frame_*.png"
 
 test: setup chromium
 	$(PY) -m pytest -q

@@ -163,3 +163,20 @@ def test_side_by_side_layout():
     picture = side_by_side([a, a, a], ["one", "two", "three"], "a caption " * 40, marker=(10, 10), panel_width=160)
     assert picture.shape[1] == 480 and picture.dtype == np.uint8
     assert picture.shape[0] > 120 + 34 + 26  # panels (scaled 2x), titles and a wrapped caption
+
+
+def test_bundled_sequence_is_small_and_complete():
+    root = os.path.join(DATA, "sequence")
+    pairs = [line.split() for line in open(os.path.join(root, "frames.txt")) if not line.startswith("#")]
+    assert len(pairs) >= 5
+    depths = []
+    for color, depth in pairs:
+        frame = io.load_frame(os.path.join(root, color), os.path.join(root, depth), os.path.join(root, "calib.json"))
+        assert frame.color.shape == (240, 320, 3)
+        depths.append(frame.depth_m)
+    # a new sensor frame each time: noise and dropouts differ, the scene does not
+    assert all(np.mean(a != b) > 0.1 for a, b in zip(depths, depths[1:]))
+    known = [(d > 0) for d in depths]
+    assert abs(np.median(depths[0][known[0]]) - np.median(depths[-1][known[-1]])) < 0.02
+    size = sum(os.path.getsize(os.path.join(dirpath, f)) for dirpath, _, files in os.walk(root) for f in files)
+    assert size < 600_000

@@ -44,7 +44,6 @@ $(STAMP): pyproject.toml
 
 demo: setup
 	$(VENV)/bin/pcdof demo -o out/demo
-	@echo "next: make demo-batch (a focus pull on the bundled sequence, written as a video)"
 
 # data/sequence: six frames of a still scene; focus pulled from the subject (1.49 m) to the wall (3.12 m)
 demo-batch: setup

@@ -44,9 +44,13 @@ A. Telea, "An image inpainting technique based on the fast marching method", J. 
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections import namedtuple
+from typing import NamedTuple
 
 import cv2
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -81,6 +85,14 @@ _COLOR_SAMPLES = 11
 # the pixels next to known depth (and so the depth edges there) as they are.
 _MEDIAN_MIN_R_STEPS = 3.0
 _MEDIAN_ITERATIONS = 2
+# A hole with foreground on both sides of it (an opposite pair of candidates, both nearer than the
+# farthest surface it sees) at most this far apart (pixels, summed) is a narrow gap: it takes the
+# farthest surface without a colour vote, so the gap does not alternate between the two.
+_GAP_PX = 48.0
+_GAP_MIN_PAIRS = 4
+# Below this many holes the kernels run on one thread: starting threads costs more than it saves
+# (and on a busy machine a parallel region waits for its slowest thread).
+_PARALLEL_MIN_HOLES = 20000
 
 # Sweep directions (dx, dy) and the Bresenham half step checked between two knight steps.
 _DIRS = np.array([
@@ -324,107 +336,234 @@ def _color_sim(color, depth, c0, c1, c2, qy, qx, uy, ux, n_samples, inv_two_sigm
     return math.exp(-best * inv_two_sigma2)
 
 
+# What the combine kernel reads: the holes and their candidates, the boundary pixels and their
+# planes, and the rules (scalars in kernel units). Named tuples, so a kernel takes a few named
+# arguments instead of a long positional list.
+_Holes = namedtuple("_Holes", "y x cand")
+_Boundary = namedtuple("_Boundary", "y x plane")
+_Rules = namedtuple("_Rules", "use_color inv_two_sigma2 edge_ratio bias extrapolate_px support_px gap_px "
+                              "n_samples step inv_lo inv_hi zmin zmax")
+
+# Kinds of hole, as the combine kernel classifies them: inside or between surfaces, outside the
+# depth camera's view, in a narrow gap, and with nothing to take a depth from (filled afterwards).
+SURFACE, BORDER, GAP, LOST = 0, 1, 2, 3
+
+
+@njit(cache=True, inline="always")
+def _extrapolate(bnd, q, px, py, cap_px, rules):
+    """(1/z, distance) of boundary pixel *q*'s plane at (px, py); the offset stops growing past *cap_px*."""
+    ddx = float(px - bnd.x[q])
+    ddy = float(py - bnd.y[q])
+    rq = math.sqrt(ddx * ddx + ddy * ddy)
+    f = 1.0 if rq <= cap_px else cap_px / rq
+    ivq = bnd.plane[q, 0] + f * (bnd.plane[q, 1] * ddx + bnd.plane[q, 2] * ddy)
+    return min(max(ivq, rules.inv_lo), rules.inv_hi), rq
+
+
+@njit(cache=True, inline="always")
+def _border_inv(holes, bnd, h, rules):
+    """1/z of hole *h* if it lies outside the depth camera's view, else -1 (0: outside, with
+    nothing on its row or column to extend).
+
+    Outside: on its row or its column, one side has no known pixel up to the frame border (the
+    other side's nearest known pixel is the surface just inside the view), and neither line has
+    known pixels on both sides (that hole is enclosed: a disocclusion or a sensor hole). The hole
+    takes the depth of the nearest such inside pixel, denoised by its plane fit, held constant:
+    that fit has known pixels on one side only, and its slope, extrapolated, amplifies noise.
+    """
+    best_r = np.inf
+    best = 0.0
+    for a in range(2):  # the x axis is _DIRS[0] and [4], the y axis _DIRS[2] and [6]
+        qa = holes.cand[2 * a, h]
+        qb = holes.cand[2 * a + 4, h]
+        if qa >= 0 and qb >= 0:
+            return -1.0
+        q = max(qa, qb)
+        if q >= 0:
+            rq = abs(holes.x[h] - bnd.x[q]) + abs(holes.y[h] - bnd.y[q])  # along an axis: the distance
+            if rq < best_r:
+                best_r = rq
+                best = min(max(bnd.plane[q, 0], rules.inv_lo), rules.inv_hi)
+    return best
+
+
+@njit(cache=True, inline="always")
+def _gap_depth(slot, iv, r, far_min_z, gap_px):
+    """Depth of the foreground around a hole in a narrow gap, else 0.
+
+    A narrow gap has foreground on both sides: at least _GAP_MIN_PAIRS opposite pairs of
+    candidates, both nearer than the farthest surface (depth below *far_min_z*), each pair at most
+    *gap_px* apart (summed). A channel qualifies along the pairs across it; a corner of a wider
+    hole only along the few that cut the corner. Returns the largest depth among those pairs.
+    """
+    n = 0
+    z_fg = 0.0
+    for p in range(8):
+        ka = p if p < 4 else p + 4  # king pairs (k, k + 4) for k < 4, knight pairs for 8 <= k < 12
+        sa = slot[ka]
+        sb = slot[ka + 4]
+        if sa < 0 or sb < 0 or r[sa] + r[sb] > gap_px:
+            continue
+        za = 1.0 / iv[sa]
+        zb = 1.0 / iv[sb]
+        if za < far_min_z and zb < far_min_z:
+            n += 1
+            z_fg = max(z_fg, za, zb)
+    return z_fg if n >= _GAP_MIN_PAIRS else 0.0
+
+
+@njit(cache=True, inline="always")
+def _candidates(holes, bnd, h, rules, iv, r, kq, qs, slot):
+    """Collect hole *h*'s candidates into the slot arrays (step 1); returns how many."""
+    m = 0
+    for k in range(holes.cand.shape[0]):
+        slot[k] = -1
+        q = holes.cand[k, h]
+        if q < 0:
+            continue
+        iv[m], r[m] = _extrapolate(bnd, q, holes.x[h], holes.y[h], rules.extrapolate_px, rules)
+        kq[m] = k
+        qs[m] = q
+        slot[k] = m
+        m += 1
+    return m
+
+
+@njit(cache=True, inline="always")
+def _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, z, order):
+    """(1/z, kind) of a hole whose candidates span several surfaces (steps 2-4)."""
+    for j in range(m):  # sort far to near (insertion sort: at most 16 candidates)
+        zq = 1.0 / iv[j]
+        i = j
+        while i > 0 and z[i - 1] < zq:
+            z[i] = z[i - 1]
+            order[i] = order[i - 1]
+            i -= 1
+        z[i] = zq
+        order[i] = j
+    end0 = 1
+    while end0 < m and z[end0 - 1] - z[end0] <= rules.edge_ratio * z[end0 - 1]:
+        end0 += 1
+    # in a narrow gap the foreground around it needs bias**2 times the support (not bias times) of
+    # the surface behind: a gap whose colour is ambiguous takes that surface throughout, not per pixel
+    kind = GAP if rules.use_color and _gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
+    bias = rules.bias * rules.bias if kind == GAP else rules.bias
+    c0 = float(color[py, px, 0]) if rules.use_color else 0.0
+    c1 = float(color[py, px, 1]) if rules.use_color else 0.0
+    c2 = float(color[py, px, 2]) if rules.use_color else 0.0
+    best_score = -1.0
+    best_inv = 0.0
+    start = 0
+    while start < m:  # surfaces from far to near; the best-supported one gives the depth
+        end = start + 1
+        while end < m and z[end - 1] - z[end] <= rules.edge_ratio * z[end - 1]:
+            end += 1
+        score = 0.0
+        sw = 0.0
+        swi = 0.0
+        for i in range(start, end):
+            j = order[i]
+            if rules.use_color:
+                k = kq[j]
+                ux = rules.step if dirs[k, 0] > 0 else (-rules.step if dirs[k, 0] < 0 else 0)
+                uy = rules.step if dirs[k, 1] > 0 else (-rules.step if dirs[k, 1] < 0 else 0)
+                sim = _color_sim(color, depth, c0, c1, c2, bnd.y[qs[j]], bnd.x[qs[j]], uy, ux, rules.n_samples,
+                                 rules.inv_two_sigma2)
+                score += sim / (r[j] + rules.support_px)
+            sw += 1.0 / r[j]
+            swi += iv[j] / r[j]
+        if start > 0:
+            score /= bias
+        if score > best_score:
+            best_score = score
+            best_inv = swi / sw
+        if not rules.use_color:
+            break  # the farthest surface
+        start = end
+    return best_inv, kind
+
+
 @njit(cache=True, parallel=True)
-def _combine(depth, color, plane, b_y, b_x, hole_y, hole_x, cand, dirs, use_color, inv_two_sigma2, edge_ratio,
-             bias, extrapolate_px, support_px, n_samples, step, zmin, zmax, out, n_found, r_near):
-    """Fill each hole pixel from its candidates (module docstring, steps 2-4)."""
-    K = cand.shape[0]
-    n = hole_y.shape[0]
-    inv_lo = 1.0 / zmax
-    inv_hi = 1.0 / zmin
+def _combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
+    """Fill each hole from its candidates (module docstring, steps 1-4); per hole, also the
+    distance to its nearest candidate (*r_near*, 0 at the border) and its *kind*."""
+    K = holes.cand.shape[0]
+    n = holes.y.shape[0]
     n_chunks = min(n, 256)
     for c in prange(n_chunks):
-        # per candidate slot: 1/z, distance, direction, boundary index; z and slot sorted far to near
-        iv = np.empty(K)
+        iv = np.empty(K)  # per candidate slot: 1/z, distance, direction, boundary index
         r = np.empty(K)
         kq = np.empty(K, dtype=np.int64)
         qs = np.empty(K, dtype=np.int64)
-        z = np.empty(K)
+        slot = np.empty(K, dtype=np.int64)  # per direction: its slot, -1 for none
+        z = np.empty(K)  # z and slot, sorted far to near
         order = np.empty(K, dtype=np.int64)
         for h in range(c * n // n_chunks, (c + 1) * n // n_chunks):
-            py = hole_y[h]
-            px = hole_x[h]
-            m = 0
-            for k in range(K):
-                q = cand[k, h]
-                if q < 0:
-                    continue
-                ddx = float(px - b_x[q])
-                ddy = float(py - b_y[q])
-                rq = math.sqrt(ddx * ddx + ddy * ddy)
-                f = 1.0 if rq <= extrapolate_px else extrapolate_px / rq
-                ivq = plane[q, 0] + f * (plane[q, 1] * ddx + plane[q, 2] * ddy)
-                iv[m] = min(max(ivq, inv_lo), inv_hi)
-                r[m] = rq
-                kq[m] = k
-                qs[m] = q
-                m += 1
-            n_found[h] = m
-            if m == 0:
-                r_near[h] = 0.0
-                continue
-            r_min = r[0]
-            for i in range(1, m):
-                r_min = min(r_min, r[i])
-            r_near[h] = r_min
-            best_inv = 0.0
-            iv_min = iv[0]
-            iv_max = iv[0]
-            for i in range(1, m):
-                iv_min = min(iv_min, iv[i])
-                iv_max = max(iv_max, iv[i])
-            if 1.0 / iv_min - 1.0 / iv_max <= edge_ratio / iv_min:
-                # one surface (the common case inside a surface): no sorting, no colour
-                sw = 0.0
-                swi = 0.0
-                for i in range(m):
-                    sw += 1.0 / r[i]
-                    swi += iv[i] / r[i]
-                best_inv = swi / sw
+            py = holes.y[h]
+            px = holes.x[h]
+            r_near[h] = 0.0
+            inv = _border_inv(holes, bnd, h, rules)
+            if inv >= 0.0:
+                kind[h] = BORDER if inv > 0.0 else LOST
             else:
-                for j in range(m):
-                    zq = 1.0 / iv[j]
-                    i = j
-                    while i > 0 and z[i - 1] < zq:
-                        z[i] = z[i - 1]
-                        order[i] = order[i - 1]
-                        i -= 1
-                    z[i] = zq
-                    order[i] = j
-                # surfaces from far to near; the best-supported one gives the depth
-                c0 = float(color[py, px, 0]) if use_color else 0.0
-                c1 = float(color[py, px, 1]) if use_color else 0.0
-                c2 = float(color[py, px, 2]) if use_color else 0.0
-                best_score = -1.0
-                start = 0
-                while start < m:
-                    end = start + 1
-                    while end < m and z[end - 1] - z[end] <= edge_ratio * z[end - 1]:
-                        end += 1
-                    score = 0.0
+                m = _candidates(holes, bnd, h, rules, iv, r, kq, qs, slot)
+                if m == 0:
+                    kind[h] = LOST
+                    continue
+                r_near[h] = r[:m].min()
+                iv_min = iv[:m].min()
+                iv_max = iv[:m].max()
+                if 1.0 / iv_min - 1.0 / iv_max <= rules.edge_ratio / iv_min:
+                    # one surface (the common case inside a surface): no sorting, no colour
                     sw = 0.0
                     swi = 0.0
-                    for i in range(start, end):
-                        j = order[i]
-                        if use_color:
-                            k = kq[j]
-                            ux = step if dirs[k, 0] > 0 else (-step if dirs[k, 0] < 0 else 0)
-                            uy = step if dirs[k, 1] > 0 else (-step if dirs[k, 1] < 0 else 0)
-                            sim = _color_sim(color, depth, c0, c1, c2, b_y[qs[j]], b_x[qs[j]], uy, ux, n_samples,
-                                             inv_two_sigma2)
-                            score += sim / (r[j] + support_px)
-                        sw += 1.0 / r[j]
-                        swi += iv[j] / r[j]
-                    if start > 0:
-                        score /= bias
-                    if score > best_score:
-                        best_score = score
-                        best_inv = swi / sw
-                    if not use_color:
-                        break
-                    start = end
-            # zmin, zmax are float32 values: clamping before the cast keeps the result inside them
-            out[py, px] = np.float32(min(max(1.0 / best_inv, zmin), zmax))
+                    for i in range(m):
+                        sw += 1.0 / r[i]
+                        swi += iv[i] / r[i]
+                    inv = swi / sw
+                    kind[h] = SURFACE
+                else:
+                    inv, kind[h] = _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot,
+                                                   z, order)
+            if kind[h] != LOST:
+                # zmin, zmax are float32 values: clamping before the cast keeps the result inside them
+                out[py, px] = np.float32(min(max(1.0 / inv, rules.zmin), rules.zmax))
+
+
+@njit(cache=True, parallel=True)
+def _despeckle(out, hole_y, hole_x, edge_ratio):
+    """Replace each hole whose depth differs from all of its 8 neighbours by more than *edge_ratio*
+    (relative) by their median (one Jacobi pass): an isolated pixel of another surface is a speckle."""
+    H, W = out.shape
+    n = hole_y.shape[0]
+    new = np.full(n, -1.0)
+    for c in prange((n + 255) // 256):
+        win = np.empty(8)
+        for h in range(c * 256, min(n, (c + 1) * 256)):
+            y = hole_y[h]
+            x = hole_x[h]
+            v = float(out[y, x])
+            m = 0
+            alike = False
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    yy = y + dy
+                    xx = x + dx
+                    if (dy == 0 and dx == 0) or not (0 <= yy < H and 0 <= xx < W):
+                        continue
+                    u = float(out[yy, xx])
+                    alike = alike or max(u, v) <= (1.0 + edge_ratio) * min(u, v)
+                    i = m
+                    while i > 0 and win[i - 1] > u:
+                        win[i] = win[i - 1]
+                        i -= 1
+                    win[i] = u
+                    m += 1
+            if m > 0 and not alike:
+                new[h] = win[(m - 1) // 2]
+    for h in range(n):
+        if new[h] >= 0.0:
+            out[hole_y[h], hole_x[h]] = new[h]
 
 
 @njit(cache=True, parallel=True)
@@ -473,15 +612,6 @@ def _median_far(out, hole_y, hole_x, r_near, min_r, step, edge_ratio, iterations
                 new[t] = win[12]
         for t in range(n):
             out[hole_y[far[t]], hole_x[far[t]]] = new[t]
-
-
-# Serial twins of the parallel kernels: below ~20 000 holes, starting threads costs more than it
-# saves (and on a busy machine a parallel region waits for its slowest thread).
-_PARALLEL_MIN_HOLES = 20000
-_sweep_serial = njit(cache=True)(_sweep.py_func)
-_fit_boundary_serial = njit(cache=True)(_fit_boundary.py_func)
-_combine_serial = njit(cache=True)(_combine.py_func)
-_median_far_serial = njit(cache=True)(_median_far.py_func)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -540,44 +670,106 @@ def _nearest_known(depth: np.ndarray, known: np.ndarray) -> np.ndarray:
     return depth[known][labels - 1]
 
 
-def _fill_directional(depth_m, color, *, use_color, edge_ratio, sigma_color, background_bias, parallel=None):
+class FillPlan(NamedTuple):
+    """How :func:`fill_depth` runs on one input; chosen by :func:`plan_fill`, shown in the trace."""
+
+    holes: int  #: unknown pixels
+    threads: int  #: numba threads of the kernels (1: serial)
+    reason: str  #: one line, why this many threads
+
+    def describe(self) -> str:
+        return f"{self.threads} thread{'s' if self.threads != 1 else ''}: {self.reason}"
+
+
+def plan_fill(depth_m, *, parallel: bool | None = None) -> FillPlan:
+    """Choose how to run the fill on *depth_m* (the one place where that is decided).
+
+    Parameters
+    ----------
+    depth_m : (H, W) float ndarray, metres, 0 (or NaN, inf, negative) = unknown
+    parallel : None (by the number of holes), True (all numba threads) or False (one thread)
+
+    Returns
+    -------
+    FillPlan
+    """
+    if parallel is not None and not isinstance(parallel, (bool, np.bool_)):
+        raise InputError(f"parallel must be None, True or False; got {parallel!r}")
+    needs_fill(depth_m)  # validates depth_m
+    arr = np.asarray(depth_m)
+    holes = int(arr.size - np.count_nonzero((arr > 0) & np.isfinite(arr) if arr.dtype.kind == "f" else arr > 0))
+    if parallel is None:
+        parallel = holes >= _PARALLEL_MIN_HOLES
+        reason = f"{holes} holes {'>=' if parallel else '<'} {_PARALLEL_MIN_HOLES}"
+    else:
+        reason = "parallel=" + str(bool(parallel))
+    return FillPlan(holes, numba.get_num_threads() if parallel else 1, reason)
+
+
+@contextlib.contextmanager
+def _threads(n: int):
+    """Run numba's parallel kernels on *n* threads inside the block (numba's setting is per thread)."""
+    before = numba.get_num_threads()
+    numba.set_num_threads(n)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
+def _rules(shape, *, use_color, unit, edge_ratio, sigma_color, background_bias, zmin, zmax) -> _Rules:
+    """The kernel's scalars: the spatial constants scaled to an image of *shape*, colour in kernel units."""
+    scale = max(shape) / _REFERENCE_SIZE_PX
+    return _Rules(
+        use_color=bool(use_color), inv_two_sigma2=unit * unit / (2.0 * sigma_color * sigma_color),
+        edge_ratio=float(edge_ratio), bias=float(background_bias), extrapolate_px=_EXTRAPOLATE_PX * max(scale, 1.0),
+        support_px=_SUPPORT_PX * scale, gap_px=_GAP_PX * scale,
+        n_samples=_COLOR_SAMPLES, step=max(1, int(round(scale))), inv_lo=1.0 / zmax, inv_hi=1.0 / zmin,
+        zmin=zmin, zmax=zmax,
+    )
+
+
+def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, background_bias):
+    """Filled depth and each hole's kind (``SURFACE``, ``BORDER``, ``GAP``, ``LOST``), by hole index."""
+    hole_id, label, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = _index(depth)
+    rules = _rules(depth.shape, use_color=use_color, unit=unit, edge_ratio=edge_ratio, sigma_color=sigma_color,
+                   background_bias=background_bias, zmin=zmin, zmax=zmax)
+    holes = _Holes(hole_y, hole_x, _sweep(hole_id, label, hole_x, row_start, _DIRS, _HALF))
+    bnd = _Boundary(b_y, b_x, np.empty((b_y.size, 3), np.float64))
+    _fit_boundary(depth, b_y, b_x, _FIT_RADIUS_STEPS * rules.step, rules.step, edge_ratio, bnd.plane)
+    out = depth.copy()
+    r_near = np.empty(hole_y.size, dtype=np.float64)
+    kind = np.empty(hole_y.size, dtype=np.int8)
+    _combine(depth, guide, holes, bnd, _DIRS, rules, out, r_near, kind)
+    lost = kind == LOST
+    if lost.any():
+        # outside the view with no known pixel on its row or column (a corner), or no known pixel on
+        # any of the 16 lines (a small island off every line): the nearest filled or known pixel
+        ly, lx = hole_y[lost], hole_x[lost]
+        found = np.ones(depth.shape, bool)
+        found[ly, lx] = False
+        out[ly, lx] = _nearest_known(out, found)[ly, lx]
+    _median_far(out, hole_y, hole_x, r_near, _MEDIAN_MIN_R_STEPS * rules.step, rules.step, edge_ratio,
+                _MEDIAN_ITERATIONS)
+    _despeckle(out, hole_y, hole_x, edge_ratio)
+    return out, kind
+
+
+def _fill_directional(depth_m, color, *, use_color, edge_ratio, sigma_color, background_bias, parallel=None,
+                      with_kinds=False):
+    """Validated options and inputs, then the planned kernels (see the module docstring)."""
     edge_ratio = _number("edge_ratio", edge_ratio, minimum=0.0)
     sigma_color = _number("sigma_color", sigma_color, minimum=0.0)
     background_bias = _number("background_bias", background_bias, minimum=1.0, inclusive=True)
+    plan = plan_fill(depth_m, parallel=parallel)
     depth, color, _, done = _prepare(depth_m, color, need_color=use_color)
     if done is not None:
-        return done
-    hole_id, label, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = _index(depth)
-    if parallel is None:
-        parallel = hole_y.size >= _PARALLEL_MIN_HOLES
-    if parallel:
-        sweep, fit_boundary, combine, median_far = _sweep, _fit_boundary, _combine, _median_far
-    else:
-        sweep, fit_boundary, combine, median_far = (_sweep_serial, _fit_boundary_serial, _combine_serial,
-                                                    _median_far_serial)
-    cand = sweep(hole_id, label, hole_x, row_start, _DIRS, _HALF)
-    scale = max(depth.shape) / _REFERENCE_SIZE_PX
-    step = max(1, int(round(scale)))
-    plane = np.empty((b_y.size, 3), np.float64)
-    fit_boundary(depth, b_y, b_x, _FIT_RADIUS_STEPS * step, step, edge_ratio, plane)
-    if use_color:
-        guide, unit = _color_for_kernel(color)
-    else:
-        guide, unit = np.zeros((1, 1, 3), np.uint8), 1.0
-    out = depth.copy()
-    n_found = np.empty(hole_y.size, dtype=np.int32)
-    r_near = np.empty(hole_y.size, dtype=np.float64)
-    combine(depth, guide, plane, b_y, b_x, hole_y, hole_x, cand, _DIRS, use_color,
-            unit * unit / (2.0 * sigma_color * sigma_color), edge_ratio, background_bias,
-            _EXTRAPOLATE_PX * max(scale, 1.0), _SUPPORT_PX * scale, _COLOR_SAMPLES, step, zmin, zmax, out, n_found,
-            r_near)
-    lost = n_found == 0
-    if lost.any():
-        # no known pixel on any of the 16 lines (a small known island off every line): nearest one
-        ly, lx = hole_y[lost], hole_x[lost]
-        out[ly, lx] = _nearest_known(depth, depth > 0)[ly, lx]
-    median_far(out, hole_y, hole_x, r_near, _MEDIAN_MIN_R_STEPS * step, step, edge_ratio, _MEDIAN_ITERATIONS)
-    return out
+        return (done, np.empty(0, np.int8)) if with_kinds else done
+    guide, unit = _color_for_kernel(color) if use_color else (np.zeros((1, 1, 3), np.uint8), 1.0)
+    with _threads(plan.threads):
+        out, kind = _fill_kernels(depth, guide, unit, use_color=use_color, edge_ratio=edge_ratio,
+                                  sigma_color=sigma_color, background_bias=background_bias)
+    return (out, kind) if with_kinds else out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -585,8 +777,8 @@ def _fill_directional(depth_m, color, *, use_color, edge_ratio, sigma_color, bac
 
 
 def fill_joint_bilateral(depth_m, color, *, edge_ratio: float = DEFAULT_EDGE_RATIO,
-                         sigma_color: float = DEFAULT_SIGMA_COLOR,
-                         background_bias: float = DEFAULT_BACKGROUND_BIAS) -> np.ndarray:
+                         sigma_color: float = DEFAULT_SIGMA_COLOR, background_bias: float = DEFAULT_BACKGROUND_BIAS,
+                         parallel: bool | None = None) -> np.ndarray:
     """Colour-guided, background-preferring fill (the default; see the module docstring).
 
     Parameters
@@ -597,16 +789,18 @@ def fill_joint_bilateral(depth_m, color, *, edge_ratio: float = DEFAULT_EDGE_RAT
     sigma_color : float > 0, colour range sigma (colour scaled to [0, 1])
     background_bias : float >= 1, how many times more colour support a nearer surface needs than
         the farthest one to be chosen
+    parallel : None, True or False, see :func:`plan_fill`
 
     Returns
     -------
     (H, W) float32 ndarray, metres, no zeros; known pixels unchanged
     """
     return _fill_directional(depth_m, color, use_color=True, edge_ratio=edge_ratio, sigma_color=sigma_color,
-                             background_bias=background_bias)
+                             background_bias=background_bias, parallel=parallel)
 
 
-def fill_nearest_background(depth_m, color, *, edge_ratio: float = DEFAULT_EDGE_RATIO) -> np.ndarray:
+def fill_nearest_background(depth_m, color=None, *, edge_ratio: float = DEFAULT_EDGE_RATIO,
+                            parallel: bool | None = None) -> np.ndarray:
     """Fill from the farthest surface among the 16 directional candidates, ignoring colour.
 
     Parameters
@@ -614,13 +808,15 @@ def fill_nearest_background(depth_m, color, *, edge_ratio: float = DEFAULT_EDGE_
     depth_m : (H, W) float ndarray, metres, 0 = unknown
     color : (H, W, 3) or (H, W) ndarray or None; validated when given, not used
     edge_ratio : float > 0, relative depth gap that separates two surfaces
+    parallel : None, True or False, see :func:`plan_fill`
 
     Returns
     -------
     (H, W) float32 ndarray, metres, no zeros; known pixels unchanged
     """
     return _fill_directional(depth_m, color, use_color=False, edge_ratio=edge_ratio,
-                             sigma_color=DEFAULT_SIGMA_COLOR, background_bias=DEFAULT_BACKGROUND_BIAS)
+                             sigma_color=DEFAULT_SIGMA_COLOR, background_bias=DEFAULT_BACKGROUND_BIAS,
+                             parallel=parallel)
 
 
 def _inpaint_telea(codes: np.ndarray, holes: np.ndarray, radius_px: float) -> np.ndarray:
@@ -639,20 +835,25 @@ def _inpaint_telea(codes: np.ndarray, holes: np.ndarray, radius_px: float) -> np
     return out[pad_y: out.shape[0] - pad_y, pad_x: out.shape[1] - pad_x]
 
 
-def fill_telea(depth_m, color, *, radius_px: float = DEFAULT_TELEA_RADIUS_PX) -> np.ndarray:
+def fill_telea(depth_m, color=None, *, radius_px: float = DEFAULT_TELEA_RADIUS_PX,
+               parallel: bool | None = None) -> np.ndarray:
     """OpenCV's Telea inpainting of the depth map (the baseline), clamped to the known range.
+
+    This is the one Telea fill of the project (the benchmark's OpenCV baseline calls it too).
 
     Parameters
     ----------
     depth_m : (H, W) float ndarray, metres, 0 = unknown
     color : (H, W, 3) or (H, W) ndarray or None; validated when given, not used
     radius_px : float > 0, neighbourhood radius of cv2.inpaint
+    parallel : accepted for the common signature and checked; OpenCV chooses its own threads
 
     Returns
     -------
     (H, W) float32 ndarray, metres, no zeros; known pixels unchanged
     """
     radius_px = _number("radius_px", radius_px, minimum=0.0)
+    plan_fill(depth_m, parallel=parallel)  # validates parallel and depth_m
     depth, color, known, done = _prepare(depth_m, color, need_color=False)
     if done is not None:
         return done
@@ -683,7 +884,8 @@ def check_fill_method(method, name: str = "method") -> None:
         raise InputError(f"{name} must be one of {sorted(FILL_METHODS)}; got {method!r}")
 
 
-def fill_depth(depth_m, color, *, method: str = "joint-bilateral", **options) -> np.ndarray:
+def fill_depth(depth_m, color, *, method: str = "joint-bilateral", parallel: bool | None = None,
+               **options) -> np.ndarray:
     """Fill every unknown pixel of a registered depth map.
 
     Parameters
@@ -692,6 +894,8 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", **options) ->
         holes and disocclusions; NaN, inf and negative values are unknown too)
     color : (H, W, 3) RGB or (H, W) grey ndarray, uint8, uint16 or float in [0, 1]: the guide
     method : str, a key of :data:`FILL_METHODS`
+    parallel : None (chosen from the number of holes by :func:`plan_fill`), True or False: run the
+        kernels on all numba threads or on one; the result is the same
     **options : keyword options of the chosen method (``edge_ratio``, ``sigma_color``,
         ``background_bias`` for ``"joint-bilateral"``; ``edge_ratio`` for
         ``"nearest-background"``; ``radius_px`` for ``"telea"``)
@@ -715,7 +919,7 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", **options) ->
     check_fill_method(method)
     fn = FILL_METHODS[method]
     try:
-        return fn(depth_m, color, **options)
+        return fn(depth_m, color, parallel=parallel, **options)
     except TypeError as exc:
         if "unexpected keyword" in str(exc):
             raise InputError(f"method {method!r} got an unknown option: {exc}") from None
@@ -723,11 +927,8 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", **options) ->
 
 
 def warmup() -> None:
-    """Compile (or load from numba's cache) the fill kernels, serial and parallel, on a tiny input."""
+    """Compile (or load from numba's cache) the fill kernels on a tiny input, for every colour dtype."""
     d = np.array([[1.0, 0.0, 2.0], [1.0, 0.0, 2.0]], np.float32)
-    for parallel in (False, True):
-        for color in (np.zeros((2, 3, 3), np.uint8), np.zeros((2, 3, 3), np.uint16), np.zeros((2, 3, 3), np.float32)):
-            _fill_directional(d, color, use_color=True, edge_ratio=DEFAULT_EDGE_RATIO, sigma_color=DEFAULT_SIGMA_COLOR,
-                              background_bias=DEFAULT_BACKGROUND_BIAS, parallel=parallel)
-        _fill_directional(d, None, use_color=False, edge_ratio=DEFAULT_EDGE_RATIO, sigma_color=DEFAULT_SIGMA_COLOR,
-                          background_bias=DEFAULT_BACKGROUND_BIAS, parallel=parallel)
+    for color in (np.zeros((2, 3, 3), np.uint8), np.zeros((2, 3, 3), np.uint16), np.zeros((2, 3, 3), np.float32)):
+        fill_joint_bilateral(d, color, parallel=False)
+    fill_nearest_background(d, None, parallel=False)

@@ -246,17 +246,39 @@ def test_properties_random_maps(seed, hole_frac, method):
 
 
 @pytest.mark.parametrize("method", ["joint-bilateral", "nearest-background"])
-def test_parallel_kernels_match_serial(monkeypatch, method):
-    import pcdof.fill as fill_module
-
+def test_parallel_kernels_match_serial(method):
     depth, color, _, _ = box_scene()
     plane, _ = slanted_plane()
     depth[plane == 0] = 0  # sensor holes as well as the band
-    monkeypatch.setattr(fill_module, "_PARALLEL_MIN_HOLES", 10**12)
-    serial = fill_depth(depth, color, method=method)
-    monkeypatch.setattr(fill_module, "_PARALLEL_MIN_HOLES", 0)
-    parallel = fill_depth(depth, color, method=method)
+    depth[:, :7] = 0  # and a band outside the view
+    serial = fill_depth(depth, color, method=method, parallel=False)
+    parallel = fill_depth(depth, color, method=method, parallel=True)
     assert np.array_equal(serial, parallel)
+
+
+class TestPlan:
+    def test_chosen_from_holes_and_overridable(self):
+        from pcdof.fill import _PARALLEL_MIN_HOLES, plan_fill
+
+        few = np.ones((10, 10), np.float32)
+        few[2, 2] = 0
+        assert plan_fill(few).threads == 1 and "1 holes" in plan_fill(few).describe()
+        many = np.zeros((200, 200), np.float32)
+        many[0, 0] = 1
+        assert many.size - 1 >= _PARALLEL_MIN_HOLES
+        import numba
+
+        assert plan_fill(many).threads == numba.get_num_threads()
+        assert plan_fill(many, parallel=False).threads == 1
+        assert plan_fill(few, parallel=True).threads == numba.get_num_threads()
+
+    def test_invalid(self):
+        from pcdof.fill import plan_fill
+
+        with pytest.raises(InputError, match="parallel"):
+            plan_fill(np.ones((2, 2)), parallel="yes")
+        with pytest.raises(InputError, match="parallel"):
+            fill_depth(np.array([[1.0, 0.0]], np.float32), np.zeros((1, 2, 3), np.uint8), parallel=1)
 
 
 class TestNeedsFill:
@@ -311,6 +333,11 @@ class TestInvalidInput:
 
 
 class TestTelea:
+    def test_colour_optional(self):
+        """The benchmark's OpenCV baseline calls it with the depth alone."""
+        depth, truth = slanted_plane()
+        assert np.array_equal(fill_telea(depth), fill_telea(depth, None))
+
     def test_constant_stays_constant(self):
         """cv2.inpaint on float metres is off by about +-1.5 m; the wrapper's 16-bit codes are not."""
         depth = np.full((20, 20), 2.5, np.float32)

@@ -17,6 +17,14 @@ MAX_IMAGE_SIDE = 16384  # larger sides are refused: a guard against absurd sizes
 #: Largest magnitude a float colour value may have. sRGB floats are nominally in [0, 1] and linear light
 #: rarely exceeds 1e5; beyond this the float32 renderers overflow (x**2.4 of the sRGB decoding, blur sums).
 MAX_FLOAT_COLOR = 1e9
+#: Focal lengths (pixels) a calibration may give. A ray's slope (u - cx) / fx must stay far inside the float32
+#: range for every pixel: below 1e-3 px it exceeds 1e7, and a depth of 1e30 m would put points beyond 3.4e38.
+MIN_FOCAL_PX, MAX_FOCAL_PX = 1e-3, 1e9
+#: Largest principal-point coordinate magnitude, pixels (a centre that far outside the image is a unit mistake).
+MAX_PRINCIPAL_PX = 1e7
+#: Depth scales (metres per unit of an integer depth file) accepted: a 32-bit unit count times the scale
+#: stays a finite float32, and the smallest unit is far above float32's tiniest numbers.
+MIN_DEPTH_SCALE, MAX_DEPTH_SCALE = 1e-12, 1e3
 
 
 def _short(value, limit: int = 80) -> str:
@@ -25,7 +33,7 @@ def _short(value, limit: int = 80) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def _finite_number(name: str, value, *, positive: bool = False) -> float:
+def _finite_number(name: str, value, *, positive: bool = False, bounds: tuple[float, float] | None = None) -> float:
     # bool and str convert with float() but are not numbers here (True would be 1 px, "10" a typo'd file)
     if isinstance(value, (bool, np.bool_, str, bytes)):
         raise CalibrationError(f"{name} must be a number; got {type(value).__name__} {_short(value)}")
@@ -37,7 +45,23 @@ def _finite_number(name: str, value, *, positive: bool = False) -> float:
         raise CalibrationError(f"{name} must be finite; got {value!r}")
     if positive and out <= 0:
         raise CalibrationError(f"{name} must be > 0; got {out}")
+    if bounds is not None and not bounds[0] <= out <= bounds[1]:
+        raise CalibrationError(f"{name} must be within [{bounds[0]:g}, {bounds[1]:g}]; got {out:g}")
     return out
+
+
+def check_depth_scale(value, error=CalibrationError, name: str = "depth_scale") -> float:
+    """*value* as a float if it is a finite number within [MIN_DEPTH_SCALE, MAX_DEPTH_SCALE]; else *error*."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise error(f"{name} must be a number (metres per depth unit); got {_short(value)}")
+    try:
+        v = float(value)
+    except OverflowError:  # an int beyond float's range
+        v = math.inf
+    if not (math.isfinite(v) and MIN_DEPTH_SCALE <= v <= MAX_DEPTH_SCALE):
+        raise error(f"{name} must be a finite number of metres per depth unit within [{MIN_DEPTH_SCALE:g}, "
+                    f"{MAX_DEPTH_SCALE:g}] (0.001 = millimetres); got {_short(value)}")
+    return v
 
 
 @dataclass(frozen=True)
@@ -72,9 +96,11 @@ class Intrinsics:
                 raise CalibrationError(f"intrinsics {name} must be in [1, {MAX_IMAGE_SIDE}]; got {v}")
             object.__setattr__(self, name, v)
         for name in ("fx", "fy"):
-            object.__setattr__(self, name, _finite_number(f"intrinsics {name}", getattr(self, name), positive=True))
+            object.__setattr__(self, name, _finite_number(f"intrinsics {name}", getattr(self, name), positive=True,
+                                                          bounds=(MIN_FOCAL_PX, MAX_FOCAL_PX)))
         for name in ("cx", "cy"):
-            object.__setattr__(self, name, _finite_number(f"intrinsics {name}", getattr(self, name)))
+            object.__setattr__(self, name, _finite_number(f"intrinsics {name}", getattr(self, name),
+                                                          bounds=(-MAX_PRINCIPAL_PX, MAX_PRINCIPAL_PX)))
         dist = self.distortion
         if dist is None:
             dist = ()
@@ -180,7 +206,7 @@ class Rig:
             if not isinstance(getattr(self, name), Intrinsics):
                 raise CalibrationError(f"rig {name} must be an Intrinsics; got {type(getattr(self, name)).__name__}")
         object.__setattr__(self, "T_color_from_depth", validate_rigid(self.T_color_from_depth))
-        object.__setattr__(self, "depth_scale", _finite_number("depth_scale", self.depth_scale, positive=True))
+        object.__setattr__(self, "depth_scale", check_depth_scale(self.depth_scale))
         object.__setattr__(self, "max_range_m", _finite_number("max_range_m", self.max_range_m, positive=True))
 
     @classmethod

@@ -73,10 +73,15 @@ def colored_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -
         keep = np.zeros(depth.shape, dtype=bool)
         keep[::stride, ::stride] = True
         depth[~keep] = 0.0  # as_depth_m returned a copy
-    points, index = depth_to_points(depth, intrinsics, return_index=True)
+    with np.errstate(over="ignore", invalid="ignore"):  # checked below: points beyond float32 are refused
+        points, index = depth_to_points(depth, intrinsics, return_index=True)
+        points = points.astype(np.float32)
+    if not np.all(np.isfinite(points)):
+        raise InputError(f"depth_m up to {float(depth.max()):.3g} m puts points beyond float32's range (about "
+                         "3.4e38 m) with these intrinsics; not a depth map in metres")
     rgb = color if color.ndim == 3 else np.repeat(color[:, :, None], 3, axis=2)
     colors = _color_to_unit(rgb.reshape(-1, 3)[index])
-    return points.astype(np.float32), colors
+    return points, colors
 
 
 def write_ply(path, points, colors=None) -> None:

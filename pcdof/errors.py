@@ -32,6 +32,10 @@ class ImageWriteError(PcdofError, OSError):
     """An output file could not be written."""
 
 
+class OutputInUseError(ImageWriteError):
+    """An output folder is owned by another running batch (see :mod:`pcdof.batch.lock`)."""
+
+
 # CLI exit codes, one per failure kind (0 = success; click uses 2 for usage errors).
 EXIT_CODES: dict[type, int] = {
     ImageReadError: 3,
@@ -41,6 +45,29 @@ EXIT_CODES: dict[type, int] = {
     ImageWriteError: 7,
     PcdofError: 8,
 }
+
+
+#: Exit code of an out-of-memory failure (Python's MemoryError or OpenCV's "Insufficient memory").
+EXIT_OUT_OF_MEMORY = 9
+
+
+def is_out_of_memory(error: BaseException) -> bool:
+    """Whether *error* says memory ran out: a MemoryError, or a ``cv2.error`` with OpenCV's StsNoMem code (-4)."""
+    if isinstance(error, MemoryError):
+        return True
+    return type(error).__module__.startswith("cv2") and getattr(error, "code", None) == -4
+
+
+def one_line(text: str) -> str:
+    """*text* with every line break and other unprintable character escaped, so it prints as one line.
+
+    Paths may hold newlines, tabs or bytes that are not valid UTF-8 (decoded to lone surrogates by
+    ``os.fsdecode``); they are shown as Python escapes (``\\n``, ``\\udcff``), everything else as is.
+    """
+    text = str(text)
+    if text.isprintable():
+        return text
+    return "".join(ch if ch.isprintable() else ascii(ch)[1:-1] for ch in text)
 
 
 def exit_code_for(error: BaseException) -> int:

@@ -388,7 +388,7 @@ class TestUnfilledDepthInRenderers:
 
     @pytest.mark.parametrize("weight", ["eq1", "eq2"])
     @pytest.mark.parametrize("settings", [{"sigma": 1e200}, {"sigma": 1e-200}, {"eq1_aperture": 1e300},
-                                          {"focus_distance_m": 1e300}])
+                                          {"focus_distance_m": 3.4e38}])
     @pytest.mark.parametrize("max_range_m", [10.0, 1e300])
     def test_paper_alpha_of_extreme_settings(self, weight, settings, max_range_m):
         lens = PaperLens(**{"focus_distance_m": 2.0, "weight": weight, **settings})

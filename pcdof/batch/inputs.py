@@ -27,7 +27,6 @@ Frames are ordered by their pairing key (numbers numerically) or by colour times
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import re
@@ -172,11 +171,9 @@ def read_tum_list(path: str) -> list[tuple[float, str]]:
 
 
 def _read_lines(path: str):
-    try:
-        with open(path, encoding="utf-8") as f:
-            lines = f.read().splitlines()
-    except (OSError, UnicodeDecodeError) as err:
-        raise ImageReadError(f"cannot read list file {path}: {err}") from None
+    from ..io._files import read_text
+
+    lines = read_text(path, "list").splitlines()  # a regular UTF-8 file without NUL bytes, or ImageReadError
     for lineno, line in enumerate(lines, 1):
         try:
             fields = split_fields(line)
@@ -253,9 +250,11 @@ def discover(path: str, *, max_difference: float = DEFAULT_MAX_DIFFERENCE_S) -> 
     -------
     Sequence (unmatched images are logged and counted)
     """
+    from ..io._files import fspath
+
     if not isinstance(path, (str, os.PathLike)):
         raise InputError(f"input must be a folder or list file path; got {type(path).__name__}")
-    path = os.path.abspath(os.fspath(path))
+    path = os.path.abspath(fspath(path, name="input"))
     if os.path.basename(path) in ("rgb.txt", "depth.txt"):  # a TUM list given directly: use its folder
         path = os.path.dirname(path)
     if os.path.isfile(path):
@@ -269,8 +268,10 @@ def discover(path: str, *, max_difference: float = DEFAULT_MAX_DIFFERENCE_S) -> 
             seq = _discover_folders(path)
         else:
             seq = _discover_suffixes(path)
+    elif os.path.lexists(path):
+        raise ImageReadError(f"input {path!r} is neither a folder nor a regular (list) file")
     else:
-        raise ImageReadError(f"input {path} does not exist")
+        raise ImageReadError(f"input {path!r} does not exist")
     if not seq.pairs:
         raise InputError(
             f"no colour/depth pairs found in {path} (layout {seq.layout!r}; "
@@ -395,30 +396,6 @@ def find_calibration(sequence: Sequence) -> str:
                      f"pass --calib")
 
 
-def states_depth_scale(calib_path: str) -> bool:
-    """Whether the calibration file itself gives a ``depth_scale`` (rather than leaving the default)."""
-    ext = os.path.splitext(calib_path)[1].lower()
-    if ext == ".json":
-        try:
-            with open(calib_path, encoding="utf-8") as f:
-                data = json.load(f)
-        except (OSError, ValueError, RecursionError):
-            return False
-        return isinstance(data, dict) and "depth_scale" in data
-    if ext in (".yaml", ".yml", ".xml"):
-        import cv2
-
-        try:
-            fs = cv2.FileStorage(calib_path, cv2.FILE_STORAGE_READ)
-        except cv2.error:
-            return False
-        try:
-            return fs.isOpened() and not fs.getNode("depth_scale").empty()
-        finally:
-            fs.release()
-    return False
-
-
 def load_rig(sequence: Sequence, calib_path: str | None = None, *, depth_scale: float | None = None) -> Rig:
     """Read the sequence's rig once, with the depth scale that applies to its depth files.
 
@@ -438,6 +415,5 @@ def load_rig(sequence: Sequence, calib_path: str | None = None, *, depth_scale: 
     from ..io import read_calibration
 
     path = calib_path if calib_path is not None else find_calibration(sequence)
-    if depth_scale is None and sequence.default_depth_scale is not None and not states_depth_scale(path):
-        depth_scale = sequence.default_depth_scale
-    return read_calibration(path, depth_scale=depth_scale)
+    # one read, through the guarded reader, whatever decides the depth scale
+    return read_calibration(path, depth_scale=depth_scale, default_depth_scale=sequence.default_depth_scale)

@@ -56,6 +56,7 @@ import numpy as np
 from ..camera import RGBDFrame, Rig
 from ..errors import ImageWriteError, InputError, PcdofError
 from ..lens import PaperLens, ThinLens, check_radius_px, focus_depth_at, parse_focus_pixel, pixel_inside
+from .lock import folder_lock
 from .inputs import DEFAULT_MAX_DIFFERENCE_S, FramePair, Sequence, discover, load_rig
 from .schedule import LensSchedule, build_schedule, parse_keyframes, smooth_focus_track
 
@@ -90,15 +91,17 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM arrived while a batch ran (raised in the main thread; the CLI exits 143)."""
 
 
-# SIGTERM held while worker processes start (see _sigterm_held); Python runs signal handlers in the main thread.
-_SIGTERM = {"held": 0, "pending": False}
+# SIGINT / SIGTERM held while worker processes start or stop (see _signals_held); Python runs signal handlers
+# in the main thread.
+_SIGNALS = {"held": 0, "pending": None}
 
 
-def _on_sigterm(signum, frame) -> None:
-    if _SIGTERM["held"]:
-        _SIGTERM["pending"] = True
+def _on_signal(signum, frame) -> None:
+    error = Terminated("SIGTERM") if signum == signal.SIGTERM else KeyboardInterrupt()
+    if _SIGNALS["held"]:
+        _SIGNALS["pending"] = _SIGNALS["pending"] or error
     else:
-        raise Terminated("SIGTERM")
+        raise error
 
 
 @contextlib.contextmanager
@@ -107,25 +110,51 @@ def _sigterm_interrupts():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
-        _SIGTERM["pending"] = False
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        _SIGNALS["pending"] = None
 
 
 @contextlib.contextmanager
-def _sigterm_held():
-    """A SIGTERM within the block raises at its end: a worker being started is never left unknown to its pool."""
-    _SIGTERM["held"] += 1
+def _signals_held():
+    """Ctrl-C or SIGTERM within the block raises at its end: a worker being started or stopped is never left
+    unknown to its pool, and a second Ctrl-C cannot cut the shutdown short (leaving workers and semaphores)."""
+    _SIGNALS["held"] += 1
     try:
         yield
     finally:
-        _SIGTERM["held"] -= 1
-        if not _SIGTERM["held"] and _SIGTERM["pending"]:
-            _SIGTERM["pending"] = False
-            raise Terminated("SIGTERM")
+        _SIGNALS["held"] -= 1
+        pending = _SIGNALS["pending"]
+        if not _SIGNALS["held"] and pending is not None:
+            _SIGNALS["pending"] = None
+            raise pending
+
+
+_sigterm_held = _signals_held  # the name older callers use
+
+
+@contextlib.contextmanager
+def _starting_processes():
+    """Within the block, new processes (forkserver, resource tracker, workers) start with SIGINT blocked.
+
+    Ctrl-C goes to every process of the terminal's group; a Python process that gets it while it is
+    still importing prints "Fatal Python error" and a traceback. Blocked, it stays pending here (and
+    raises once the block ends, through :func:`_signals_held`) and never reaches the children, which
+    inherit the mask: the batch alone decides, and stops its workers with SIGTERM.
+    """
+    block = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+    with _signals_held():
+        if block:
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            yield
+        finally:
+            if block:
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,6 +169,7 @@ class BatchJob:
     fill_method : str, a key of :data:`pcdof.fill.FILL_METHODS`
     save_depth : bool, also write the registered, filled depth (16-bit PNG via :func:`pcdof.io.write_depth`)
     threads : int or None, numba / OpenCV threads per task (None = leave the libraries' defaults)
+    parent_pid : int or None, the batch's process: local workers exit when it dies
     """
 
     rig: Rig
@@ -148,6 +178,7 @@ class BatchJob:
     fill_method: str = "joint-bilateral"
     save_depth: bool = False
     threads: int | None = None
+    parent_pid: int | None = None
 
 
 @dataclass(frozen=True)
@@ -174,6 +205,23 @@ def _discard_outputs(task: FrameTask) -> None:
             pass
         except OSError as err:
             raise ImageWriteError(f"cannot remove the earlier output {path}: {err.strerror or err}") from None
+
+
+def _stamp(path: str) -> list[int] | None:
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return [int(st.st_size), int(st.st_mtime_ns)]
+
+
+def input_stamps(pair: FramePair) -> dict:
+    """What identifies the content of a frame's input files: ``{"color": [size, mtime_ns], "depth": ...}``.
+
+    ``--resume`` keeps a frame only when its files still have the stamps recorded when it was rendered
+    (a file rewritten in place changes its modification time, a different file its size or time).
+    """
+    return {"color": _stamp(pair.color), "depth": _stamp(pair.depth)}
 
 
 # ------------------------------------------------------------------------------------ per frame
@@ -263,6 +311,7 @@ def render_frame(job: BatchJob, task: FrameTask) -> dict:
     t0, c0 = time.perf_counter(), time.process_time()
     rec = base_record(task, job.output_dir)
     rec["worker"] = f"{socket.gethostname()}:{os.getpid()}"
+    rec["source"] = input_stamps(task.pair)  # before reading: a change after it shows on the next resume
     try:
         _discard_outputs(task)
         _set_threads(job.threads)
@@ -300,7 +349,53 @@ _WORKER_JOB: BatchJob | None = None
 def _init_worker(job: BatchJob) -> None:
     global _WORKER_JOB
     _WORKER_JOB = job
+    # Ctrl-C reaches every process of the terminal's group: the parent alone decides, and stops the workers
+    # with SIGTERM, on which a worker removes its half-written temporary files and exits without a traceback.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_stop)
+    if job.parent_pid is not None:
+        _exit_with_parent(job.parent_pid)
     _set_threads(job.threads)
+
+
+def _worker_stop(signum=None, frame=None) -> None:
+    from ..io._files import remove_pending_temp_files
+
+    remove_pending_temp_files()
+    os._exit(128 + signal.SIGTERM)
+
+
+#: Seconds between a worker's checks that the batch's process is alive (the fallback to PR_SET_PDEATHSIG).
+PARENT_POLL_S = 1.0
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """Make this worker stop (as on SIGTERM) when the batch's process *parent_pid* dies, even by ``kill -9``.
+
+    Linux: ``prctl(PR_SET_PDEATHSIG, SIGTERM)`` asks the kernel to signal the worker when the process that
+    forked it (the forkserver, which exits with the batch) dies. Everywhere: a daemon thread polls
+    *parent_pid* every :data:`PARENT_POLL_S` seconds and stops the worker once it is gone.
+    """
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_POLL_S)
+            try:
+                os.kill(parent_pid, 0)
+            except ProcessLookupError:
+                _worker_stop()
+            except OSError:  # PermissionError: alive, owned by someone else (cannot happen for our parent)
+                pass
+            if os.getppid() == 1:  # re-parented to init: the forkserver (and so the batch) is gone
+                _worker_stop()
+
+    threading.Thread(target=watch, name="pcdof-parent-watch", daemon=True).start()
 
 
 def _render_in_worker(task: FrameTask) -> dict:
@@ -519,7 +614,7 @@ def _settings(sequence: Sequence, rig: Rig, schedule: LensSchedule, job: BatchJo
     }
 
 
-def _check_resume(report_path: str, settings: dict, inputs: list[tuple[str, str]]) -> set[int]:
+def _check_resume(report_path: str, settings: dict, inputs: list[tuple[str, str]]) -> dict[int, dict]:
     """Frames the previous run in the folder finished from the same inputs (their outputs may be kept).
 
     InputError when it used other settings, or rendered any frame index from other colour / depth
@@ -533,7 +628,8 @@ def _check_resume(report_path: str, settings: dict, inputs: list[tuple[str, str]
 
     Returns
     -------
-    set of frame indices recorded "ok" or "skipped" from the same inputs
+    {frame index: its record} for the frames recorded "ok" or "skipped" from the same input paths (the
+    caller compares their input stamps and lens with this run's)
     """
     import json
 
@@ -541,9 +637,9 @@ def _check_resume(report_path: str, settings: dict, inputs: list[tuple[str, str]
         with open(report_path, encoding="utf-8") as f:
             previous = json.load(f)
     except (OSError, ValueError, RecursionError):
-        return set()
+        return {}
     if not isinstance(previous, dict):
-        return set()
+        return {}
     old_settings = previous.get("settings")
     if isinstance(old_settings, dict):
         current = json.loads(json.dumps(settings))  # same JSON normalisation as the stored copy
@@ -553,7 +649,7 @@ def _check_resume(report_path: str, settings: dict, inputs: list[tuple[str, str]
                 f"--resume: the output folder was rendered with different settings ({', '.join(differ)}); "
                 f"use a new output folder, or run without --resume to render every frame again"
             )
-    done = set()
+    done = {}
     frames = previous.get("frames")
     for rec in frames if isinstance(frames, list) else []:
         if not isinstance(rec, dict):
@@ -569,16 +665,23 @@ def _check_resume(report_path: str, settings: dict, inputs: list[tuple[str, str]
                 f"or run without --resume to render every frame again"
             )
         if rec.get("status") in ("ok", "skipped"):
-            done.add(i)
+            done[i] = rec
     return done
 
 
-def check_inputs_kept(sequence: Sequence, output_dir: str, n_frames: int, *, save_depth: bool = False,
-                      video: str | None = None) -> None:
-    """InputError, before any work, when a file the batch would write is one of the sequence's input files.
+def _unchanged(previous: dict, rec: dict) -> bool:
+    """Whether a frame's earlier record *previous* was made from the inputs and lens of this run's *rec*."""
+    return (isinstance(previous.get("source"), dict) and previous["source"] == rec["source"]
+            and all(previous.get(k) == rec[k] for k in ("focus_distance_m", "f_number", "focal_length_mm")))
 
-    Paths are compared after resolving symbolic links, so an output folder equal to or inside the
-    input folder is refused only where a name really collides (e.g. inputs ``depth/frame_000001.png``).
+
+def check_inputs_kept(sequence: Sequence, output_dir: str, n_frames: int, *, save_depth: bool = False,
+                      video: str | None = None, extra_inputs: dict | None = None) -> None:
+    """InputError, before any work, when a file the batch would write is one of the batch's input files.
+
+    Paths are compared after resolving symbolic links, and existing files by device and inode (hard
+    links), so an output folder equal to or inside the input folder is refused only where a name
+    really collides (e.g. inputs ``depth/frame_000001.png``).
 
     Parameters
     ----------
@@ -587,23 +690,40 @@ def check_inputs_kept(sequence: Sequence, output_dir: str, n_frames: int, *, sav
     n_frames : int, frames to render (outputs ``frame_NNNNNN.png`` for 0..n_frames-1)
     save_depth : bool, also ``depth/frame_NNNNNN.png``
     video : str or None, the video path
+    extra_inputs : {label: path} or None, other files read (the calibration, the list file)
     """
-    def key(path: str) -> str:
-        return os.path.normcase(os.path.realpath(path))
+    from ..io._files import file_identity, same_file
+    from .lock import LOCK_NAME
 
     output_dir = os.path.abspath(os.fspath(output_dir))
-    writes = [(os.path.join(output_dir, REPORT_NAME), "report.json (-o)")]
+    writes = [(os.path.join(output_dir, REPORT_NAME), "report.json (-o)"),
+              (os.path.join(output_dir, LOCK_NAME), "the batch's lock file (-o)")]
     for i in range(n_frames):
         writes.append((os.path.join(output_dir, frame_name(i)), f"frame {i}'s image (-o)"))
         if save_depth:
             writes.append((os.path.join(output_dir, DEPTH_DIR, frame_name(i)), f"frame {i}'s depth (--save-depth)"))
     if video is not None:
         writes.append((os.path.abspath(str(video)), "the video (--video)"))
-    inputs = {key(p): p for pair in sequence.pairs for p in (pair.color, pair.depth)}
+    inputs = [p for pair in sequence.pairs for p in (pair.color, pair.depth)]
+    inputs += [p for p in (extra_inputs or {}).values() if p is not None]
+    by_path = {}
+    by_inode = {}
+    for p in inputs:
+        real, inode = file_identity(p)
+        by_path.setdefault(real, p)
+        if inode is not None:
+            by_inode.setdefault(inode, p)
+    real_dirs = {}  # an output's folder resolved once; its own name is checked below if it exists
     for path, what in writes:
-        hit = inputs.get(key(path))
+        folder = os.path.dirname(path)
+        if folder not in real_dirs:
+            real_dirs[folder] = os.path.realpath(folder)
+        hit = by_path.get(os.path.normcase(os.path.join(real_dirs[folder], os.path.basename(path))))
+        if hit is None and os.path.lexists(path):
+            ident = file_identity(path)
+            hit = by_path.get(ident[0]) or (by_inode.get(ident[1]) if ident[1] is not None else None)
         if hit is not None:
-            raise InputError(f"refusing to overwrite the input file {hit} with {what}; "
+            raise InputError(f"refusing to overwrite the input file {hit!r} with {what}; "
                              f"choose an output folder (-o) and --video outside the input files")
 
 
@@ -672,8 +792,47 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
         if save_depth:
             os.makedirs(os.path.join(output_dir, DEPTH_DIR), exist_ok=True)
     except OSError as err:
-        raise ImageWriteError(f"cannot create output folder {output_dir}: {err.strerror or err}") from None
+        raise ImageWriteError(f"cannot create output folder {output_dir!r}: {err.strerror or err}") from None
+    with folder_lock(output_dir):  # one run at a time writes into a folder
+        sweep_temp_files(output_dir, n)  # an earlier run's, left by a kill -9
+        try:
+            return _run_locked(sequence, rig, schedule, output_dir, method=method, fill_method=fill_method,
+                               save_depth=save_depth, resume=resume, workers=workers, scheduler=scheduler,
+                               threads=threads, video=video, fps=fps, progress=progress, settings=settings)
+        finally:
+            sweep_temp_files(output_dir, n)
 
+
+def sweep_temp_files(output_dir: str, n_frames: int) -> int:
+    """Remove the temporary files of the batch's own outputs in *output_dir* (frames, depth, report.json).
+
+    Only names :func:`pcdof.io.writers` gives the temporary files of this batch's outputs are removed
+    (``.frame_NNNNNN.png.*.tmp``, ``.report.json.*.tmp``), never another file; the caller holds the
+    folder's lock, so no running batch owns them. Returns how many were removed.
+    """
+    import re
+
+    pattern = re.compile(r"\.(frame_\d{6,}\.png|report\.json)\..+\.tmp")
+    removed = 0
+    for folder in (output_dir, os.path.join(output_dir, DEPTH_DIR)):
+        try:
+            names = os.listdir(folder)
+        except OSError:
+            continue
+        for name in names:
+            if pattern.fullmatch(name) is None:
+                continue
+            with contextlib.suppress(OSError):
+                os.unlink(os.path.join(folder, name))
+                removed += 1
+    return removed
+
+
+def _run_locked(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, method: str,
+                fill_method: str, save_depth: bool, resume: bool, workers: int, scheduler, threads, video, fps: float,
+                progress: bool, settings: dict | None) -> dict:
+    """:func:`run_batch` once its arguments are checked and it holds the output folder."""
+    n = len(schedule)
     if scheduler is not None:
         backend = {"kind": "dask", "address": scheduler if isinstance(scheduler, str) else str(scheduler)}
         threads = 1 if threads is None else int(threads)
@@ -683,10 +842,10 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     else:
         backend = {"kind": "serial", "workers": 1}
     backend["threads_per_frame"] = threads
-    job = BatchJob(rig, output_dir, method, fill_method, bool(save_depth), threads)
+    job = BatchJob(rig, output_dir, method, fill_method, bool(save_depth), threads, parent_pid=os.getpid())
     all_settings = _settings(sequence, rig, schedule, job, settings)
     report_path = os.path.join(output_dir, REPORT_NAME)
-    done = set()
+    done = {}
     if resume:
         inputs = [(sequence.relative(p.color), sequence.relative(p.depth)) for p in sequence.pairs[:n]]
         done = _check_resume(report_path, all_settings, inputs)
@@ -704,8 +863,8 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
             rec.update(status="failed", error=failures[i], focus_distance_m=None)
             with contextlib.suppress(ImageWriteError):
                 _discard_outputs(task)
-        elif i in done and _outputs_complete(task):
-            rec["status"], rec["skipped"] = "skipped", "resume"
+        elif i in done and _outputs_complete(task) and _unchanged(done[i], {**rec, "source": input_stamps(task.pair)}):
+            rec["status"], rec["skipped"], rec["source"] = "skipped", "resume", done[i]["source"]
         else:
             tasks.append(task)
         records.append(rec)
@@ -804,8 +963,9 @@ def _run_processes(job: BatchJob, tasks: list[FrameTask], workers: int, collect)
                 while queue:
                     collect(render_frame(job, queue.pop()))
             return
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx,
-                                   initializer=_init_worker, initargs=(job,))
+        with _starting_processes():
+            pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx,
+                                       initializer=_init_worker, initargs=(job,))
         running: dict = {}
         broken, completed, lost = False, 0, []
         try:
@@ -813,7 +973,7 @@ def _run_processes(job: BatchJob, tasks: list[FrameTask], workers: int, collect)
                 while queue and len(running) < window and not broken:
                     task = queue.pop()
                     try:
-                        with _sigterm_held():  # submit starts the workers
+                        with _starting_processes():  # submit starts the workers
                             running[pool.submit(_render_in_worker, task)] = task
                     except BrokenProcessPool:
                         queue.append(task)
@@ -833,11 +993,12 @@ def _run_processes(job: BatchJob, tasks: list[FrameTask], workers: int, collect)
                         collect(rec)
                 if broken and not running:
                     break
-        except Terminated:  # Ctrl-C reaches the workers itself; SIGTERM only came to this process
-            _interrupt_workers(pool)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the workers ignore SIGINT; stop them with SIGTERM
+            with _signals_held():
+                _interrupt_workers(pool)
             raise
         finally:
-            with _sigterm_held():
+            with _signals_held():
                 pool.shutdown(wait=True, cancel_futures=True)
         barren_pools = barren_pools + 1 if broken and completed == 0 else 0
         for task in sorted(lost, key=lambda t: t.index, reverse=True):
@@ -855,10 +1016,10 @@ def _run_processes(job: BatchJob, tasks: list[FrameTask], workers: int, collect)
 
 
 def _interrupt_workers(pool: ProcessPoolExecutor) -> None:
-    """Send SIGINT to the pool's worker processes, as Ctrl-C would: they drop their frames and exit."""
+    """Send SIGTERM to the pool's worker processes: each removes its temporary files and exits at once."""
     for proc in list((getattr(pool, "_processes", None) or {}).values()):  # no public API before Python 3.14
         with contextlib.suppress(OSError):
-            os.kill(proc.pid, signal.SIGINT)
+            os.kill(proc.pid, signal.SIGTERM)
 
 
 def _run_dask(job: BatchJob, tasks: list[FrameTask], scheduler, collect) -> None:
@@ -1039,10 +1200,62 @@ def render_sequence(input_path: str, output_dir: str, *, lens, calib: str | None
     if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, np.integer)) or limit < 1):
         raise InputError(f"limit must be an integer >= 1; got {limit!r}")
     n = len(sequence) if limit is None else min(int(limit), len(sequence))
-    check_inputs_kept(sequence, output_dir, n, save_depth=save_depth, video=video)  # before the focus pass
-    schedule = plan_lens(sequence, rig, lens, n_frames=n, focus_at=focus_at, focus_keyframes=focus_keyframes,
-                         f_number_keyframes=f_number_keyframes, easing=easing, rate_hz=fps, smoothing=smoothing,
-                         progress=progress)
+    extra = {"--calib": calib, "INPUT": input_path if os.path.isfile(input_path) else None}
+    check_inputs_kept(sequence, output_dir, n, save_depth=save_depth, video=video,
+                      extra_inputs=extra)  # before the focus pass
+    output_dir = os.path.abspath(os.fspath(output_dir))
+    try:
+        os.makedirs(output_dir, exist_ok=True)
+    except OSError as err:
+        raise ImageWriteError(f"cannot create output folder {output_dir!r}: {err.strerror or err}") from None
+    with folder_lock(output_dir), _sigterm_interrupts():  # owned from the focus pass on; SIGTERM like Ctrl-C
+        try:
+            schedule = plan_lens(sequence, rig, lens, n_frames=n, focus_at=focus_at, focus_keyframes=focus_keyframes,
+                                 f_number_keyframes=f_number_keyframes, easing=easing, rate_hz=fps,
+                                 smoothing=smoothing, progress=progress)
+        except KeyboardInterrupt as err:
+            _report_interrupted_early(output_dir, sequence, n, err)
+            raise
+        return _render_planned(sequence, rig, schedule, output_dir, focus_at=focus_at,
+                               focus_keyframes=focus_keyframes, f_number_keyframes=f_number_keyframes, easing=easing,
+                               smoothing=smoothing, method=method, fill_method=fill_method,
+                               max_difference=max_difference, save_depth=save_depth, video=video, fps=fps,
+                               resume=resume, workers=workers, scheduler=scheduler, threads=threads,
+                               progress=progress)
+
+
+def _report_interrupted_early(output_dir: str, sequence: Sequence, n: int, err: BaseException) -> None:
+    """report.json for a batch stopped before its first frame (in the focus pass): status "interrupted".
+
+    An earlier run's report in the folder keeps its frames and settings (nothing of them was touched),
+    so that ``--resume`` still keeps what that run rendered.
+    """
+    import json
+
+    from .. import io
+
+    how = "SIGTERM" if isinstance(err, Terminated) else "Ctrl-C (SIGINT)"
+    note = {"status": "interrupted", "finished": _now(),
+            "error": f"interrupted by {how} in the focus pass, before any frame was rendered"}
+    path = os.path.join(output_dir, REPORT_NAME)
+    try:
+        with open(path, encoding="utf-8") as f:
+            report = json.load(f)
+    except (OSError, ValueError, RecursionError):
+        report = None
+    if not isinstance(report, dict):
+        report = {"report": "pcdof batch", "started": note["finished"],
+                  "input": {"path": sequence.root, "layout": sequence.layout, "pairs": len(sequence)},
+                  "output_dir": output_dir, "totals": {"frames": n, "ok": 0, "failed": 0, "skipped": 0, "pending": n},
+                  "frames": []}
+    with contextlib.suppress(PcdofError):
+        io.write_json(path, {**report, **note})
+
+
+def _render_planned(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, focus_at,
+                    focus_keyframes, f_number_keyframes, easing, smoothing, method, fill_method, max_difference,
+                    save_depth, video, fps, resume, workers, scheduler, threads, progress) -> dict:
+    """:func:`render_sequence` once the lens of every frame is decided: the settings, then :func:`run_batch`."""
     if isinstance(focus_keyframes, str):
         focus_keyframes = parse_keyframes(focus_keyframes, name="focus keyframes")
     if isinstance(f_number_keyframes, str):

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import InputError, LensError
-from ..lens import PaperLens, ThinLens
+from ..lens import MAX_FOCUS_DISTANCE_M, MIN_FOCUS_DISTANCE_M, PaperLens, ThinLens, focus_distance, positive_number
 
 
 def _linear(t: np.ndarray) -> np.ndarray:
@@ -113,7 +113,7 @@ def interpolate_keyframes(keyframes, n_frames: int, *, easing: str = "linear") -
     seg = np.clip(np.searchsorted(frames, i, side="right") - 1, 0, len(keys) - 2)
     t = np.clip((i - frames[seg]) / (frames[seg + 1] - frames[seg]), 0.0, 1.0)
     w = EASINGS[easing](t)
-    return values[seg] + w * (values[seg + 1] - values[seg])
+    return (1.0 - w) * values[seg] + w * values[seg + 1]  # exactly each keyframe's value at its frame
 
 
 def running_median(values, window: int) -> np.ndarray:
@@ -136,6 +136,7 @@ def running_median(values, window: int) -> np.ndarray:
     n = x.size
     if n == 0:
         return x.copy()
+    window = min(int(window), n)  # a longer window sees the same values: never allocate more than the sequence
     padded = np.concatenate([np.full(window - 1, np.nan), x])
     windows = np.lib.stride_tricks.sliding_window_view(padded, window)
     out = np.full(n, np.nan)
@@ -143,6 +144,21 @@ def running_median(values, window: int) -> np.ndarray:
     if known.any():
         out[known] = np.nanmedian(windows[known], axis=1)
     return out
+
+
+#: Frequencies accepted by the focus smoothing (frame rate and cut-offs), Hz: beyond MAX_RATE_HZ a cut-off
+#: no longer smooths at any frame rate (alpha = 1 to double precision), and the filter's products stay finite.
+MIN_RATE_HZ, MAX_RATE_HZ = 1e-3, 1e6
+#: Largest one-euro speed coefficient (the cut-off rises by beta Hz per dioptre per second).
+MAX_BETA = 1e6
+
+
+def check_rate(name: str, value) -> float:
+    """*value* as a float if it is a frequency in [MIN_RATE_HZ, MAX_RATE_HZ]; else an InputError naming *name*."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not (
+            math.isfinite(value) and MIN_RATE_HZ <= value <= MAX_RATE_HZ):
+        raise InputError(f"{name} must be a finite number of Hz in [{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}]; got {value!r}")
+    return float(value)
 
 
 def one_euro(values, *, rate_hz: float, min_cutoff_hz: float = 0.5, beta: float = 1.0,
@@ -170,10 +186,11 @@ def one_euro(values, *, rate_hz: float, min_cutoff_hz: float = 0.5, beta: float 
     if x.ndim != 1 or not np.all(np.isfinite(x)):
         raise InputError("one_euro values must be a 1-D array of finite numbers")
     for label, v in (("rate_hz", rate_hz), ("min_cutoff_hz", min_cutoff_hz), ("d_cutoff_hz", d_cutoff_hz)):
-        if not (isinstance(v, (int, float, np.floating)) and math.isfinite(v) and v > 0):
-            raise InputError(f"{label} must be a finite number > 0; got {v!r}")
-    if not (math.isfinite(beta) and beta >= 0):
-        raise InputError(f"beta must be a finite number >= 0; got {beta!r}")
+        check_rate(label, v)
+    if isinstance(beta, bool) or not (isinstance(beta, (int, float, np.integer, np.floating)) and math.isfinite(beta)
+                                      and 0 <= beta <= MAX_BETA):
+        raise InputError(f"beta must be a finite number in [0, {MAX_BETA:g}]; got {beta!r}")
+    rate_hz, min_cutoff_hz, d_cutoff_hz, beta = float(rate_hz), float(min_cutoff_hz), float(d_cutoff_hz), float(beta)
     out = np.empty_like(x)
     if x.size == 0:
         return out
@@ -258,8 +275,9 @@ class LensSchedule:
         if not isinstance(self.template, (ThinLens, PaperLens)):
             raise LensError(f"template must be a ThinLens or PaperLens; got {type(self.template).__name__}")
         focus = np.asarray(self.focus_distance_m, dtype=np.float64)
-        if focus.ndim != 1 or not np.all(np.isfinite(focus) & (focus > 0)):
-            raise LensError("focus_distance_m must be a 1-D array of finite distances > 0")
+        if focus.ndim != 1 or not np.all((focus >= MIN_FOCUS_DISTANCE_M) & (focus <= MAX_FOCUS_DISTANCE_M)):
+            raise LensError(f"focus_distance_m must be a 1-D array of distances within [{MIN_FOCUS_DISTANCE_M:.3g}, "
+                            f"{MAX_FOCUS_DISTANCE_M:.3g}] m")
         object.__setattr__(self, "focus_distance_m", focus)
         if isinstance(self.template, ThinLens):
             fn = np.asarray(self.f_number, dtype=np.float64) if self.f_number is not None else None
@@ -317,6 +335,8 @@ def build_schedule(template, n_frames: int, *, focus_keyframes=None, f_number_ke
             raise InputError(f"focus_track_m must have shape ({n_frames},); got {focus.shape}")
         src = source or "track"
     elif focus_keyframes is not None:
+        for frame, value in focus_keyframes:  # each value as the lens would check it, named by its frame
+            focus_distance(f"focus keyframe {frame}:{value!r}: the distance", value)
         focus = interpolate_keyframes(focus_keyframes, n_frames, easing=easing)
         src = source or "keyframes"
     else:
@@ -324,6 +344,8 @@ def build_schedule(template, n_frames: int, *, focus_keyframes=None, f_number_ke
         src = source or "fixed"
     f_number = None
     if isinstance(template, ThinLens):
+        for frame, value in f_number_keyframes or ():
+            positive_number(f"f-number keyframe {frame}:{value!r}: the f-number", value)
         f_number = (interpolate_keyframes(f_number_keyframes, n_frames, easing=easing)
                     if f_number_keyframes is not None else np.full(n_frames, template.f_number))
     raw = None if raw_focus_m is None else np.asarray(raw_focus_m, dtype=np.float64)

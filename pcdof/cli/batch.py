@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import math
+import os
 import sys
 
 import click
 
-from ..errors import InputError
+from ..batch.schedule import MAX_BETA, check_rate
+from ..errors import InputError, one_line
 from ..fill import FILL_METHODS
 from ..renderer import METHODS
-from ._common import check_output_file, check_output_folder, handle_errors
+from ._common import check_output_file, check_output_folder, check_output_paths, handle_errors
 from .render import check_lens_flags, check_positive_flags, lens_options
 
 EPILOG = """\b
@@ -101,15 +104,18 @@ def command(input_path, calib, output_dir, focal_length_mm, f_number, focus_dist
     check_output_folder(output_dir, "output")
     if video is not None:
         check_output_file(video, "--video")
+        check_output_paths({"INPUT": input_path, "--calib": calib}, {"--video": video}, {"-o": output_dir})
     given = [name for name, v in (("--focus-distance", focus_distance_m), ("--focus-at", focus_at),
                                   ("--focus-keyframes", focus_keyframes)) if v is not None]
     if len(given) > 1:
         raise InputError(f"{' and '.join(given)} exclude each other; give one")
     check_lens_flags(None, None, {"--focal-length": focal_length_mm, "--f-number": f_number,
                                   "--focus-distance": focus_distance_m})
-    check_positive_flags({"--focus-min-cutoff": focus_min_cutoff, "--max-time-difference": max_difference,
-                          "--fps": fps})
-    check_positive_flags({"--focus-beta": focus_beta}, allow_zero=True)
+    check_positive_flags({"--max-time-difference": max_difference})
+    for flag, value in (("--focus-min-cutoff", focus_min_cutoff), ("--fps", fps)):
+        check_rate(flag, value)
+    if not (math.isfinite(focus_beta) and 0 <= focus_beta <= MAX_BETA):
+        raise InputError(f"--focus-beta must be a finite number in [0, {MAX_BETA:g}]; got {focus_beta}")
     if focus_window < 1:
         raise InputError(f"--focus-window must be a whole number of frames >= 1; got {focus_window}")
     if not given:  # like `pcdof render`: focus on the depth at the image centre (followed over time)
@@ -133,10 +139,12 @@ def command(input_path, calib, output_dir, focal_length_mm, f_number, focus_dist
     t = report["totals"]
     fps_txt = f", {t['frames_per_second']:.2f} frames/s" if t["frames_per_second"] else ""
     click.echo(f"pcdof: {t['ok']} written, {t['skipped']} kept (resume), {t['failed']} failed of {t['frames']} "
-               f"frames in {t['wall_seconds']:.1f} s{fps_txt}; report: {output_dir}/report.json", err=True)
+               f"frames in {t['wall_seconds']:.1f} s{fps_txt}; report: {one_line(os.path.join(output_dir, 'report.json'))}",
+               err=True)
     for rec in report["frames"]:
         if rec["status"] == "failed":
-            click.echo(f"pcdof: frame {rec['index']} ({rec['color']}): {rec['error']}", err=True)
+            click.echo(f"pcdof: frame {rec['index']} ({one_line(repr(rec['color']))}): {one_line(rec['error'])}",
+                       err=True)
     if report.get("video", {}).get("error"):
-        click.echo(f"pcdof: video: {report['video']['error']}", err=True)
+        click.echo(f"pcdof: video: {one_line(report['video']['error'])}", err=True)
     sys.exit(exit_code(report))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from ..fill import FILL_METHODS, fill_depth
-from ._common import check_output_file, handle_errors
+from ._common import check_output_file, check_output_paths, handle_errors
 
 
 @click.command("register")
@@ -26,6 +26,7 @@ def command(color, depth, calib, output, depth_scale, fill, fill_method):
     from ..register import register_depth
 
     check_output_file(output)
+    check_output_paths({"COLOR": color, "DEPTH": depth, "--calib": calib}, {"-o": output})
     output_format(output, DEPTH_FORMATS, name="output")
     frame = load_frame(color, depth, calib, depth_scale=depth_scale)
     depth_m = register_depth(frame)

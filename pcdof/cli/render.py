@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 
@@ -10,12 +11,15 @@ import numpy as np
 
 from ..errors import InputError, LensError
 from ..io.writers import IMAGE_FORMATS
-from ._common import check_output_file, check_output_folder, handle_errors, make_output_folder
+from ._common import check_output_file, check_output_folder, check_output_paths, handle_errors, make_output_folder
 
 #: 8/16-bit image files (screenshots, and renders of 8/16-bit colour).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 #: Everything `pcdof render -o` writes: float (linear) colour needs .tif/.tiff, .exr or .npy.
 RENDER_SUFFIXES = tuple(IMAGE_FORMATS)
+#: The files ``--save-maps`` writes into its folder (``coc_px.*`` only for the physical method).
+MAP_NAMES = ("depth_registered.png", "depth_filled.npy", "depth_filled.png", "coc_px.npy", "coc_px.png",
+             "trace.json")
 
 
 def parse_xy(ctx, param, value):
@@ -103,6 +107,9 @@ def command(color, depth, calib, output, focal_length_mm, f_number, focus_distan
         raise InputError(f"output must end in one of {', '.join(RENDER_SUFFIXES)}; got {output!r}")
     if save_maps:
         check_output_folder(save_maps, "--save-maps")
+    maps = {f"--save-maps {name}": os.path.join(save_maps, name) for name in MAP_NAMES} if save_maps else {}
+    check_output_paths({"COLOR": color, "DEPTH": depth, "--calib": calib}, {"-o": output, **maps},
+                       {"--save-maps": save_maps})
     check_lens_flags(focus_distance_m, focus_at, {
         "--focal-length": focal_length_mm, "--f-number": f_number, "--sigma": blur_sigma_px,
         "--weight-sigma": weight_sigma, "--eq1-aperture": eq1_aperture})
@@ -123,6 +130,7 @@ def command(color, depth, calib, output, focal_length_mm, f_number, focus_distan
     result = pipeline.run(frame, lens, method=method, fill_method=fill_method, focus_at=focus_at, linear=linear,
                           quality=quality)
     if save_maps:  # the maps first and the image last: a failure leaves neither behind
+        created = not os.path.isdir(save_maps)
         make_output_folder(save_maps, "--save-maps")
         written = []
         try:
@@ -131,6 +139,9 @@ def command(color, depth, calib, output, focal_length_mm, f_number, focus_distan
         except BaseException:
             for path in written:
                 _remove_quietly(path)
+            if created:
+                with contextlib.suppress(OSError):
+                    os.rmdir(save_maps)  # only if still empty
             raise
     else:
         io.write_image(output, result.image)

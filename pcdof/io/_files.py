@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import contextlib
 import io
+import logging
 import math
 import os
+import stat
 import struct
 import tempfile
 import warnings
@@ -20,10 +22,13 @@ import numpy as np  # noqa: E402
 
 from ..camera import MAX_IMAGE_SIDE  # noqa: E402
 from ..errors import ImageReadError, ImageWriteError, InputError  # noqa: E402
+from ._capture import captured_stderr, pass_on  # noqa: E402
 from ._jpeg import decode_jpeg  # noqa: E402
 
 #: Largest image the readers decode (pixels); together with ``MAX_IMAGE_SIDE`` per side.
 MAX_PIXELS = 250_000_000
+#: Largest input file read (bytes): a 16384 x 16384 float32 RGB image is 3 GiB.
+MAX_FILE_BYTES = 4 << 30
 
 _MAGIC = (
     (b"\x89PNG\r\n\x1a\n", "png"),
@@ -46,11 +51,15 @@ _PNG_COLOUR_TYPES = {0: (1, (1, 2, 4, 8, 16)), 2: (3, (8, 16)), 3: (1, (1, 2, 4,
                      6: (4, (8, 16))}
 #: Adam7 passes: (x0, y0, dx, dy).
 _ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2))
-_INFLATE_BLOCK = 1 << 20  # bytes of compressed input, and of inflated output, per step
+_INFLATE_BLOCK = 1 << 20
+#: Start of the lines libpng and libtiff print about a file they decode (captured, never shown).
+_LIBRARY_NOTES = ("libpng warning", "libpng error", "TIFFRead", "TIFFFetch", "TIFFAdvance", "TIFFScan",
+                  "OJPEG", "JPEGLib", "Warning", "imread_", "TIFF")
+log = logging.getLogger("pcdof.io")  # bytes of compressed input, and of inflated output, per step
 
 
 def fspath(path, *, name: str = "path") -> str:
-    """*path* as a str, or InputError naming the argument."""
+    """*path* as a str, or InputError naming the argument (also for an empty path or one with a NUL byte)."""
     try:
         out = os.fspath(path)
     except TypeError:
@@ -59,23 +68,106 @@ def fspath(path, *, name: str = "path") -> str:
         out = os.fsdecode(out)
     if not out:
         raise InputError(f"{name} must not be empty")
+    if "\x00" in out:
+        raise InputError(f"{name} must not contain a NUL byte; got {out!r}")
     return out
 
 
-def read_bytes(path: str, what: str) -> bytes:
-    """The whole content of *path*; ImageReadError when it is missing, a folder, unreadable or empty."""
-    if not os.path.exists(path):
-        raise ImageReadError(f"{what} file not found: {path}")
-    if os.path.isdir(path):
-        raise ImageReadError(f"{what} path is a folder, expected a file: {path}")
+def _kind_of(mode: int) -> str:
+    for test, kind in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return "not a regular file"
+
+
+def open_regular(path: str, what: str) -> tuple[int, int]:
+    """(file descriptor, size in bytes) of *path* opened for reading; ImageReadError unless it is a regular file.
+
+    The file is opened without blocking (a FIFO would otherwise wait for a writer forever) and its
+    kind checked on the open descriptor, so what is checked is what is read. Refused: a missing
+    file, a folder, a FIFO, a device (``/dev/zero`` would be read until memory runs out), a socket,
+    and a file larger than :data:`MAX_FILE_BYTES`.
+    """
     try:
-        with open(path, "rb") as f:
-            data = f.read()
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
+    except FileNotFoundError:
+        raise ImageReadError(f"{what} file not found: {path!r}") from None
+    except IsADirectoryError:
+        raise ImageReadError(f"{what} path is a folder, expected a file: {path!r}") from None
     except OSError as err:
-        raise ImageReadError(f"cannot read {what} file {path}: {err.strerror or err}") from None
+        raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
+    try:
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise ImageReadError(f"{what} path is a folder, expected a file: {path!r}")
+        if not stat.S_ISREG(info.st_mode):
+            raise ImageReadError(f"{what} path {path!r} is {_kind_of(info.st_mode)}, not a regular file")
+        if info.st_size > MAX_FILE_BYTES:
+            raise ImageReadError(f"{what} file {path!r} is {info.st_size / 2**30:.1f} GiB; the limit is "
+                                 f"{MAX_FILE_BYTES / 2**30:.0f} GiB")
+        if hasattr(os, "O_NONBLOCK"):
+            os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd, info.st_size
+
+
+def read_bytes(path: str, what: str) -> bytes:
+    """The whole content of *path*; ImageReadError when it is missing, not a regular file, unreadable or empty."""
+    fd, size = open_regular(path, what)
+    try:
+        with os.fdopen(fd, "rb") as f:
+            data = f.read(MAX_FILE_BYTES + 1)
+    except OSError as err:
+        raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
     if not data:
-        raise ImageReadError(f"{what} file is empty: {path}")
+        raise ImageReadError(f"{what} file is empty: {path!r}")
+    if len(data) > MAX_FILE_BYTES:  # it grew while being read
+        raise ImageReadError(f"{what} file {path!r} is larger than {MAX_FILE_BYTES / 2**30:.0f} GiB")
     return data
+
+
+def read_text(path: str, what: str) -> str:
+    """The content of a UTF-8 text file (list files); ImageReadError as :func:`read_bytes`, or for bad UTF-8.
+
+    An empty file is an empty string. A NUL byte is refused (no path or number holds one).
+    """
+    fd, _ = open_regular(path, what)
+    try:
+        with os.fdopen(fd, "rb") as f:
+            data = f.read(MAX_FILE_BYTES + 1)
+        text = data.decode("utf-8-sig")
+    except OSError as err:
+        raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
+    except UnicodeDecodeError as err:
+        raise ImageReadError(f"cannot read {what} file {path!r}: not UTF-8 text ({err.reason} at byte "
+                             f"{err.start})") from None
+    if "\x00" in text:
+        line = text.count("\n", 0, text.index("\x00")) + 1
+        raise ImageReadError(f"{what} file {path!r} holds a NUL byte (line {line}); it is not a text file")
+    return text
+
+
+def file_identity(path: str) -> tuple[str, tuple[int, int] | None]:
+    """(resolved path, (st_dev, st_ino) or None when it does not exist): what names one file.
+
+    Two paths name the same file when their resolved paths are equal (symbolic links followed) or
+    when both exist with the same device and inode (hard links, bind mounts, case-insensitive names).
+    """
+    real = os.path.normcase(os.path.realpath(path))
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return real, None
+    return real, (st.st_dev, st.st_ino)
+
+
+def same_file(a: tuple[str, tuple[int, int] | None], b: tuple[str, tuple[int, int] | None]) -> bool:
+    """Whether two :func:`file_identity` results name the same file."""
+    return a[0] == b[0] or (a[1] is not None and a[1] == b[1])
 
 
 def sniff(data: bytes) -> str | None:
@@ -326,7 +418,10 @@ def decode_image(data: bytes, kind: str | None, path: str, what: str) -> np.ndar
 
     The size in the header is checked against the limits first, a PNG with :func:`check_png`, and a
     JPEG is decoded by :func:`~pcdof.io._jpeg.decode_jpeg`: OpenCV's decoders accept truncated and
-    corrupt files of these kinds with at most a message on stderr.
+    corrupt files of these kinds with at most a message on stderr. Other kinds decode with the C-level
+    stderr captured: libpng's and libtiff's messages (a malformed side chunk such as iCCP or gAMA in an
+    image that decodes) never reach the terminal; they go to the debug log, or into the error when the
+    image cannot be decoded.
     """
     if kind == "pfm":
         return decode_pfm(data, path, what)
@@ -335,15 +430,23 @@ def decode_image(data: bytes, kind: str | None, path: str, what: str) -> np.ndar
         check_size(size[0], size[1], path, what)
     if kind == "png":
         check_png(data, path, what)
+    notes: list[str] = []
     try:
         if kind == "jpeg":
             img = decode_jpeg(data, path, what)
         else:
-            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            with captured_stderr() as lines:
+                img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            notes = [line for line in lines if line.startswith(_LIBRARY_NOTES)]
+            pass_on([line for line in lines if line not in notes])
     except cv2.error as err:
         raise ImageReadError(f"cannot decode {what} file {path}: {err.err}") from None
     if img is None or img.size == 0:
-        raise ImageReadError(f"cannot decode {what} file {path}: not an image OpenCV can read, or truncated/corrupt")
+        why = f" ({notes[-1]})" if notes else ""
+        raise ImageReadError(f"cannot decode {what} file {path}: not an image OpenCV can read, or truncated/corrupt"
+                             f"{why}")
+    for note in notes:  # the image decoded: a note about a side chunk (iCCP, gAMA, tRNS, zTXt, ...) is harmless
+        log.debug("%s: %s", path, note)
     check_size(img.shape[1], img.shape[0], path, what)
     return img
 
@@ -439,6 +542,8 @@ def encode_cv2(ext: str, img: np.ndarray, path: str, params: list[int] | None = 
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)
+# Temporary files of the atomic writes in progress (a worker told to stop removes them before it exits).
+_PENDING: set[str] = set()
 
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
@@ -449,12 +554,13 @@ def atomic_write_bytes(path: str, data: bytes) -> None:
     """
     folder = os.path.dirname(os.path.abspath(path))
     if os.path.isdir(path):
-        raise ImageWriteError(f"cannot write {path}: it is a folder")
+        raise ImageWriteError(f"cannot write {path!r}: it is a folder")
     try:
         os.makedirs(folder, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
     except OSError as err:
-        raise ImageWriteError(f"cannot write {path}: {err.strerror or err}") from None
+        raise ImageWriteError(f"cannot write {path!r}: {err.strerror or err}") from None
+    _PENDING.add(tmp)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -466,5 +572,22 @@ def atomic_write_bytes(path: str, data: bytes) -> None:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         if isinstance(err, OSError):
-            raise ImageWriteError(f"cannot write {path}: {err.strerror or err}") from None
+            raise ImageWriteError(f"cannot write {path!r}: {err.strerror or err}") from None
         raise
+    finally:
+        _PENDING.discard(tmp)
+
+
+def temp_name_pattern(path: str) -> str:
+    """A glob pattern matching the temporary files :func:`atomic_write_bytes` makes for *path* (same folder)."""
+    import glob
+
+    return os.path.join(glob.escape(os.path.dirname(os.path.abspath(path))),
+                        f".{glob.escape(os.path.basename(path))}.*.tmp")
+
+
+def remove_pending_temp_files() -> None:
+    """Remove the temporary files of the writes in progress in this process (for a signal handler about to exit)."""
+    for tmp in list(_PENDING):
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)

@@ -11,15 +11,11 @@ written there meanwhile is passed on to the real stderr.
 
 from __future__ import annotations
 
-import os
-import sys
-import tempfile
-import threading
-
 import cv2
 import numpy as np
 
 from ..errors import ImageReadError
+from ._capture import captured_stderr, pass_on
 
 _SOI, _EOI, _SOS = 0xD8, 0xD9, 0xDA
 _STANDALONE = {0x01, *range(0xD0, 0xD8)}  # TEM and RST0..7: markers without a length field
@@ -27,8 +23,6 @@ _STANDALONE = {0x01, *range(0xD0, 0xD8)}  # TEM and RST0..7: markers without a l
 _LIBJPEG_WARNINGS = ("Corrupt JPEG data", "Premature end of JPEG file", "Invalid SOS parameters",
                      "Inconsistent progression sequence", "Warning: unknown JFIF revision",
                      "Invalid progressive parameters", "Bogus")
-# The stderr redirection is process-wide: one decode at a time holds it.
-_stderr_lock = threading.Lock()
 
 
 def check_end_marker(data: bytes, path: str, what: str) -> None:
@@ -66,22 +60,10 @@ def decode_jpeg(data: bytes, path: str, what: str) -> np.ndarray | None:
     Returns what OpenCV returns (None when it cannot decode the data at all).
     """
     check_end_marker(data, path, what)
-    buf = np.frombuffer(data, np.uint8)
-    with _stderr_lock, tempfile.TemporaryFile() as captured:
-        sys.stderr.flush()
-        saved = os.dup(2)
-        os.dup2(captured.fileno(), 2)
-        try:
-            img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        captured.seek(0)
-        text = captured.read().decode("utf-8", "replace")
-    damage = [line.strip() for line in text.splitlines() if line.strip().startswith(_LIBJPEG_WARNINGS)]
-    others = "".join(line + "\n" for line in text.splitlines() if line.strip() and line.strip() not in damage)
-    if others:
-        os.write(2, others.encode())
+    with captured_stderr() as lines:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    damage = [line for line in lines if line.startswith(_LIBJPEG_WARNINGS)]
+    pass_on([line for line in lines if line not in damage])
     if damage:
         more = f" (and {len(damage) - 1} more)" if len(damage) > 1 else ""
         raise ImageReadError(f"cannot read {what} file {path}: the JPEG is corrupt: {damage[0]}{more}")

@@ -62,7 +62,7 @@ import zlib
 import cv2
 import numpy as np
 
-from ..camera import MAX_IMAGE_SIDE, Intrinsics, Rig, validate_rigid
+from ..camera import MAX_IMAGE_SIDE, Intrinsics, Rig, check_depth_scale, validate_rigid
 from ..errors import CalibrationError, InputError
 from ._files import fspath, read_bytes
 
@@ -89,7 +89,7 @@ _UNITS = {"m": 1.0, "metre": 1.0, "metres": 1.0, "meter": 1.0, "meters": 1.0,
           "millimeters": 0.001}
 
 
-def read_calibration(path, *, depth_scale: float | None = None) -> Rig:
+def read_calibration(path, *, depth_scale: float | None = None, default_depth_scale: float | None = None) -> Rig:
     """Read a calibration file into a :class:`~pcdof.camera.Rig`.
 
     Parameters
@@ -99,7 +99,10 @@ def read_calibration(path, *, depth_scale: float | None = None) -> Rig:
         ``PinholeCameraIntrinsic`` JSON; see the module documentation for each schema.
     depth_scale : float, optional
         Metres per unit of integer depth files. Overrides the file's ``depth_scale``, and is
-        required for files that have none.
+        required for files that have none (unless *default_depth_scale* is given).
+    default_depth_scale : float, optional
+        Metres per unit used when neither *depth_scale* nor the file gives one (a dataset layout's
+        convention, e.g. TUM RGB-D's 0.0002).
 
     Returns
     -------
@@ -122,16 +125,18 @@ def read_calibration(path, *, depth_scale: float | None = None) -> Rig:
     path = fspath(path, name="calibration path")
     if depth_scale is not None:
         depth_scale = _scale_argument(depth_scale)
+    if default_depth_scale is not None:
+        default_depth_scale = check_depth_scale(default_depth_scale, InputError, "default_depth_scale")
     data = read_bytes(path, "calibration")
     unknown: list[str] = []
     try:
         kind, obj = _detect(path, data)
         if kind == "opencv":
-            rig = _rig_from_opencv(_read_filestorage(path, data), depth_scale, unknown)
+            rig = _rig_from_opencv(_read_filestorage(path, data), (depth_scale, default_depth_scale), unknown)
         elif kind == "open3d":
-            rig = _rig_from_open3d(obj, depth_scale, unknown)
+            rig = _rig_from_open3d(obj, (depth_scale, default_depth_scale), unknown)
         else:
-            rig = _rig_from_calib_json(obj, depth_scale, unknown)
+            rig = _rig_from_calib_json(obj, (depth_scale, default_depth_scale), unknown)
     except CalibrationError as err:
         raise CalibrationError(f"{path}: {err}") from None
     if unknown:
@@ -147,15 +152,7 @@ def read_calibration(path, *, depth_scale: float | None = None) -> Rig:
 
 
 def _scale_argument(value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise InputError(f"depth_scale must be a number (metres per depth unit); got {value!r}")
-    try:
-        v = float(value)
-    except OverflowError:  # an int beyond float's range
-        v = math.inf
-    if not math.isfinite(v) or v <= 0:
-        raise InputError(f"depth_scale must be a finite number > 0 (metres per depth unit); got {value!r}")
-    return v
+    return check_depth_scale(value, InputError)
 
 
 def _detect(path: str, data: bytes) -> tuple[str, dict | None]:
@@ -298,17 +295,26 @@ def _intrinsics_from_json(obj, name: str, unknown: list[str]) -> Intrinsics:
     return _intrinsics(width, height, K, dist, name)
 
 
+def _depth_scale(obj: dict, scales: tuple, hint: str) -> float:
+    """The depth scale that applies: the caller's override, else the file's, else the caller's default."""
+    override, default = scales
+    if override is not None:
+        return override
+    if obj.get("depth_scale") is None and default is not None:
+        return default
+    value = _number(_require(obj, "depth_scale", hint=hint), "depth_scale", positive=True)
+    return check_depth_scale(value)
+
+
 def _ignorable(key: str) -> bool:
     return key.startswith("_") or key.lower() in ("comment", "comments", "description", "notes")
 
 
-def _rig_from_calib_json(obj: dict, depth_scale: float | None, unknown: list[str]) -> Rig:
+def _rig_from_calib_json(obj: dict, scales: tuple, unknown: list[str]) -> Rig:
     unknown.extend(k for k in obj if k not in _CALIB_KEYS and not _ignorable(k))
     color = _intrinsics_from_json(_require(obj, "color"), "color", unknown)
     depth = _intrinsics_from_json(_require(obj, "depth"), "depth", unknown)
-    if depth_scale is None:
-        depth_scale = _number(_require(obj, "depth_scale", hint="metres per depth unit, e.g. 0.001"), "depth_scale",
-                              positive=True)
+    depth_scale = _depth_scale(obj, scales, "metres per depth unit, e.g. 0.001")
     T = _numbers(_require(obj, "T_color_from_depth", hint="4x4 rigid transform, metres"), "T_color_from_depth")
     T = validate_rigid(T, "T_color_from_depth")
     max_range = _number(obj["max_range_m"], "max_range_m", positive=True) if "max_range_m" in obj else 10.0
@@ -318,7 +324,7 @@ def _rig_from_calib_json(obj: dict, depth_scale: float | None, unknown: list[str
 # -- Open3D PinholeCameraIntrinsic JSON ------------------------------------------------------------------
 
 
-def _rig_from_open3d(obj: dict, depth_scale: float | None, unknown: list[str]) -> Rig:
+def _rig_from_open3d(obj: dict, scales: tuple, unknown: list[str]) -> Rig:
     unknown.extend(k for k in obj if k not in _OPEN3D_KEYS and not _ignorable(k))
     width = _side(_require(obj, "width"), "width")
     height = _side(_require(obj, "height"), "height")
@@ -333,11 +339,8 @@ def _rig_from_open3d(obj: dict, depth_scale: float | None, unknown: list[str]) -
         )
     K = _camera_matrix(K, "intrinsic_matrix")
     intr = _intrinsics(width, height, K, (), "intrinsic_matrix")
-    if depth_scale is None:
-        depth_scale = _number(
-            _require(obj, "depth_scale", hint="Open3D intrinsics have no depth scale: add \"depth_scale\" (metres "
-                     "per depth unit) to the file or pass depth_scale / --depth-scale"),
-            "depth_scale", positive=True)
+    depth_scale = _depth_scale(obj, scales, "Open3D intrinsics have no depth scale: add \"depth_scale\" (metres "
+                               "per depth unit) to the file or pass depth_scale / --depth-scale")
     max_range = _number(obj["max_range_m"], "max_range_m", positive=True) if "max_range_m" in obj else 10.0
     return Rig.registered(intr, depth_scale=depth_scale, max_range_m=max_range)
 
@@ -486,7 +489,7 @@ def _opencv_camera(obj: dict, n: int, roles: tuple[str, ...], label: str, used: 
     return _intrinsics(width, height, K, dist, kname)
 
 
-def _rig_from_opencv(obj: dict, depth_scale: float | None, unknown: list[str]) -> Rig:
+def _rig_from_opencv(obj: dict, scales: tuple, unknown: list[str]) -> Rig:
     used = {"color_camera", "units", "translation_scale", "depth_scale", "max_range_m"}
     color_camera = obj.get("color_camera", 2)
     if isinstance(color_camera, str) and color_camera.strip() in ("1", "2"):
@@ -538,10 +541,8 @@ def _rig_from_opencv(obj: dict, depth_scale: float | None, unknown: list[str]) -
             inv[:3, :3] = M[:3, :3].T
             inv[:3, 3] = -M[:3, :3].T @ M[:3, 3]
             M = inv
-    if depth_scale is None:
-        depth_scale = _number(
-            _require(obj, "depth_scale", hint="metres per depth unit, e.g. 0.001; add it or pass depth_scale / "
-                     "--depth-scale"), "depth_scale", positive=True)
+    depth_scale = _depth_scale(obj, scales, "metres per depth unit, e.g. 0.001; add it or pass depth_scale / "
+                               "--depth-scale")
     max_range = _number(obj["max_range_m"], "max_range_m", positive=True) if obj.get("max_range_m") is not None \
         else 10.0
     unknown.extend(k for k in obj if k not in used and k not in _OPENCV_IGNORED and not _ignorable(k))

@@ -130,7 +130,13 @@ def _read_depth(path, depth_scale, expect=None) -> tuple[np.ndarray, int]:
         )
     dt = raw.dtype
     if dt.kind == "f":
-        depth = raw.astype(np.float32)  # metres as stored
+        with np.errstate(over="ignore", invalid="ignore"):
+            depth = raw.astype(np.float32)  # metres as stored
+        if dt.itemsize > 4:
+            beyond = int(np.count_nonzero(np.isfinite(raw) & ~np.isfinite(depth)))
+            if beyond:
+                raise ImageReadError(f"depth file {path!r} holds {beyond} values beyond float32's range (about "
+                                     "3.4e38 m); not a depth map in metres")
     elif dt.kind in "iu" and dt.itemsize >= 2:
         if depth_scale is None:
             raise InputError(f"depth file {path} holds integers ({dt}): depth_scale (metres per unit) is required")

@@ -234,7 +234,12 @@ def write_json(path, obj, *, indent: int = 2) -> None:
         raise InputError(f"cannot write {path} as JSON: {err} (NaN and inf are not valid JSON)") from None
     except TypeError as err:
         raise InputError(f"cannot write {path} as JSON: {err}") from None
-    atomic_write_bytes(path, (text + "\n").encode("utf-8"))
+    try:
+        data = (text + "\n").encode("utf-8")
+    except UnicodeEncodeError:  # a file name that is not UTF-8 (os.fsdecode's lone surrogates): JSON escapes
+        data = (json.dumps(obj, indent=indent, allow_nan=False, default=_json_default, ensure_ascii=True)
+                + "\n").encode("ascii")
+    atomic_write_bytes(path, data)
 
 
 __all__ = ["write_image", "write_depth", "write_json", "output_format", "depth_to_png_mm",

@@ -1,0 +1,43 @@
+"""Capture what C libraries (libpng, libjpeg, libtiff) print on the process's stderr while decoding."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import tempfile
+import threading
+
+# The redirection is process-wide: one block at a time holds it.
+_stderr_lock = threading.Lock()
+#: Bytes of captured output kept (a damaged file can make a library print a line per row).
+_MAX_CAPTURED = 1 << 20
+
+
+@contextlib.contextmanager
+def captured_stderr():
+    """Redirect the process's C-level stderr (fd 2) into a temporary file within the block.
+
+    Yields a list that receives the captured lines when the block ends. Libraries such as libpng,
+    libjpeg and libtiff print their warnings there, where no caller can catch them. One block at a
+    time holds the redirection (it is process-wide).
+    """
+    lines: list[str] = []
+    with _stderr_lock, tempfile.TemporaryFile() as captured:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(captured.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            captured.seek(0)
+            text = captured.read(_MAX_CAPTURED).decode("utf-8", "replace")
+            lines.extend(line.strip() for line in text.splitlines() if line.strip())
+
+
+def pass_on(lines) -> None:
+    """Write *lines* (captured, but not a library's message about the file) to the real stderr."""
+    if lines:
+        os.write(2, "".join(line + "\n" for line in lines).encode("utf-8", "replace"))

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass
 
 import cv2
@@ -34,7 +35,7 @@ import numpy as np
 
 from ..camera import Intrinsics, Rig
 from ..errors import CalibrationError, ImageReadError, PcdofError
-from .base import FrameSource, file_size, pair_by_time
+from .base import RecordingSource, file_size, pair_by_time
 
 MATROSKA_MAGIC = b"\x1a\x45\xdf\xa3"
 
@@ -163,7 +164,9 @@ def _camera(cameras: dict, location: str, mode: ModeInfo, where: str) -> tuple[I
 
 # ------------------------------------------------------------------------------------------- reading
 def can_open(path: str, head: bytes) -> bool:
-    """A Matroska file (EBML magic and DocType ``matroska``) or a ``.mkv`` name."""
+    """A Matroska file (EBML magic and DocType ``matroska``) or a ``.mkv`` name (not a folder)."""
+    if os.path.isdir(path):
+        return False
     if head.startswith(MATROSKA_MAGIC):
         return b"matroska" in head[:64]
     return path.lower().endswith(".mkv")
@@ -177,7 +180,7 @@ def _av():
     return av
 
 
-class AzureKinectSource(FrameSource):
+class AzureKinectSource(RecordingSource):
     """Frames of an Azure Kinect ``.mkv`` recording; see the module documentation."""
 
     format = "azure-kinect"

@@ -1,11 +1,14 @@
 """The frame-source seam: anything that yields colour + depth frames of one rig.
 
-A :class:`FrameSource` knows its :class:`~pcdof.camera.Rig`, how many frames it has, and how to
-read frame *i* as a :class:`SourceFrame` (colour, depth in metres on the depth camera's grid, the two
-timestamps). A format is one module with one subclass that implements four small methods
-(:meth:`~FrameSource._read_color`, :meth:`~FrameSource._read_depth`, :meth:`~FrameSource._streams`,
-:meth:`~FrameSource._close`) and pairs its streams once, in its constructor; the registry in
-:mod:`pcdof.sources` picks the format of a path.
+A :class:`FrameSource` knows its :class:`~pcdof.camera.Rig`, how many frames it has, and how to read
+frame *i* as a :class:`SourceFrame` (colour, depth in metres on the depth camera's grid, the two
+timestamps when the source has them). A new input kind is one module with one subclass that
+implements ``__len__`` and ``_read(i)`` (and ``_close`` if it holds a file open), plus an entry in
+:data:`pcdof.sources.SOURCES`, whose ``can_open`` lets :func:`pcdof.sources.open_source` pick it.
+
+Two families share more code: :class:`RecordingSource` (a file with a colour and a depth stream,
+paired by timestamp: ``.mkv``, ``.bag``) and :class:`pcdof.sources.files.FileSource` (colour and
+depth image files with a calibration file: a pair, a folder, a TUM folder, a list file).
 """
 
 from __future__ import annotations
@@ -28,27 +31,30 @@ class SourceFrame:
     Attributes
     ----------
     index : int, the frame's position in the source (0-based)
-    color : (H, W, 3) uint8 ndarray, RGB, ``rig.color`` size
+    color : (H, W, 3) ndarray, RGB, ``rig.color`` size: uint8 from recordings; from image files the
+        file's own type, as :func:`pcdof.io.read_color` gives it (uint8, uint16 or float32)
     depth_m : (h, w) float32 ndarray, metres, 0 = unknown, in the depth camera's pixel grid
     rig : Rig
-    color_time_s, depth_time_s : float, seconds on the recording's clock
+    color_time_s, depth_time_s : float or None, seconds on the source's clock (None: the source has no times)
+    n_invalid_depth : int, depth values the reader found NaN, inf or negative and set to 0
     """
 
     index: int
     color: np.ndarray
     depth_m: np.ndarray
     rig: Rig
-    color_time_s: float
-    depth_time_s: float
+    color_time_s: float | None
+    depth_time_s: float | None
+    n_invalid_depth: int = 0
 
     @property
-    def timestamp_s(self) -> float:
+    def timestamp_s(self) -> float | None:
         """The colour image's time, seconds: the frame's time (depth-of-field images are colour images)."""
         return self.color_time_s
 
     def rgbd(self) -> RGBDFrame:
         """The frame as the :class:`~pcdof.camera.RGBDFrame` the rest of pcdof takes."""
-        return RGBDFrame(self.color, self.depth_m, self.rig)
+        return RGBDFrame(self.color, self.depth_m, self.rig, n_invalid_depth=self.n_invalid_depth)
 
 
 def frame_period_s(times) -> float | None:
@@ -59,6 +65,14 @@ def frame_period_s(times) -> float | None:
     gaps = np.diff(np.sort(t))
     gaps = gaps[gaps > 0]
     return float(np.median(gaps)) if gaps.size else None
+
+
+def check_max_difference(max_difference_s) -> float:
+    """*max_difference_s* as a float; InputError unless it is a finite number of seconds > 0."""
+    if isinstance(max_difference_s, bool) or not isinstance(max_difference_s, (int, float, np.floating)) or not (
+            math.isfinite(max_difference_s) and max_difference_s > 0):
+        raise InputError(f"max_difference_s must be a finite number of seconds > 0; got {max_difference_s!r}")
+    return float(max_difference_s)
 
 
 def pair_by_time(color_times, depth_times, *, max_difference_s: float | None = None,
@@ -84,9 +98,8 @@ def pair_by_time(color_times, depth_times, *, max_difference_s: float | None = N
         periods = [p if p else frame_period_s(t) for p, t in zip(periods_s, (color_times, depth_times))]
         periods = [p for p in periods if p]
         max_difference_s = max(periods) if periods else math.inf
-    elif isinstance(max_difference_s, bool) or not isinstance(max_difference_s, (int, float)) or not (
-            math.isfinite(max_difference_s) and max_difference_s > 0):
-        raise InputError(f"max_difference_s must be a finite number of seconds > 0; got {max_difference_s!r}")
+    else:
+        max_difference_s = check_max_difference(max_difference_s)
     if math.isinf(max_difference_s):  # one frame in each stream, no rate known: they belong together
         return np.zeros((1, 2), np.int64) if len(color_times) and len(depth_times) else np.zeros((0, 2), np.int64), \
             max_difference_s
@@ -96,8 +109,10 @@ def pair_by_time(color_times, depth_times, *, max_difference_s: float | None = N
 class FrameSource(abc.ABC):
     """A sequence of paired colour and depth frames from one rig.
 
-    Subclasses set :attr:`format` and call ``super().__init__`` with the rig, the streams' timestamps,
-    and the pairs; they implement the reading of one colour or depth image by its stream index.
+    A subclass sets :attr:`format` (its :data:`~pcdof.sources.SOURCES` name), calls
+    ``super().__init__(path, rig)``, and implements ``__len__`` and :meth:`_read`; :meth:`frame`
+    checks the index and the image sizes around it. :meth:`open` (the registry's opener) builds it
+    from a path and the caller's options.
 
     Use as a context manager (``with open_source(path) as src: ...``), or call :meth:`close`.
     """
@@ -105,24 +120,41 @@ class FrameSource(abc.ABC):
     #: the registry name of the format
     format: str = ""
 
-    def __init__(self, path: str, rig: Rig, color_times, depth_times, pairs, *, max_difference_s: float,
-                 override: Rig | None = None, override_path: str | None = None) -> None:
+    def __init__(self, path: str, rig: Rig, *, calibration_from: str = "source") -> None:
+        if not isinstance(rig, Rig):
+            raise InputError(f"{path}: a source's rig must be a Rig; got {type(rig).__name__}")
         self.path = path
-        self.color_times = np.asarray(color_times, dtype=np.float64)
-        self.depth_times = np.asarray(depth_times, dtype=np.float64)
-        self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-        self.max_difference_s = max_difference_s
-        self.calibration_from = "recording"
-        if override is not None:
-            rig = _override(rig, override, override_path, path)
-            self.calibration_from = override_path or "caller"
         self.rig = rig
-        if len(self.pairs) == 0:
-            raise ImageReadError(f"{path}: no colour frame has a depth frame within {max_difference_s:.4g} s "
-                                 f"({len(self.color_times)} colour, {len(self.depth_times)} depth frames)")
+        self.calibration_from = calibration_from
 
+    @classmethod
+    def open(cls, path: str, *, calib=None, depth_scale: float | None = None,
+             max_difference_s: float | None = None) -> "FrameSource":
+        """Open *path* with the options of :func:`pcdof.sources.open_source` (the registry's opener)."""
+        raise NotImplementedError(f"{cls.__name__} has no opener; give its SourceKind one")
+
+    @abc.abstractmethod
     def __len__(self) -> int:
-        return len(self.pairs)
+        """Number of frames (at least 1)."""
+
+    @abc.abstractmethod
+    def _read(self, i: int) -> SourceFrame:
+        """Frame *i*, 0 <= i < len: PcdofError naming what could not be read."""
+
+    def _where(self, i: int) -> str:
+        """Prefix of the errors of frame *i* (names the source and the frame)."""
+        return f"{self.path}: frame {i}: "
+
+    def _frame_times(self) -> np.ndarray:
+        """(len,) float64 colour times of the frames, seconds; NaN where the source has none."""
+        return np.full(len(self), np.nan)
+
+    def _info(self) -> dict:
+        """Format-specific entries of :meth:`info` (streams, pairing, files)."""
+        return {}
+
+    def _close(self) -> None:
+        """Release what the source holds open (nothing by default)."""
 
     def __iter__(self):
         for i in range(len(self)):
@@ -138,56 +170,108 @@ class FrameSource(abc.ABC):
         """Release the file; frames can no longer be read."""
         self._close()
 
+    def check_index(self, index) -> int:
+        """*index* as an int in [-len, len); InputError naming the source otherwise."""
+        n = len(self)
+        if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)):
+            raise InputError(f"{self.path}: frame index must be an integer; got {index!r}")
+        if not -n <= index < n:
+            raise InputError(f"{self.path}: frame index {index} is out of range: it has {n} frame"
+                             f"{'s' if n != 1 else ''} (0..{n - 1})")
+        return int(index) % n
+
+    def frame(self, index) -> SourceFrame:
+        """Read frame *index*; the reader's error class, its message prefixed with the source and the frame."""
+        i = self.check_index(index)
+        try:
+            frame = self._read(i)
+        except PcdofError as err:
+            raise type(err)(f"{self._where(i)}{err}") from None
+        shapes = ((frame.color.shape[:2], frame.rig.color.shape, "colour"),
+                  (frame.depth_m.shape, frame.rig.depth.shape, "depth"))
+        for got, want, what in shapes:
+            if tuple(got) != tuple(want):
+                raise ImageReadError(f"{self._where(i)}the {what} image is {got[1]}x{got[0]}; the "
+                                     f"calibration says {want[1]}x{want[0]}")
+        return frame
+
     def index_at(self, time_s: float) -> int:
-        """Index of the frame whose colour time is nearest *time_s* (seconds on the recording's clock)."""
+        """Index of the frame whose colour time is nearest *time_s* (seconds on the source's clock)."""
         if isinstance(time_s, bool) or not isinstance(time_s, (int, float, np.number)) or not math.isfinite(time_s):
             raise InputError(f"time_s must be a finite number of seconds; got {time_s!r}")
-        times = self.color_times[self.pairs[:, 0]]
+        times = self._frame_times()
+        if np.isnan(times).any():
+            raise InputError(f"{self.path}: its frames have no timestamps ({self.format}); choose a frame by index")
         return int(np.argmin(np.abs(times - float(time_s))))
 
     def frame_at(self, time_s: float) -> SourceFrame:
         """The frame whose colour time is nearest *time_s*."""
         return self.frame(self.index_at(time_s))
 
-    def check_index(self, index) -> int:
-        """*index* as an int in [-len, len); InputError naming the file otherwise."""
-        n = len(self)
-        if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)):
-            raise InputError(f"{self.path}: frame index must be an integer; got {index!r}")
-        if not -n <= index < n:
-            raise InputError(f"{self.path}: frame index {index} is out of range: the recording has {n} frame"
-                             f"{'s' if n != 1 else ''} (0..{n - 1})")
-        return int(index) % n
-
-    def frame(self, index) -> SourceFrame:
-        """Read frame *index*: ImageReadError naming the file and the frame when it cannot be decoded."""
-        i = self.check_index(index)
-        ci, di = (int(v) for v in self.pairs[i])
-        try:
-            color = self._read_color(ci)
-            depth = self._read_depth(di)
-        except PcdofError as err:
-            raise ImageReadError(f"{self.path}: frame {i}: {err}") from None
-        shapes = ((color.shape[:2], self.rig.color.shape, "colour"), (depth.shape, self.rig.depth.shape, "depth"))
-        for got, want, what in shapes:
-            if tuple(got) != tuple(want):
-                raise ImageReadError(f"{self.path}: frame {i}: the {what} image is {got[1]}x{got[0]}; the "
-                                     f"calibration says {want[1]}x{want[0]}")
-        return SourceFrame(i, color, depth, self.rig, float(self.color_times[ci]), float(self.depth_times[di]))
-
     def info(self) -> dict:
-        """Plain description: format, frames, streams, pairing and calibration (JSON-ready)."""
+        """Plain description: format, frames, calibration and the format's own entries (JSON-ready)."""
+        return {"path": self.path, "format": self.format, "frames": len(self), **self._info(),
+                "calibration_from": self.calibration_from, "baseline_mm": self.rig.baseline_m * 1000.0,
+                "calibration": self.rig.to_dict()}
+
+
+class RecordingSource(FrameSource):
+    """A recording file with a colour and a depth stream, paired by timestamp (``.mkv``, ``.bag``).
+
+    Subclasses pair their streams once, in the constructor, and call ``super().__init__`` with the
+    rig, the streams' timestamps and the pairs; they implement the reading of one colour or depth
+    image by its stream index (:meth:`_read_color`, :meth:`_read_depth`) and :meth:`_streams`.
+    """
+
+    def __init__(self, path: str, rig: Rig, color_times, depth_times, pairs, *, max_difference_s: float,
+                 override: Rig | None = None, override_path: str | None = None) -> None:
+        self.color_times = np.asarray(color_times, dtype=np.float64)
+        self.depth_times = np.asarray(depth_times, dtype=np.float64)
+        self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        self.max_difference_s = max_difference_s
+        calibration_from = "recording"
+        if override is not None:
+            rig = _override(rig, override, override_path, path)
+            calibration_from = override_path or "caller"
+        super().__init__(path, rig, calibration_from=calibration_from)
+        if len(self.pairs) == 0:
+            raise ImageReadError(f"{path}: no colour frame has a depth frame within {max_difference_s:.4g} s "
+                                 f"({len(self.color_times)} colour, {len(self.depth_times)} depth frames)")
+
+    @classmethod
+    def open(cls, path: str, *, calib=None, depth_scale: float | None = None,
+             max_difference_s: float | None = None) -> "RecordingSource":
+        """Open the recording *path*; *calib* (a calibration file) replaces the recording's calibration."""
+        if depth_scale is not None:
+            raise InputError(f"depth_scale applies to integer depth files; the recording {path} carries its own "
+                             f"depth units (got depth_scale={depth_scale!r})")
+        rig = calib_path = None
+        if calib is not None:
+            from ..io import read_calibration
+            from ..io._files import fspath
+
+            calib_path = fspath(calib, name="calib")
+            rig = read_calibration(calib_path, depth_scale=1.0)  # the scale is the recording's; see _override
+        return cls(path, rig=rig, calib_path=calib_path, max_difference_s=max_difference_s)
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def _read(self, i: int) -> SourceFrame:
+        ci, di = (int(v) for v in self.pairs[i])
+        return SourceFrame(i, self._read_color(ci), self._read_depth(di), self.rig, float(self.color_times[ci]),
+                           float(self.depth_times[di]))
+
+    def _frame_times(self) -> np.ndarray:
+        return self.color_times[self.pairs[:, 0]]
+
+    def _info(self) -> dict:
         paired = np.abs(self.color_times[self.pairs[:, 0]] - self.depth_times[self.pairs[:, 1]])
+        n = len(self)
         return {
-            "path": self.path,
-            "format": self.format,
-            "frames": len(self),
             "streams": self._streams(),
             "pairing": {"max_difference_s": self.max_difference_s, "largest_difference_s": float(paired.max()),
-                        "unpaired_color": len(self.color_times) - len(self), "unpaired_depth": len(self.depth_times) - len(self)},
-            "calibration_from": self.calibration_from,
-            "baseline_mm": self.rig.baseline_m * 1000.0,
-            "calibration": self.rig.to_dict(),
+                        "unpaired_color": len(self.color_times) - n, "unpaired_depth": len(self.depth_times) - n},
         }
 
     @abc.abstractmethod
@@ -201,9 +285,6 @@ class FrameSource(abc.ABC):
     @abc.abstractmethod
     def _streams(self) -> dict:
         """name -> plain dict (encoding, size, frames, fps, ...) of the source's streams."""
-
-    def _close(self) -> None:
-        """Release what the source holds open (nothing by default)."""
 
 
 def _override(recorded: Rig, rig: Rig, override_path: str | None, path: str) -> Rig:

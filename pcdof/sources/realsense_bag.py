@@ -18,6 +18,7 @@ translation for the bundled D435 recording.
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -25,7 +26,7 @@ import numpy as np
 
 from ..camera import Intrinsics, Rig
 from ..errors import CalibrationError, ImageReadError
-from .base import FrameSource, float32_value, pair_by_time
+from .base import RecordingSource, float32_value, pair_by_time
 
 BAG_MAGIC = b"#ROSBAG V2.0\n"
 _STREAM = re.compile(r"^/device_(\d+)/sensor_(\d+)/([A-Za-z]+)_(\d+)/")
@@ -37,7 +38,9 @@ _OPENCV_MODELS = ("Brown Conrady", "plumb_bob")
 
 
 def can_open(path: str, head: bytes) -> bool:
-    """A ROS bag v2 (magic line ``#ROSBAG V2.0``) or a ``.bag`` name."""
+    """A ROS bag v2 (magic line ``#ROSBAG V2.0``) or a ``.bag`` name (not a folder)."""
+    if os.path.isdir(path):
+        return False
     return head.startswith(BAG_MAGIC) or (not head and path.lower().endswith(".bag"))
 
 
@@ -50,7 +53,7 @@ def _rosbags():
     return AnyReader, get_typestore(Stores.ROS1_NOETIC)
 
 
-class RealSenseBagSource(FrameSource):
+class RealSenseBagSource(RecordingSource):
     """Frames of a RealSense ``.bag`` recording; see the module documentation."""
 
     format = "realsense-bag"

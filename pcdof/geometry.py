@@ -97,26 +97,14 @@ def max_radius2(intrinsics: Intrinsics) -> float:
 
 
 def _distort_normalized(x: np.ndarray, y: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Apply OpenCV distortion to undistorted normalised coordinates (x/z, y/z).
+    """OpenCV distortion of undistorted normalised coordinates (x/z, y/z): :func:`pcdof.distortion.distort_arrays`.
 
     Far outside the model's valid radius (:func:`max_radius2`) the polynomials overflow; such
     points come back as inf or NaN, silently: callers treat non-finite results as invalid.
     """
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        r2 = x * x + y * y
-        num, den = _radial(r2, d)
-        radial = num / den
-        a1 = 2.0 * x * y
-        xd = x * radial + d[2] * a1 + d[3] * (r2 + 2.0 * x * x) + r2 * (d[8] + d[9] * r2)
-        yd = y * radial + d[2] * (r2 + 2.0 * y * y) + d[3] * a1 + r2 * (d[10] + d[11] * r2)
-        if d[12] != 0.0 or d[13] != 0.0:
-            m = tilt_matrix(d[12], d[13])
-            wx = m[0, 0] * xd + m[0, 1] * yd + m[0, 2]
-            wy = m[1, 0] * xd + m[1, 1] * yd + m[1, 2]
-            wz = m[2, 0] * xd + m[2, 1] * yd + m[2, 2]
-            inv = np.where(wz != 0.0, 1.0 / np.where(wz != 0.0, wz, 1.0), 1.0)
-            xd, yd = wx * inv, wy * inv
-    return xd, yd
+    from .distortion import distort_arrays
+
+    return distort_arrays(x, y, d, tilt_matrix(d[12], d[13]))
 
 
 def normalized_to_pixels(xy: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
@@ -136,6 +124,20 @@ def normalized_to_pixels(xy: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     if intrinsics.has_distortion:
         x, y = _distort_normalized(x, y, dist14(intrinsics))
     return np.stack([intrinsics.fx * x + intrinsics.cx, intrinsics.fy * y + intrinsics.cy], axis=-1)
+
+
+def _newton_step(xs, ys, ru, rv, d, fx, fy):
+    """Newton step (dx, dy) of normalised coordinates for pixel residuals (ru, rv) of the forward
+    model; its Jacobian by central differences (the residual itself is exact)."""
+    h = 1e-7
+    xp, yp = _distort_normalized(xs + h, ys, d)
+    xm, ym = _distort_normalized(xs - h, ys, d)
+    j11, j21 = fx * (xp - xm) / (2 * h), fy * (yp - ym) / (2 * h)
+    xp, yp = _distort_normalized(xs, ys + h, d)
+    xm, ym = _distort_normalized(xs, ys - h, d)
+    j12, j22 = fx * (xp - xm) / (2 * h), fy * (yp - ym) / (2 * h)
+    det = j11 * j22 - j12 * j21
+    return (j22 * ru - j12 * rv) / det, (-j21 * ru + j11 * rv) / det
 
 
 def undistort_pixels(uv, intrinsics: Intrinsics, *, max_iter: int = 30) -> np.ndarray:
@@ -164,10 +166,8 @@ def undistort_pixels(uv, intrinsics: Intrinsics, *, max_iter: int = 30) -> np.nd
     xy = cv2.undistortPoints(uv.reshape(-1, 1, 2), intr.K, intr.dist_coeffs, criteria=criteria).reshape(-1, 2)
     x, y = xy[:, 0].copy(), xy[:, 1].copy()
     fx, fy = intr.fx, intr.fy
-    # Residual in pixels; Jacobian by central differences (the residual itself is exact).
     # A pixel whose iterate is not finite (a Newton step thrown far outside the model's valid
     # radius, where the polynomials overflow) has no inverse: it leaves the iteration, as failed.
-    h = 1e-7
     active = np.isfinite(x) & np.isfinite(y)
     diverged = ~active
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -186,16 +186,8 @@ def undistort_pixels(uv, intrinsics: Intrinsics, *, max_iter: int = 30) -> np.nd
             if not active.any():
                 break
             keep = ~(done | lost)
-            xs, ys, ru, rv = xs[keep], ys[keep], ru[keep], rv[keep]
-            xp, yp = _distort_normalized(xs + h, ys, d)
-            xm, ym = _distort_normalized(xs - h, ys, d)
-            j11, j21 = fx * (xp - xm) / (2 * h), fy * (yp - ym) / (2 * h)
-            xp, yp = _distort_normalized(xs, ys + h, d)
-            xm, ym = _distort_normalized(xs, ys - h, d)
-            j12, j22 = fx * (xp - xm) / (2 * h), fy * (yp - ym) / (2 * h)
-            det = j11 * j22 - j12 * j21
-            dx = (j22 * ru - j12 * rv) / det
-            dy = (-j21 * ru + j11 * rv) / det
+            xs, ys = xs[keep], ys[keep]
+            dx, dy = _newton_step(xs, ys, ru[keep], rv[keep], d, fx, fy)
             sel = idx[keep]
             x[sel] = xs - dx
             y[sel] = ys - dy

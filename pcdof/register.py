@@ -23,38 +23,34 @@ inside surfaces.
 
 Drawing keeps 1/z in the output buffer (no division per pixel; the largest value is the
 nearest surface) and converts it to z at the end. The output rows are split into bands, one
-task each, so threads never write the same pixel.
+task each, so threads never write the same pixel: the result does not depend on the number of
+threads or tasks.
 
 Everything that depends only on the calibration (the depth camera's rotated, undistorted rays
 and the colour camera's lens constants) is computed once per rig and cached. Each call makes
 two passes: the depth rows are projected and their quads coded in chunks, then the colour
-bands are drawn. The passes are numba code that releases the GIL; the calling thread and
-``numba.get_num_threads() - 1`` helper threads take chunks and bands from an atomic counter
-and wait for each other in the operating system, without spinning. So when another process
-keeps a core busy, the threads that do get a CPU take over the remaining work instead of
-waiting, spinning, for one that does not (an OpenMP team spinning at its barrier on a shared
-core costs whole scheduler time slices per parallel region). :func:`warmup` compiles (or
-loads from numba's cache) the kernels and starts the helper threads up front.
+bands are drawn. How they run (threads, chunks, bands, the small-quad kernel) is a
+:class:`pcdof.plans.RegisterPlan`; the tasks are numba ``prange`` iterations handed out one at a
+time (``numba.parallel_chunksize(1)``), so when another process keeps a core busy the threads
+that do get a CPU take over the remaining tasks. :func:`warmup` compiles (or loads from numba's
+cache) the kernels up front.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from numba import njit, prange
 
 from .camera import Rig, RGBDFrame
+from .distortion import distort_point, unpack
 from .errors import InputError
 from .geometry import dist14, max_radius2, pixel_rays, tilt_matrix
 from .lens import positive_number
+from .plans import RegisterPlan, as_dict, check_register_plan, plan_register, threads_for
 
 #: Smallest automatic discontinuity ratio: a triangle is dropped when max z > (1 + ratio) * min z
 #: of its corners. At 0.03 a kept triangle never puts depth more than 3 % behind a corner it was built from.
@@ -119,23 +115,8 @@ def needs_registration(rig: Rig) -> tuple[bool, str]:
 # numba kernels
 
 
-@intrinsic
-def _claim(typingctx, counter):
-    """Atomically take the next task number: fetch-and-add 1 on ``counter[0]`` (int64)."""
-    if not (isinstance(counter, types.Array) and counter.dtype == types.int64 and counter.ndim == 1):
-        return None
-
-    def codegen(context, builder, signature, args):
-        aryty = signature.args[0]
-        ary = context.make_array(aryty)(context, builder, args[0])
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [context.get_constant(types.intp, 0)])
-        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1), "monotonic")
-
-    return types.int64(counter), codegen
-
-
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _project_row(depth_row, rx, ry, rz, t, cam, d, tilt, has_dist, has_tilt, r2_max, foot_v, U, V, IZ):
+def _project_row(depth_row, rx, ry, rz, t, cam, d, tilt, has_dist, r2_max, foot_v, U, V, IZ):
     """Project one row of depth pixels into the colour image.
 
     Writes ``U, V`` (colour pixel position) and ``IZ`` (inverse colour-frame depth; 0 = not
@@ -145,12 +126,7 @@ def _project_row(depth_row, rx, ry, rz, t, cam, d, tilt, has_dist, has_tilt, r2_
     """
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     tx, ty, tz = t[0], t[1], t[2]
-    k1, k2, p1, p2, k3, k4, k5, k6 = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
-    s1, s2, s3, s4 = d[8], d[9], d[10], d[11]
-    has_rational = (k4 != 0.0) | (k5 != 0.0) | (k6 != 0.0)
-    has_prism = (s1 != 0.0) | (s2 != 0.0) | (s3 != 0.0) | (s4 != 0.0)
-    m00, m01, m02, m10, m11, m12 = tilt[0, 0], tilt[0, 1], tilt[0, 2], tilt[1, 0], tilt[1, 1], tilt[1, 2]
-    m20, m21, m22 = tilt[2, 0], tilt[2, 1], tilt[2, 2]
+    lens = unpack(d, tilt)
     lo = np.inf
     hi = -np.inf
     for j in range(depth_row.shape[0]):
@@ -165,23 +141,7 @@ def _project_row(depth_row, rx, ry, rz, t, cam, d, tilt, has_dist, has_tilt, r2_
         r2 = x * x + y * y
         ok = ok & (not (r2 > r2_max))
         if has_dist:
-            # OpenCV distortion; twin of geometry._distort_normalized
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            if has_rational:  # otherwise the denominator is exactly 1
-                radial = radial / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-            a1 = 2.0 * x * y
-            xd = x * radial + p1 * a1 + p2 * (r2 + 2.0 * x * x)
-            yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * a1
-            if has_prism:  # otherwise these terms are exactly 0
-                xd += r2 * (s1 + s2 * r2)
-                yd += r2 * (s3 + s4 * r2)
-            if has_tilt:
-                wx = m00 * xd + m01 * yd + m02
-                wy = m10 * xd + m11 * yd + m12
-                wz = m20 * xd + m21 * yd + m22
-                inv = 1.0 / wz if wz != 0.0 else 1.0
-                xd = wx * inv
-                yd = wy * inv
+            xd, yd = distort_point(x, y, lens)
         else:
             xd = x
             yd = y
@@ -229,36 +189,40 @@ def _code_row(top, bottom, ratio, codes_row):
         codes_row[j] = np.uint8(code_ad if use_ad else code_bc)
 
 
-@njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _prepare(counter, n_tasks, chunk, depth, rays, t, cam, d, tilt, has_dist, has_tilt, r2_max, foot_v, ratio,
-             U, V, IZ, row_lo, row_hi, codes):
-    """Pass 1, one chunk of depth rows per task: project the rows, then code the quads below them.
+@njit(cache=True, parallel=True)
+def _prepare(n_tasks, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo, row_hi, codes):
+    """Pass 1: :func:`_prepare_chunk` for chunks 0 .. n_tasks - 1 in parallel."""
+    chunk = -(-depth.shape[0] // n_tasks)
+    for k in prange(n_tasks):
+        _prepare_chunk(k, chunk, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo,
+                       row_hi, codes)
 
-    Tasks are claimed from *counter* until *n_tasks* are taken, so any number of threads can run
-    this at once. ``codes`` is (h + 1, w + 1) with a zero border: quad (i, j) is ``codes[i + 1, j + 1]``,
-    so the four quads around pixel (i, j) are ``codes[i:i + 2, j:j + 2]``. The quads below a
-    chunk's last row need the next chunk's first row: it is projected again into scratch rows.
+
+@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
+def _prepare_chunk(k, chunk, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo, row_hi,
+                   codes):
+    """Pass 1 for depth rows k * chunk .. (k + 1) * chunk - 1: project the rows, then code the quads below them.
+
+    ``codes`` is (h + 1, w + 1) with a zero border: quad (i, j) is ``codes[i + 1, j + 1]``, so the
+    four quads around pixel (i, j) are ``codes[i:i + 2, j:j + 2]``. The quads below a chunk's last
+    row need the next chunk's first row: it is projected again into scratch rows.
     """
     h, w = depth.shape
     su = np.empty(w, np.float32)
     sv = np.empty(w, np.float32)
     siz = np.empty(w, np.float32)
-    while True:
-        k = _claim(counter)
-        if k >= n_tasks:
-            break
-        r0 = k * chunk
-        r1 = min(h, r0 + chunk)
-        for i in range(r0, r1):
-            lo, hi = _project_row(depth[i], rays[0, i], rays[1, i], rays[2, i], t, cam, d, tilt, has_dist, has_tilt,
-                                  r2_max, foot_v, U[i], V[i], IZ[i])
-            row_lo[i] = lo
-            row_hi[i] = hi
-        if r1 < h:
-            _project_row(depth[r1], rays[0, r1], rays[1, r1], rays[2, r1], t, cam, d, tilt, has_dist, has_tilt,
-                         r2_max, foot_v, su, sv, siz)
-        for i in range(r0, min(r1, h - 1)):
-            _code_row(IZ[i], IZ[i + 1] if i + 1 < r1 else siz, ratio, codes[i + 1, 1:])
+    r0 = k * chunk
+    r1 = min(h, r0 + chunk)
+    for i in range(r0, r1):
+        lo, hi = _project_row(depth[i], rays[0, i], rays[1, i], rays[2, i], t, cam, d, tilt, has_dist, r2_max,
+                              foot_v, U[i], V[i], IZ[i])
+        row_lo[i] = lo
+        row_hi[i] = hi
+    if r1 < h:
+        _project_row(depth[r1], rays[0, r1], rays[1, r1], rays[2, r1], t, cam, d, tilt, has_dist, r2_max, foot_v,
+                     su, sv, siz)
+    for i in range(r0, min(r1, h - 1)):
+        _code_row(IZ[i], IZ[i + 1] if i + 1 < r1 else siz, ratio, codes[i + 1, 1:])
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
@@ -422,11 +386,11 @@ def _quad_block(buf, block, xs, top, ya, yb, u0, v0, w0, u1, v1, w1, u2, v2, w2,
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _quad(buf, block, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, diag_ad):
+def _quad(buf, block, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, diag_ad, use_block):
     """Draw a whole quad (both triangles of its split), sharing one bounding box.
 
     Boxes of at most 4 pixel centres are tested centre by centre, boxes of up to 4x4 by
-    :func:`_quad_block`, larger ones by scanlines.
+    :func:`_quad_block` (when *use_block*), larger ones by scanlines.
     """
     vmin = min(min(va, vb), min(vc, vd))
     vmax = max(max(va, vb), max(vc, vd))
@@ -438,7 +402,7 @@ def _quad(buf, block, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, di
     # the path and the block's origin depend on the whole quad, not on the band: bands change no bit
     top = int(np.ceil(vmin))
     rows = int(np.floor(vmax)) - top + 1
-    if xb - xa < 4 and rows <= 4 and W >= 4 and (xb - xa + 1) * rows > _SMALL_BOX_PX:
+    if use_block and xb - xa < 4 and rows <= 4 and W >= 4 and (xb - xa + 1) * rows > _SMALL_BOX_PX:
         # diagonal a-d: (a, b, d) and (a, d, c); diagonal b-c: (c, a, b) and (c, b, d); selected, not branched
         _quad_block(buf, block, min(xa, W - 4), top, ya, yb,
                     ua if diag_ad else uc, va if diag_ad else vc, wa if diag_ad else wc,
@@ -516,88 +480,93 @@ def _reach(IZ, i, j, wij, ratio, unknown):
     return 1.0
 
 
-@njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _rasterise(counter, n_bands, band_h, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out):
-    """Pass 2, one band of colour rows per task: draw kept triangles, then the footprints of the mesh's edge pixels.
+@njit(cache=True, parallel=True)
+def _rasterise(n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out):
+    """Pass 2: :func:`_draw_band` for bands 0 .. n_bands - 1 in parallel."""
+    band_h = -(-out.shape[0] // n_bands)
+    for b in prange(n_bands):
+        _draw_band(b, band_h, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out)
 
-    Tasks are claimed from *counter* until *n_bands* are taken. Drawing keeps 1/z in *out* (0 =
-    empty, largest = nearest, no division per pixel); each band clears its rows first and turns
-    them into z at the end. Bands own disjoint rows of *out*, so tasks never write the same pixel
-    (no races, no merge); a depth row is visited by every band its projection can touch.
+
+@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
+def _draw_band(b, band_h, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out):
+    """Pass 2 for colour rows b * band_h .. (b + 1) * band_h - 1: draw kept triangles, then the
+    footprints of the mesh's edge pixels.
+
+    Drawing keeps 1/z in *out* (0 = empty, largest = nearest, no division per pixel); each band
+    clears its rows first and turns them into z at the end. Bands own disjoint rows of *out*, so
+    tasks never write the same pixel (no races, no merge); a depth row is visited by every band
+    its projection can touch.
     """
     h, w = IZ.shape
     H, W = out.shape
     block = np.empty(16, np.float32)  # scratch of _quad_block
-    while True:
-        b = _claim(counter)
-        if b >= n_bands:
-            break
-        y0 = b * band_h
-        y1 = min(H, y0 + band_h)
-        for y in range(y0, y1):
-            for x in range(W):
-                out[y, x] = 0.0
-        for i in range(h - 1):
-            if max(row_hi[i], row_hi[i + 1]) < y0 - 1 or min(row_lo[i], row_lo[i + 1]) > y1 + 1:
+    y0 = b * band_h
+    y1 = min(H, y0 + band_h)
+    for y in range(y0, y1):
+        for x in range(W):
+            out[y, x] = 0.0
+    for i in range(h - 1):
+        if max(row_hi[i], row_hi[i + 1]) < y0 - 1 or min(row_lo[i], row_lo[i + 1]) > y1 + 1:
+            continue
+        for j in range(w - 1):
+            code = codes[i + 1, j + 1]
+            if code == 0:
                 continue
-            for j in range(w - 1):
-                code = codes[i + 1, j + 1]
-                if code == 0:
-                    continue
-                ua = np.float64(U[i, j])
-                va = np.float64(V[i, j])
-                wa = np.float64(IZ[i, j])
-                ub = np.float64(U[i, j + 1])
-                vb = np.float64(V[i, j + 1])
-                wb = np.float64(IZ[i, j + 1])
-                uc = np.float64(U[i + 1, j])
-                vc = np.float64(V[i + 1, j])
-                wc = np.float64(IZ[i + 1, j])
-                ud = np.float64(U[i + 1, j + 1])
-                vd = np.float64(V[i + 1, j + 1])
-                wd = np.float64(IZ[i + 1, j + 1])
-                if code & _WHOLE:
-                    _quad(out, block, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, (code & 1) != 0)
-                elif code == 1:
-                    _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, ud, vd, wd)
-                elif code == 2:
-                    _triangle(out, y0, y1, ua, va, wa, ud, vd, wd, uc, vc, wc)
-                elif code == 4:
-                    _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc)
-                else:
-                    _triangle(out, y0, y1, ub, vb, wb, ud, vd, wd, uc, vc, wc)
-        for i in range(h):
-            if row_hi[i] < y0 - 1 or row_lo[i] > y1 + 1:
+            ua = np.float64(U[i, j])
+            va = np.float64(V[i, j])
+            wa = np.float64(IZ[i, j])
+            ub = np.float64(U[i, j + 1])
+            vb = np.float64(V[i, j + 1])
+            wb = np.float64(IZ[i, j + 1])
+            uc = np.float64(U[i + 1, j])
+            vc = np.float64(V[i + 1, j])
+            wc = np.float64(IZ[i + 1, j])
+            ud = np.float64(U[i + 1, j + 1])
+            vd = np.float64(V[i + 1, j + 1])
+            wd = np.float64(IZ[i + 1, j + 1])
+            if code & _WHOLE:
+                _quad(out, block, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, (code & 1) != 0, use_block)
+            elif code == 1:
+                _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, ud, vd, wd)
+            elif code == 2:
+                _triangle(out, y0, y1, ua, va, wa, ud, vd, wd, uc, vc, wc)
+            elif code == 4:
+                _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc)
+            else:
+                _triangle(out, y0, y1, ub, vb, wb, ud, vd, wd, uc, vc, wc)
+    for i in range(h):
+        if row_hi[i] < y0 - 1 or row_lo[i] > y1 + 1:
+            continue
+        for j in range(w):
+            # interior pixels (all four quads around them whole) are covered by the mesh
+            if codes[i, j] & codes[i, j + 1] & codes[i + 1, j] & codes[i + 1, j + 1] & _WHOLE:
                 continue
-            for j in range(w):
-                # interior pixels (all four quads around them whole) are covered by the mesh
-                if codes[i, j] & codes[i, j + 1] & codes[i + 1, j] & codes[i + 1, j + 1] & _WHOLE:
-                    continue
-                wij = np.float64(IZ[i, j])
-                if not (wij > 0.0):
-                    continue
-                s = depth[i, j] * wij  # depth-camera z / colour-camera z
-                hu = foot[0] * s
-                hv = foot[1] * s
-                _footprint(out, y0, y1, np.float64(U[i, j]), np.float64(V[i, j]), wij,
-                           hu * _reach(IZ, i, j - 1, wij, ratio, unknown),
-                           hu * _reach(IZ, i, j + 1, wij, ratio, unknown),
-                           hv * _reach(IZ, i - 1, j, wij, ratio, unknown),
-                           hv * _reach(IZ, i + 1, j, wij, ratio, unknown),
-                           ratio)
-        for y in range(y0, y1):
-            for x in range(W):
-                iz = out[y, x]
-                out[y, x] = np.float32(1.0) / iz if iz > 0.0 else np.float32(0.0)
+            wij = np.float64(IZ[i, j])
+            if not (wij > 0.0):
+                continue
+            s = depth[i, j] * wij  # depth-camera z / colour-camera z
+            hu = foot[0] * s
+            hv = foot[1] * s
+            _footprint(out, y0, y1, np.float64(U[i, j]), np.float64(V[i, j]), wij,
+                       hu * _reach(IZ, i, j - 1, wij, ratio, unknown),
+                       hu * _reach(IZ, i, j + 1, wij, ratio, unknown),
+                       hv * _reach(IZ, i - 1, j, wij, ratio, unknown),
+                       hv * _reach(IZ, i + 1, j, wij, ratio, unknown),
+                       ratio)
+    for y in range(y0, y1):
+        for x in range(W):
+            iz = out[y, x]
+            out[y, x] = np.float32(1.0) / iz if iz > 0.0 else np.float32(0.0)
 
 
 # ---------------------------------------------------------------------------------------------
 
 
-class _RigPlan:
-    """Per-rig constants of the registration, computed once per calibration (see :func:`_plan`)."""
+class _RigConstants:
+    """Per-rig constants of the registration, computed once per calibration (see :func:`_rig_constants`)."""
 
-    __slots__ = ("rays", "t", "cam", "dist", "tilt", "has_dist", "has_tilt", "r2_max", "foot")
+    __slots__ = ("rays", "t", "cam", "dist", "tilt", "has_dist", "r2_max", "foot")
 
     def __init__(self, color, depth, T):
         R = T[:3, :3]
@@ -611,8 +580,7 @@ class _RigPlan:
         self.t = np.ascontiguousarray(T[:3, 3])
         self.cam = np.array([color.fx, color.fy, color.cx, color.cy])
         self.dist = dist14(color)
-        self.has_tilt = bool(self.dist[12] != 0.0 or self.dist[13] != 0.0)
-        self.tilt = tilt_matrix(self.dist[12], self.dist[13]) if self.has_tilt else np.eye(3)
+        self.tilt = tilt_matrix(self.dist[12], self.dist[13])
         self.has_dist = color.has_distortion
         self.r2_max = max_radius2(color)
         # Half-size, in colour pixels per (depth z / colour z), of a depth pixel's projected footprint.
@@ -622,53 +590,14 @@ class _RigPlan:
 
 
 @functools.lru_cache(maxsize=8)
-def _cached_plan(color, depth, T_bytes: bytes) -> _RigPlan:
-    return _RigPlan(color, depth, np.frombuffer(T_bytes, dtype=np.float64).reshape(4, 4))
+def _cached_constants(color, depth, T_bytes: bytes) -> _RigConstants:
+    return _RigConstants(color, depth, np.frombuffer(T_bytes, dtype=np.float64).reshape(4, 4))
 
 
-def _plan(rig: Rig) -> _RigPlan:
-    """The rig's cached :class:`_RigPlan`, keyed by its calibration (equal rigs share one)."""
+def _rig_constants(rig: Rig) -> _RigConstants:
+    """The rig's cached :class:`_RigConstants`, keyed by its calibration (equal rigs share one)."""
     T = np.ascontiguousarray(rig.T_color_from_depth, dtype=np.float64)
-    return _cached_plan(rig.color, rig.depth, T.tobytes())
-
-
-_pool_lock = threading.Lock()
-_pool_state: list = [None, None]  # [executor, pid that created it]
-
-
-def _thread_pool() -> ThreadPoolExecutor:
-    """Helper threads for the kernels (numba releases the GIL); a forked child makes its own."""
-    with _pool_lock:
-        pool, pid = _pool_state
-        if pool is None or pid != os.getpid():
-            workers = max(1, int(numba.config.NUMBA_NUM_THREADS) - 1)
-            pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="pcdof-register")
-            _pool_state[:] = [pool, os.getpid()]
-        return pool
-
-
-def _run_tasks(kernel, n_tasks: int, *args) -> None:
-    """Run ``kernel(counter, n_tasks, *args)`` on up to ``numba.get_num_threads()`` threads.
-
-    The kernel claims task numbers from the shared counter until all are taken, so the calling
-    thread and the helpers share the work however the operating system schedules them; waiting
-    is done in the OS (no spinning), so a thread that gets no CPU (another busy process) only
-    leaves its share to the others instead of stalling them. Helpers that have not started when
-    the caller has finished are cancelled.
-    """
-    counter = np.zeros(1, dtype=np.int64)
-    helpers = min(numba.get_num_threads(), n_tasks) - 1
-    futures = []
-    if helpers > 0:
-        try:
-            pool = _thread_pool()
-            futures = [pool.submit(kernel, counter, n_tasks, *args) for _ in range(helpers)]
-        except RuntimeError:  # interpreter shutting down: no new threads
-            futures = []
-    kernel(counter, n_tasks, *args)
-    for f in futures:
-        if not f.cancel():
-            f.result()
+    return _cached_constants(rig.color, rig.depth, T.tobytes())
 
 
 def _depth_input(depth_m, shape) -> np.ndarray:
@@ -681,16 +610,6 @@ def _depth_input(depth_m, shape) -> np.ndarray:
     if arr.dtype.kind not in "fiu":
         raise InputError(f"depth_m must be numeric; got dtype {arr.dtype}")
     return np.ascontiguousarray(arr, dtype=np.float32)
-
-
-def _n_bands(height: int) -> int:
-    # A few bands per thread balance the load; bands thinner than ~16 rows waste re-visited quads.
-    return int(max(1, min(4 * numba.get_num_threads(), height // 16)))
-
-
-def _n_chunks(height: int) -> int:
-    # Depth-row chunks of pass 1; each re-projects one row of the next chunk.
-    return int(max(1, min(4 * numba.get_num_threads(), height // 16)))
 
 
 def default_depth_ratio(depth_intrinsics) -> float:
@@ -711,7 +630,8 @@ def _depth_ratio(max_depth_ratio, depth_intrinsics) -> float | None:
     return positive_number("max_depth_ratio", max_depth_ratio, InputError)
 
 
-def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None) -> np.ndarray:
+def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None,
+                    plan: RegisterPlan | None = None) -> np.ndarray:
     """Re-sample a depth map from the depth camera into the colour camera's pixel grid.
 
     Always does the reprojection (use :func:`register_depth` or :func:`needs_registration`
@@ -725,6 +645,7 @@ def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None) 
     max_depth_ratio : float > 0 or None; a triangle of neighbouring depth pixels whose corner depths
         (colour frame) satisfy max z > (1 + max_depth_ratio) * min z spans a discontinuity and
         is not drawn; None = :func:`default_depth_ratio` of the depth camera
+    plan : :class:`pcdof.plans.RegisterPlan` or None (:func:`plan_for`): threads, tasks, kernels
 
     Returns
     -------
@@ -735,7 +656,8 @@ def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None) 
         raise InputError(f"rig must be a Rig; got {type(rig).__name__}")
     ratio = _depth_ratio(max_depth_ratio, rig.depth)
     depth = _depth_input(depth_m, rig.depth.shape)
-    plan = _plan(rig)
+    plan = plan_for(rig) if plan is None else check_register_plan(plan)
+    consts = _rig_constants(rig)
     h, w = depth.shape
     # (u, v, 1/z) per depth pixel in float32 planes (1/z = 0: not projected)
     U = np.empty((h, w), dtype=np.float32)
@@ -744,19 +666,30 @@ def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None) 
     row_lo = np.empty(h)
     row_hi = np.empty(h)
     codes = np.zeros((h + 1, w + 1), dtype=np.uint8)
-    n_chunks = _n_chunks(h)
-    _run_tasks(_prepare, n_chunks, -(-h // n_chunks), depth, plan.rays, plan.t, plan.cam, plan.dist, plan.tilt,
-               plan.has_dist, plan.has_tilt, plan.r2_max, float(plan.foot[1]), 1.0 + ratio, U, V, IZ, row_lo, row_hi,
-               codes)
-    H = rig.color.height
     out = np.empty(rig.color.shape, dtype=np.float32)
-    n_bands = _n_bands(H)
-    _run_tasks(_rasterise, n_bands, -(-H // n_bands), depth, U, V, IZ, codes, row_lo, row_hi, plan.foot, 1.0 + ratio,
-               _UNKNOWN_REACH, out)
+    # tasks are handed out one at a time: a thread without a CPU leaves its tasks to the others
+    with threads_for(plan), numba.parallel_chunksize(1):
+        _prepare(min(plan.chunks, h), depth, consts.rays, consts.t, consts.cam, consts.dist, consts.tilt,
+                 consts.has_dist, consts.r2_max, float(consts.foot[1]), 1.0 + ratio, U, V, IZ, row_lo, row_hi, codes)
+        _rasterise(min(plan.bands, out.shape[0]), plan.block_kernel, depth, U, V, IZ, codes, row_lo, row_hi,
+                   consts.foot, 1.0 + ratio, _UNKNOWN_REACH, out)
     return out
 
 
-def register_depth(frame: RGBDFrame, *, max_depth_ratio: float | None = None) -> np.ndarray:
+def plan_for(rig: Rig, *, threads: int | None = None) -> RegisterPlan:
+    """The registration's plan for *rig* (:func:`pcdof.plans.plan_register` of its depth and colour heights)."""
+    if not isinstance(rig, Rig):
+        raise InputError(f"rig must be a Rig; got {type(rig).__name__}")
+    return plan_register(rig.depth.height, rig.color.height, threads=threads)
+
+
+def plan_info(rig: Rig, plan: RegisterPlan | None = None) -> dict:
+    """The plan :func:`reproject_depth` runs *rig* with, as plain data for the pipeline trace."""
+    return as_dict(plan_for(rig) if plan is None else check_register_plan(plan))
+
+
+def register_depth(frame: RGBDFrame, *, max_depth_ratio: float | None = None,
+                   plan: RegisterPlan | None = None) -> np.ndarray:
     """Depth of an RGB-D frame in the colour camera's pixel grid.
 
     A rig whose cameras coincide (:attr:`Rig.is_registered`) is not re-projected: the result
@@ -767,6 +700,7 @@ def register_depth(frame: RGBDFrame, *, max_depth_ratio: float | None = None) ->
     frame : RGBDFrame
     max_depth_ratio : float or None, discontinuity ratio (None: :func:`default_depth_ratio`);
         see :func:`reproject_depth`
+    plan : RegisterPlan or None, see :func:`reproject_depth`
 
     Returns
     -------
@@ -775,14 +709,16 @@ def register_depth(frame: RGBDFrame, *, max_depth_ratio: float | None = None) ->
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
     ratio = _depth_ratio(max_depth_ratio, None)  # checked before the identity-rig shortcut: never ignored
+    if plan is not None:
+        check_register_plan(plan)
     needed, _ = needs_registration(frame.rig)
     if not needed:
         return np.array(frame.depth_m, dtype=np.float32, copy=True)
-    return reproject_depth(frame.depth_m, frame.rig, max_depth_ratio=ratio)
+    return reproject_depth(frame.depth_m, frame.rig, max_depth_ratio=ratio, plan=plan)
 
 
 def warmup() -> None:
-    """Compile (or load from numba's cache) the registration kernels on a tiny rig and start the helper threads."""
+    """Compile (or load from numba's cache) the registration kernels on a tiny rig."""
     from .camera import Intrinsics
 
     depth_intr = Intrinsics(4, 3, 3.0, 3.0, 1.5, 1.0, (0.01, 0.0, 0.0, 0.0, 0.0))
@@ -792,9 +728,5 @@ def warmup() -> None:
     T[0, 3] = 0.01
     depth = np.full((3, 4), 1.0, dtype=np.float32)
     depth[0, 0] = 2.0
-    reproject_depth(depth, Rig(color_intr, depth_intr, T))
-    helpers = numba.get_num_threads() - 1
-    if helpers > 0:
-        pool = _thread_pool()
-        for f in [pool.submit(int) for _ in range(helpers)]:
-            f.result()
+    rig = Rig(color_intr, depth_intr, T)
+    reproject_depth(depth, rig)

@@ -2,7 +2,7 @@
 
 Both are pure whole-array functions with one signature, registered in :data:`METHODS`::
 
-    fn(color, depth_m, lens, *, fx, max_range_m, linear) -> (image, info)
+    fn(color, depth_m, lens, *, fx, max_range_m, linear, quality, signed_coc, plan) -> (image, info)
 
 ``color`` is (H, W, 3) of any supported dtype, ``depth_m`` the registered and filled depth
 (H, W) in metres; ``image`` has the dtype and shape of ``color``; ``info`` is a plain dict
@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -44,6 +45,8 @@ from .camera import _short, check_color
 from .color import decode_to_linear, encode_from_linear, from_float, to_float
 from .errors import InputError, LensError
 from .lens import MAX_COC_PX, PaperLens, ThinLens
+from .plans import QUALITIES, UNIFORM_MIN_RADIUS_PX, check_quality  # noqa: F401  (re-exported)
+from .plans import RenderPlan, as_dict, check_render_plan, plan_render, threads_for
 from .tiles import TileMap, classify_tiles
 
 #: |CoC| layer edges in pixels; |c| < 1 is the in-focus layer, copied without blur.
@@ -144,26 +147,6 @@ def _strip(dy, r, blades, table):
 
 
 # ----------------------------------------------------------------------------- layer kernels
-@njit(cache=True)
-def _sort_into_layers(layer, n_layers):
-    """Counting sort of pixels by (layer, row): member columns and per-(layer,row) offsets."""
-    h, w = layer.shape
-    counts = np.zeros(n_layers * h + 1, np.int64)
-    for y in range(h):
-        for x in range(w):
-            counts[layer[y, x] * h + y + 1] += 1
-    for i in range(1, counts.size):
-        counts[i] += counts[i - 1]
-    cols = np.empty(h * w, np.int32)
-    fill = counts[:-1].copy()
-    for y in range(h):
-        for x in range(w):
-            k = layer[y, x] * h + y
-            cols[fill[k]] = x
-            fill[k] += 1
-    return cols, counts
-
-
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blades, table, out):
     """Scatter packed sources into ``out`` rows y_lo..y_hi (H, W, 4: premultiplied colour, coverage).
@@ -465,19 +448,6 @@ def _reduce_cells(lin, radius, member, hidden, has_hidden, s):
     return lin_s, r_s, m_s, hid_s
 
 
-#: quality name -> smallest CoC (pixels, at the reduced resolution) a blur layer may be computed at.
-#: Layers whose CoC exceeds twice this run at 1/2, 1/4, ... resolution (cost falls with the cube of
-#: the factor); "exact" computes every layer at full resolution.
-QUALITIES = {"exact": math.inf, "high": 8.0, "balanced": 4.0, "fast": 2.0}
-
-
-def check_quality(quality) -> str:
-    """*quality* itself if it is a key of :data:`QUALITIES`; else an :class:`InputError`."""
-    if not isinstance(quality, str) or quality not in QUALITIES:
-        raise InputError(f"quality must be one of {sorted(QUALITIES)}; got {quality!r}")
-    return quality
-
-
 def _extend_behind(lin, radius, member, hidden, reach_px):
     """Extend a layer into the pixels that nearer layers hide, up to *reach_px* from its own pixels.
 
@@ -493,7 +463,8 @@ def _extend_behind(lin, radius, member, hidden, reach_px):
     # every pixel that can be filled, and its nearest member within reach, lie in this window
     pad = int(math.ceil(reach_px)) + 1
     h, w = member.shape
-    win = (slice(max(0, rows[0] - pad), min(h, rows[-1] + pad + 1)), slice(max(0, cols[0] - pad), min(w, cols[-1] + pad + 1)))
+    win = (slice(max(0, rows[0] - pad), min(h, rows[-1] + pad + 1)),
+           slice(max(0, cols[0] - pad), min(w, cols[-1] + pad + 1)))
     m_win = member[win]
     if not m_win.any():
         return lin, radius, member
@@ -551,9 +522,6 @@ def _pack_sources(lin, radius, member, share, unit_area, min_radius):
 
 #: Relative width of the radius bins of uniform tiles: one kernel per bin, at the bin's centre.
 UNIFORM_BIN = 0.04
-#: Uniform tiles take the convolution path only in layers whose footprint radius on the layer's grid
-#: is at least this (pixels): smaller footprints span so few rows that the scatter is cheaper.
-UNIFORM_MIN_RADIUS_PX = 2.0
 #: A radius bin is convolved only if its cells fill at least 1/UNIFORM_MAX_WASTE of their bounding window.
 UNIFORM_MAX_WASTE = 3.0
 _NO_BIN = -(2 ** 31)  # bin of the cells that are not convolved
@@ -687,7 +655,96 @@ def _convolve_uniform(lin, share, bins, groups, blades, table, buf):
         _put_cells(conv, cy0, cx0, bins, b, ya, yb, xa, xb, buf)
 
 
-def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0, fast=None):
+@dataclass(frozen=True)
+class _Aperture:
+    """The aperture of a render: blade count (0 = disc) and its :func:`aperture_table`."""
+
+    blades: int
+    table: np.ndarray
+
+    @property
+    def unit_area(self) -> float:
+        return float(self.table[0, -1] - self.table[0, 0])
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """A blur layer's sources on its own grid (full resolution, or 1/s): colour (hs, ws, C), footprint
+    radius (hs, ws) in grid pixels, member cells (hs, ws) bool, each cell's share of the layer (hs, ws)
+    float32, and whether the layer was extended behind nearer layers."""
+
+    lin: np.ndarray
+    radius: np.ndarray
+    member: np.ndarray
+    share: np.ndarray
+    extended: bool
+
+
+def _full_grid(lin, radius, member, hidden, reach_px) -> _Grid:
+    """The layer's sources at full resolution, extended behind *hidden* (or None) up to *reach_px*."""
+    n_members = int(np.count_nonzero(member))
+    if hidden is not None:
+        lin, radius, member = _extend_behind(lin, radius, member, hidden, reach_px)
+    extended = int(np.count_nonzero(member)) > n_members
+    return _Grid(np.ascontiguousarray(lin, np.float32), np.ascontiguousarray(radius, np.float32),
+                 np.ascontiguousarray(member), member.astype(np.float32), extended)
+
+
+def _reduced_grid(lin, radius, member, hidden, reach_px, s) -> _Grid:
+    """The layer's sources as s x s cell means, extended behind *hidden* (or None) on the 1/s grid
+    (s^2 times less work), with the footprint radius narrowed for the spread of the reduction."""
+    lin_s, r, m_s, hid_s = _reduce_cells(np.ascontiguousarray(lin, np.float32),
+                                         np.ascontiguousarray(radius, np.float32), np.ascontiguousarray(member),
+                                         np.ascontiguousarray(member if hidden is None else hidden),
+                                         hidden is not None, s)
+    present = m_s > 0
+    extended = False
+    if hidden is not None:
+        # a cell's hidden share is continued with the layer's nearest cell (its own, if present)
+        lin_s, r, grown = _extend_behind(lin_s, r, present, hid_s > 0, int(math.ceil(reach_px / s)))
+        extended = bool((grown & ~present).any())
+        m_s = np.where(grown, m_s + hid_s, 0).astype(np.float32)
+        present = grown
+    # block averaging and bilinear upsampling widen the blur by about s^2 in variance: take it off
+    r_s = (np.sqrt(np.maximum(r * r - s * s, 0.25 * r * r)) / s).astype(np.float32)
+    return _Grid(np.ascontiguousarray(lin_s, np.float32), r_s, np.ascontiguousarray(present),
+                 np.ascontiguousarray(m_s, np.float32), extended)
+
+
+def _convolved_cells(grid: _Grid, fast, s):
+    """The cells a convolution serves: (bins, groups) of :func:`_uniform_plan` (groups empty when
+    none), and the member cells left to the scatter: those whose footprint reaches another cell."""
+    if fast is None:
+        return None, [], grid.member
+    fast_cells = _fast_cells(np.ascontiguousarray(fast), grid.member, s)
+    if not fast_cells.any():
+        return None, [], grid.member
+    bins, groups = _uniform_plan(fast_cells, grid.radius)
+    if not groups:
+        return bins, groups, grid.member
+    r_max = max(float(grid.radius.max(initial=0.0, where=grid.member)), MIN_SOURCE_RADIUS_PX)
+    reach = int(math.ceil(r_max + 0.5))
+    other = cv2.dilate((bins == _NO_BIN).view(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8),
+                       borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return bins, groups, grid.member & (other > 0)
+
+
+def _scatter_sources(grid: _Grid, scattered, aperture: _Aperture, buf) -> int:
+    """Scatter the cells of *scattered* into *buf* (hs, ws, 4); returns how many there were."""
+    n_scattered = int(np.count_nonzero(scattered))
+    if n_scattered:
+        xs, src_r, values, offsets = _pack_sources(grid.lin, grid.radius, np.ascontiguousarray(scattered), grid.share,
+                                                   aperture.unit_area, MIN_SOURCE_RADIUS_PX)
+        rows = np.flatnonzero(offsets[1:] > offsets[:-1])
+        r_max = float(src_r.max())
+        reach = int(math.ceil(r_max + 0.5))
+        hs, ws = scattered.shape
+        _scatter_packed(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach),
+                        aperture.blades, aperture.table, buf)
+    return n_scattered
+
+
+def _scatter_layer(lin, radius, member, s, aperture: _Aperture, hidden=None, reach_px=0, fast=None):
     """Scatter the pixels of *member* at 1/s resolution.
 
     Returns their (H, W, C+1) buffer at full size (premultiplied colour, coverage), whether the
@@ -695,76 +752,140 @@ def _scatter_mask(lin, radius, member, s, blades, rot, hidden=None, reach_px=0, 
     (cells of the 1/s grid).
 
     With *hidden* (pixels of nearer, not yet opaque layers) the layer is first extended behind them
-    up to *reach_px* (:func:`_extend_behind`), on the 1/s grid when s > 1 (s^2 times less work).
-
-    *fast* (H, W) bool marks the pixels of uniform tiles (:meth:`pcdof.tiles.TileMap.uniform`):
-    there the layer is computed as a convolution (:func:`_convolve_uniform`), and only the sources
-    whose footprint reaches another pixel are scattered.
+    up to *reach_px* (:func:`_extend_behind`). *fast* (H, W) bool or None marks the pixels of uniform
+    tiles (:meth:`pcdof.tiles.TileMap.uniform`): there the layer is computed as a convolution
+    (:func:`_convolve_uniform`), and only the sources whose footprint reaches another pixel are scattered.
     """
     h, w, nc = lin.shape
-    table = _aperture(blades, rot)
-    n_members = int(np.count_nonzero(member))
-    if s == 1 and hidden is not None:
-        lin, radius, member = _extend_behind(lin, radius, member, hidden, reach_px)
-    extended = s == 1 and int(np.count_nonzero(member)) > n_members
-    if s > 1:
-        lin, r, m_s, hid_s = _reduce_cells(np.ascontiguousarray(lin, np.float32),
-                                           np.ascontiguousarray(radius, np.float32), np.ascontiguousarray(member),
-                                           np.ascontiguousarray(member if hidden is None else hidden),
-                                           hidden is not None, s)
-        present = m_s > 0
-        if hidden is not None:
-            # a cell's hidden share is continued with the layer's nearest cell (its own, if present)
-            lin, r, grown = _extend_behind(lin, r, present, hid_s > 0,
-                                           int(math.ceil(reach_px / s)))
-            extended = bool((grown & ~present).any())
-            m_s = np.where(grown, m_s + hid_s, 0).astype(np.float32)
-            present = grown
-        # block averaging and bilinear upsampling widen the blur by about s^2 in variance: take it off
-        radius = (np.sqrt(np.maximum(r * r - s * s, 0.25 * r * r)) / s).astype(np.float32)
-        share = m_s
-        member = present
-    else:
-        share = member.astype(np.float32)
-    hs, ws = member.shape
+    grid = (_full_grid(lin, radius, member, hidden, reach_px) if s == 1
+            else _reduced_grid(lin, radius, member, hidden, reach_px, s))
+    hs, ws = grid.member.shape
     buf = np.zeros((hs, ws, 4), np.float32)
-    groups = []
-    scattered = member
-    if fast is not None:
-        fast_cells = _fast_cells(np.ascontiguousarray(fast), np.ascontiguousarray(member), s)
-        if fast_cells.any():
-            bins, groups = _uniform_plan(fast_cells, np.ascontiguousarray(radius, np.float32))
+    bins, groups, scattered = _convolved_cells(grid, fast, s)
+    n_scattered = _scatter_sources(grid, scattered, aperture, buf)
     if groups:
-        # only sources whose footprint reaches a cell outside the convolved ones are scattered
-        reach = int(math.ceil(max(float(radius.max(initial=0.0, where=member)), MIN_SOURCE_RADIUS_PX) + 0.5))
-        other = cv2.dilate((bins == _NO_BIN).view(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8),
-                           borderType=cv2.BORDER_CONSTANT, borderValue=0)
-        scattered = member & (other > 0)
-    n_scattered = int(np.count_nonzero(scattered))
-    if n_scattered:
-        xs, src_r, values, offsets = _pack_sources(np.ascontiguousarray(lin, np.float32),
-                                                   np.ascontiguousarray(radius, np.float32),
-                                                   np.ascontiguousarray(scattered), np.ascontiguousarray(share, np.float32),
-                                                   float(table[0, -1] - table[0, 0]), MIN_SOURCE_RADIUS_PX)
-        rows = np.flatnonzero(offsets[1:] > offsets[:-1])
-        r_max = float(src_r.max())
-        reach = int(math.ceil(r_max + 0.5))
-        _scatter_packed(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach),
-                        min(hs - 1, rows[-1] + reach), blades, table, buf)
-    if groups:
-        _convolve_uniform(np.ascontiguousarray(lin, np.float32), np.ascontiguousarray(share, np.float32), bins, groups,
-                          blades, table, buf)
+        _convolve_uniform(grid.lin, grid.share, bins, groups, aperture.blades, aperture.table, buf)
     if nc < 3:
         buf = np.ascontiguousarray(buf[:, :, list(range(nc)) + [3]])
-    if s == 1:
-        return buf, extended, len(groups), n_scattered
-    up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)
-    return np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w]), extended, len(groups), n_scattered
+    if s > 1:
+        up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)
+        buf = np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w])
+    return buf, grid.extended, len(groups), n_scattered
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """What every layer of a render reads: linear colour (H, W, C) float32, footprint radius (H, W),
+    layer ids (H, W) int32, the tile map, the plan, the aperture and whether layers extend behind."""
+
+    lin: np.ndarray
+    radius: np.ndarray
+    layer: np.ndarray
+    tiles: TileMap
+    plan: RenderPlan
+    aperture: _Aperture
+    extend_behind: bool
+
+
+@dataclass(frozen=True)
+class _Canvas:
+    """Front-to-back compositing state, (H, W, C) premultiplied colour, (H, W) opacity and transmittance."""
+
+    acc: np.ndarray
+    acc_a: np.ndarray
+    trans: np.ndarray
+
+    @classmethod
+    def start(cls, shape, tiles: TileMap, copy_tiles: bool) -> "_Canvas":
+        h, w, nc = shape
+        trans = np.ones((h, w), np.float32)
+        # copy tiles: in focus and out of every foreground's reach, so opaque from the start; nothing
+        # is composited there and the normalisation returns the input (acc_a stays 0)
+        if copy_tiles and tiles.copy.any():
+            trans[tiles.pixel_mask(tiles.copy)] = 0.0
+        return cls(np.zeros((h, w, nc), np.float32), np.zeros((h, w), np.float32), trans)
+
+
+def _layer_window(frame: _Frame, li: int, r_max: float, r_front: float, bbox):
+    """The window a layer's work needs (its box with the reach of its blur and of its extension),
+    its member mask there, the hidden pixels it may extend into (or None) and the extension's reach."""
+    h, w = frame.layer.shape
+    extend = frame.extend_behind and li > 0 and r_front > 0
+    ext_reach = int(math.ceil(r_front + r_max + 1)) if extend else 0
+    margin = ext_reach + int(math.ceil(r_max + 0.5)) + 1
+    y0, y1, x0, x1 = (int(v) for v in bbox)
+    box = (slice(max(0, y0 - margin), min(h, y1 + margin + 1)), slice(max(0, x0 - margin), min(w, x1 + margin + 1)))
+    return box, frame.layer[box] == li, ext_reach, extend
+
+
+def _hidden(frame: _Frame, canvas: _Canvas, li: int, box):
+    """Pixels of nearer layers that are not yet opaque (this layer may show through there), or None."""
+    hidden = (frame.layer[box] < li) & (canvas.trans[box] > 0)
+    return hidden if hidden.any() else None
+
+
+def _sharp_layer(frame: _Frame, canvas: _Canvas, li: int, n_members: int, r_max: float, r_front: float,
+                 bbox) -> dict:
+    """Composite the in-focus layer: an opaque copy, no blur (extended behind nearer layers)."""
+    box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
+    src, src_r = frame.lin[box], frame.radius[box]
+    hidden = _hidden(frame, canvas, li, box) if extend else None
+    if hidden is not None:
+        src, src_r, m = _extend_behind(src, src_r, m, hidden, ext_reach)
+    _composite_sharp(np.ascontiguousarray(src), np.ascontiguousarray(m), box[0].start, box[1].start,
+                     canvas.acc, canvas.acc_a, canvas.trans)
+    return {"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1}
+
+
+def _blur_layer(frame: _Frame, canvas: _Canvas, li: int, key: int, n_members: int, r_max: float, r_front: float,
+                bbox) -> dict:
+    """Scatter one blur layer (at the plan's resolution, uniform tiles convolved) and composite it behind."""
+    box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
+    hidden = _hidden(frame, canvas, li, box) if extend else None
+    lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
+    plan = frame.plan
+    s = plan.scale(lo)
+    # uniform tiles: everything within the layer's reach (plus the reduced grid's spread) in this layer
+    uniform = np.zeros_like(frame.tiles.copy)
+    if plan.convolve_uniform and lo / (2 * s) >= plan.uniform_min_radius_px:
+        uniform = frame.tiles.uniform(lo, hi, 1 if key > 0 else -1, r_max + 2 * s + 2)
+    fast = frame.tiles.pixel_mask(uniform, box) if uniform.any() else None
+    buf, extended, n_kernels, n_scattered = _scatter_layer(frame.lin[box], frame.radius[box], m, s, frame.aperture,
+                                                           hidden, ext_reach, fast)
+    _composite_under(buf, box[0].start, box[1].start, canvas.acc, canvas.acc_a, canvas.trans)
+    return {"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
+            "side": "front" if key < 0 else "back", "scale": s, "extended": extended,
+            "uniform_tiles": int(uniform.sum()), "kernels": n_kernels, "sources_scattered": n_scattered}
+
+
+def _composite_layers(frame: _Frame, canvas: _Canvas, keys) -> list:
+    """Render and composite every layer, near to far; returns one record per layer."""
+    counts, r_maxes, boxes = _layer_stats(frame.layer, frame.radius, len(keys))
+    r_front = 0.0  # largest blur radius of the layers composited so far
+    layers_run = []
+    for li, key in enumerate(keys):
+        n_members, r_max = int(counts[li]), float(r_maxes[li])
+        if key == 0:
+            layers_run.append(_sharp_layer(frame, canvas, li, n_members, r_max, r_front, boxes[li]))
+        else:
+            layers_run.append(_blur_layer(frame, canvas, li, int(key), n_members, r_max, r_front, boxes[li]))
+            r_front = max(r_front, r_max)
+    return layers_run
+
+
+def _tiles_for(coc, tiles, plan: RenderPlan) -> TileMap:
+    """*tiles* checked against the CoC map, or the plan's tile classification of it."""
+    if tiles is None:
+        return classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
+    if not isinstance(tiles, TileMap) or tiles.shape != coc.shape:
+        raise InputError(f"tiles must be a TileMap of shape {coc.shape}; got {tiles!r:.80}")
+    return tiles
 
 
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
                          rotation_deg: float = 0.0, quality: str = "balanced",
-                         extend_behind: bool = True, tiles: TileMap | None = None) -> tuple[np.ndarray, dict]:
+                         extend_behind: bool = True, tiles: TileMap | None = None,
+                         plan: RenderPlan | None = None) -> tuple[np.ndarray, dict]:
     """Physical depth of field in linear light.
 
     Parameters
@@ -773,85 +894,36 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     signed_coc : (H, W) float32, signed circle-of-confusion diameter in pixels (< 0 in front of focus);
         NaN is unknown and, like unknown depth in :meth:`pcdof.lens.ThinLens.signed_coc_px`, in focus (0)
     blades, rotation_deg : aperture polygon (0 = disc)
-    quality : a key of :data:`QUALITIES`
+    quality : a key of :data:`QUALITIES`; sets the plan when *plan* is None
     extend_behind : continue each layer behind the soft edges of nearer blurred layers (partial occlusion)
     tiles : :func:`pcdof.tiles.classify_tiles` of *signed_coc*, if the caller has it (else computed here);
         its copy tiles are left out of every layer and come out as the input, exactly
+    plan : :class:`pcdof.plans.RenderPlan` or None (:func:`pcdof.plans.plan_render` of *quality*):
+        threads, tiles, reduced-resolution layers, convolution of uniform tiles
 
     Returns
     -------
-    (H, W, C) float32 image and an info dict (layers run, pixels blurred, tiles).
+    (H, W, C) float32 image and an info dict (layers run, pixels blurred, tiles, the plan).
     """
     check_quality(quality)
     if lin.ndim != 3 or not 1 <= lin.shape[2] <= 3:
         raise InputError(f"lin must be (H, W, C) with 1 to 3 channels; got shape {lin.shape}")
-    min_reduced = QUALITIES[quality]
-    h, w, nc = lin.shape
+    plan = plan_render(quality=quality) if plan is None else check_render_plan(plan)
+    h, w, _ = lin.shape
     lin = np.ascontiguousarray(lin, np.float32)
-    coc, radius = _clean_coc(np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX)
-    layer, keys = _layer_of(coc)
-    rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
-    if tiles is None:
-        tiles = classify_tiles(coc, sharp_px=float(LAYER_EDGES_PX[0]))
-    elif not isinstance(tiles, TileMap) or tiles.shape != (h, w):
-        raise InputError(f"tiles must be a TileMap of shape {(h, w)}; got {tiles!r:.80}")
-
-    acc = np.zeros((h, w, nc), np.float32)
-    acc_a = np.zeros((h, w), np.float32)
-    trans = np.ones((h, w), np.float32)
-    # copy tiles: in focus and out of every foreground's reach, so opaque from the start; nothing
-    # is composited there and the normalisation returns the input (acc_a stays 0)
-    if tiles.copy.any():
-        trans[tiles.pixel_mask(tiles.copy)] = 0.0
-    r_front = 0.0  # largest blur radius of the layers composited so far
-    layers_run = []
-    counts, r_maxes, boxes = _layer_stats(layer, radius, len(keys))
-    for li, key in enumerate(keys):
-        n_members = int(counts[li])
-        r_max = float(r_maxes[li])
-        # pixels of nearer layers that are not yet opaque: this layer may show through there
-        extend = extend_behind and li > 0 and r_front > 0
-        ext_reach = int(math.ceil(r_front + r_max + 1)) if extend else 0
-        margin = ext_reach + int(math.ceil(r_max + 0.5)) + 1
-        y0, y1, x0, x1 = (int(v) for v in boxes[li])
-        box = (slice(max(0, y0 - margin), min(h, y1 + margin + 1)), slice(max(0, x0 - margin), min(w, x1 + margin + 1)))
-        m = layer[box] == li
-        src, src_r = lin[box], radius[box]
-        hidden = None
-        if extend:
-            hidden = (layer[box] < li) & (trans[box] > 0)
-            if not hidden.any():
-                hidden = None
-        s = 1
-        if key != 0:
-            lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
-            while lo / (2 * s) >= min_reduced:
-                s *= 2
-        if hidden is not None and key == 0:
-            src, src_r, m = _extend_behind(src, src_r, m, hidden, ext_reach)
-        if key == 0:  # in focus: an opaque copy, no blur
-            _composite_sharp(np.ascontiguousarray(src), np.ascontiguousarray(m), box[0].start, box[1].start,
-                             acc, acc_a, trans)
-            layers_run.append({"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1})
-        else:
-            # uniform tiles: everything within the layer's reach (plus the reduced grid's spread) in this layer
-            uniform = np.zeros_like(tiles.copy)
-            if lo / (2 * s) >= UNIFORM_MIN_RADIUS_PX:
-                uniform = tiles.uniform(lo, hi, 1 if key > 0 else -1, r_max + 2 * s + 2)
-            fast = tiles.pixel_mask(uniform, box) if uniform.any() else None
-            layer_buf, extended, n_kernels, n_scattered = _scatter_mask(src, src_r, m, s, int(blades), rot, hidden,
-                                                                        ext_reach, fast)
-            _composite_under(layer_buf, box[0].start, box[1].start, acc, acc_a, trans)
-            layers_run.append({"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
-                               "side": "front" if key < 0 else "back", "scale": s,
-                               "extended": extended, "uniform_tiles": int(uniform.sum()), "kernels": n_kernels,
-                               "sources_scattered": n_scattered})
-            r_front = max(r_front, r_max)
-    out = np.empty_like(lin)
-    _normalise(acc, acc_a, lin, out)
+    with threads_for(plan):
+        coc, radius = _clean_coc(np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX)
+        tiles = _tiles_for(coc, tiles, plan)
+        layer, keys = _layer_of(coc)
+        rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
+        frame = _Frame(lin, radius, layer, tiles, plan, _Aperture(int(blades), _aperture(blades, rot)), extend_behind)
+        canvas = _Canvas.start(lin.shape, tiles, plan.copy_tiles)
+        layers_run = _composite_layers(frame, canvas, keys)
+        out = np.empty_like(lin)
+        _normalise(canvas.acc, canvas.acc_a, lin, out)
     in_focus = sum(l["pixels"] for l in layers_run if not l["blurred"])
     info = {"layers": layers_run, "foreground_pass": bool((keys < 0).any()), "blurred_pixels": h * w - in_focus,
-            "quality": quality, "tiles": tiles.summary()}
+            "quality": quality, "tiles": tiles.summary(), "plan": as_dict(plan)}
     return out, info
 
 
@@ -861,12 +933,14 @@ def _as_channels(color: np.ndarray) -> np.ndarray:
 
 
 def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False, quality="balanced",
-                    signed_coc=None):
+                    signed_coc=None, plan=None):
     """Thin-lens depth of field (see the module docstring). Returns (image, info).
 
     *signed_coc* (H, W) float32 pixels, if given, is ``lens.signed_coc_px(depth_m, fx)`` already
-    computed by the caller (the pipeline's CoC stage), so it is not computed twice.
+    computed by the caller (the pipeline's CoC stage), so it is not computed twice. *plan*: a
+    :class:`pcdof.plans.RenderPlan`, or None for :func:`pcdof.plans.plan_render` of *quality*.
     """
+    plan = plan_render(quality=quality) if plan is None else check_render_plan(plan)
     if not isinstance(lens, ThinLens):
         raise LensError(f"the physical method needs a ThinLens; got {type(lens).__name__}")
     coc = lens.signed_coc_px(depth_m, fx) if signed_coc is None else signed_coc
@@ -879,16 +953,17 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
         warnings.warn(f"circle of confusion up to {cmax:.0f} px clamped to {MAX_COC_PX:.0f} px", stacklevel=3)
     src = _as_channels(color)
     lin = to_float(src).copy() if linear else decode_to_linear(src)
-    tiles = classify_tiles(coc, sharp_px=float(LAYER_EDGES_PX[0]))
+    tiles = classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
     out_lin, info = render_layers_linear(np.ascontiguousarray(lin, np.float32), coc,
                                          blades=lens.aperture_blades, rotation_deg=lens.aperture_rotation_deg,
-                                         quality=quality, tiles=tiles)
+                                         quality=quality, tiles=tiles, plan=plan)
     if linear:
         out = out_lin if color.dtype.kind == "f" else from_float(out_lin, color.dtype)
         out = out.astype(color.dtype, copy=False)
     else:
         out = encode_from_linear(out_lin, color.dtype)
-    copy_tiles(src, tiles, out)  # exactly the input there, whatever the dtype's round trip
+    if plan.copy_tiles:
+        copy_tiles(src, tiles, out)  # exactly the input there, whatever the dtype's round trip
     info.update(skipped=False, max_coc_px=cmax)
     return out.reshape(color.shape), info
 
@@ -902,8 +977,13 @@ def paper_lens_for(lens) -> PaperLens:
     raise LensError(f"lens must be a ThinLens or PaperLens; got {type(lens).__name__}")
 
 
-def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=False, quality=None, signed_coc=None):
-    """The seed paper's method: Gaussian blur + eq. 2 (or eq. 1) weight + linear blend (eq. 3)."""
+def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=False, quality=None, signed_coc=None,
+                 plan=None):
+    """The seed paper's method: Gaussian blur + eq. 2 (or eq. 1) weight + linear blend (eq. 3).
+
+    One OpenCV blur and numpy arithmetic: no schedule to choose, so *plan* must be None."""
+    if plan is not None:
+        raise InputError(f"plan must be None for the paper method (it has no schedule); got {type(plan).__name__}")
     plens = paper_lens_for(lens)
     src = to_float(_as_channels(color))
     # the kernel reaches 3 sigma; OpenCV normalises it to sum 1 (no luminosity constant needed)
@@ -937,8 +1017,11 @@ def check_method(method) -> None:
 
 
 def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.0, linear=False,
-                 quality="balanced", signed_coc=None):
+                 quality="balanced", signed_coc=None, plan=None):
     """Render a registered, hole-free RGB-D pair. Returns (image, info); see :data:`METHODS`.
+
+    *plan* (physical method only): a :class:`pcdof.plans.RenderPlan` that overrides the one
+    :func:`pcdof.plans.plan_render` makes from *quality*; ``info["plan"]`` records the plan used.
 
     Raises
     ------
@@ -955,4 +1038,4 @@ def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.
     if signed_coc is not None and np.shape(signed_coc) != depth_m.shape:
         raise InputError(f"signed_coc must be (H, W) = {depth_m.shape}; got {np.shape(signed_coc)}")
     return METHODS[method](color, depth_m, lens, fx=fx, max_range_m=max_range_m, linear=linear, quality=quality,
-                           signed_coc=signed_coc)
+                           signed_coc=signed_coc, plan=plan)

@@ -4,8 +4,8 @@
 On the registration benchmark's calibrated box scene at Kinect v2 size (512x424 depth ->
 1920x1080 colour, with sensor noise), times pass 1 (project the depth rows and code their quads)
 and pass 2 (draw the quads and edge footprints into the 1/z buffer, convert to z) with one
-thread and with all of numba's threads, next to the whole call and Open3D's
-``create_from_depth_image`` + ``project_to_depth_image``. All methods run in turn inside each
+thread and with all of numba's threads (the plan's chunks and bands, tasks handed out one at a
+time), next to the whole call and Open3D's ``create_from_depth_image`` + ``project_to_depth_image``. All methods run in turn inside each
 round, so a burst of load from elsewhere hits them alike; the table gives the median over rounds
 of each round's fastest call, and the cost per drawn quad and per covered colour pixel.
 
@@ -16,6 +16,7 @@ of each round's fastest call, and the cost per drawn quad and per covered colour
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import time
 
@@ -52,26 +53,28 @@ def main(argv=None) -> int:
     rig = rb.bench_rig(depth_size, (cw, ch), distortion=True)
     clean, _ = rb.render_depths(rb.BOXES_SCENE, rig)
     depth = rb.add_sensor_noise(clean)
-    plan = reg._plan(rig)
+    consts = reg._rig_constants(rig)
+    plan = reg.plan_for(rig)
     ratio = 1.0 + reg.default_depth_ratio(rig.depth)
     h, w = depth.shape
     U, V, IZ = (np.empty((h, w), np.float32) for _ in range(3))
     row_lo, row_hi = np.empty(h), np.empty(h)
     codes = np.zeros((h + 1, w + 1), np.uint8)
     out = np.empty(rig.color.shape, np.float32)
-    n_chunks, n_bands = reg._n_chunks(h), reg._n_bands(ch)
 
     def project_and_code():
-        reg._run_tasks(reg._prepare, n_chunks, -(-h // n_chunks), depth, plan.rays, plan.t, plan.cam, plan.dist,
-                       plan.tilt, plan.has_dist, plan.has_tilt, plan.r2_max, float(plan.foot[1]), ratio, U, V, IZ,
-                       row_lo, row_hi, codes)
+        with numba.parallel_chunksize(1):
+            reg._prepare(min(plan.chunks, h), depth, consts.rays, consts.t, consts.cam, consts.dist, consts.tilt,
+                         consts.has_dist, consts.r2_max, float(consts.foot[1]), ratio, U, V, IZ, row_lo, row_hi,
+                         codes)
 
     def draw():
-        reg._run_tasks(reg._rasterise, n_bands, -(-ch // n_bands), depth, U, V, IZ, codes, row_lo, row_hi, plan.foot,
-                       ratio, reg._UNKNOWN_REACH, out)
+        with numba.parallel_chunksize(1):
+            reg._rasterise(min(plan.bands, ch), plan.block_kernel, depth, U, V, IZ, codes, row_lo, row_hi,
+                           consts.foot, ratio, reg._UNKNOWN_REACH, out)
 
     def whole():
-        reg.reproject_depth(depth, rig)
+        reg.reproject_depth(depth, rig, plan=dataclasses.replace(plan, threads=numba.get_num_threads()))
 
     def open3d():
         rb.register_open3d(depth, rig)
@@ -82,7 +85,7 @@ def main(argv=None) -> int:
     methods += [(f"reproject_depth, {n} thread(s)", whole, n) for n in sorted({1, threads})]
     methods += [("open3d", open3d, threads)]
     t0 = time.perf_counter()
-    for _, fn, _n in methods:  # compile / load the kernels, start the helper threads
+    for _, fn, _n in methods:  # compile / load the kernels
         fn()
     print(f"warm-up (JIT or cache load, first calls): {1e3 * (time.perf_counter() - t0):.0f} ms")
     times = {name: [] for name, _, _ in methods}

@@ -149,18 +149,19 @@ def test_registration_matches_reference_on_random_frames(seed, geometry, distort
                                  ref_register.reproject_depth(depth, rig, max_depth_ratio=ratio))
 
 
-def test_registration_bands_and_chunks_match_reference(monkeypatch):
+def test_registration_bands_and_chunks_match_reference():
     """Every split of the work into bands of colour rows and chunks of depth rows gives the reference."""
-    import pcdof.register as register_mod
+    from pcdof.plans import RegisterPlan
 
     rng = np.random.default_rng(7)
     rig = _rig((48, 40), (96, 80), fd=44.0, fc=84.0, distorted=True, rng=rng)
     depth = _depth_scene(rig.depth.shape, rng)
     ref = ref_register.reproject_depth(depth, rig)
     for n in (1, 3, 80):
-        monkeypatch.setattr(register_mod, "_n_bands", lambda height, n=n: n)
-        monkeypatch.setattr(register_mod, "_n_chunks", lambda height, n=n: min(n, 40))
-        _assert_registration_matches(reproject_depth(depth, rig), ref)
+        for block_kernel in (True, False):
+            plan = RegisterPlan(threads=min(n, 2, numba.config.NUMBA_NUM_THREADS), chunks=min(n, 40), bands=n,
+                                block_kernel=block_kernel)
+            _assert_registration_matches(reproject_depth(depth, rig, plan=plan), ref)
 
 
 def test_registration_adversarial_frames_match_reference():

@@ -6,8 +6,8 @@ pcdof.geometry), cv2.registerDepth, and real captured RGB-D data with calibratio
 
 from __future__ import annotations
 
+import dataclasses
 import math
-import time
 import warnings
 from pathlib import Path
 
@@ -18,6 +18,7 @@ import pytest
 import pcdof.register as register_mod
 from pcdof.camera import Intrinsics, RGBDFrame, Rig
 from pcdof.errors import InputError
+from pcdof.plans import RegisterPlan, plan_register
 from pcdof.register import needs_registration, register_depth, reproject_depth, warmup
 
 DATA = Path(__file__).resolve().parent.parent / "data" / "real"
@@ -299,70 +300,53 @@ class TestRegisterDepth:
                 n = int((np.abs(out - v) < 0.02).sum())
                 assert max(1, (math.ceil(m) - 1) ** 2) <= n <= (m + 1) ** 2
 
-    def test_bands_do_not_change_the_result(self):
-        rig = make_rig((128, 106), (480, 270), fd=91.4, fc=265.2, ddist=DEPTH_DIST, cdist=COLOR_DIST)
-        depth, _, _ = TestOcclusion().scene(rig)
-        ref = reproject_depth(depth, rig)
-        orig = register_mod._n_bands
-        try:
-            for n in (1, 3, 17):
-                register_mod._n_bands = lambda height, n=n: n
-                np.testing.assert_array_equal(reproject_depth(depth, rig), ref)
-        finally:
-            register_mod._n_bands = orig
-
-    def test_chunks_and_threads_do_not_change_the_result(self):
+    def test_plans_do_not_change_the_result(self):
         import numba
 
         rig = make_rig((128, 106), (480, 270), fd=91.4, fc=265.2, ddist=DEPTH_DIST, cdist=COLOR_DIST)
         depth, _, _ = TestOcclusion().scene(rig)
         ref = reproject_depth(depth, rig)
-        orig = register_mod._n_chunks
-        try:
-            for n in (1, 3, 17):
-                register_mod._n_chunks = lambda height, n=n: n
-                np.testing.assert_array_equal(reproject_depth(depth, rig), ref)
-        finally:
-            register_mod._n_chunks = orig
-        threads = numba.get_num_threads()
-        try:
-            numba.set_num_threads(1)
-            np.testing.assert_array_equal(reproject_depth(depth, rig), ref)
-        finally:
-            numba.set_num_threads(threads)
+        assert register_mod.plan_for(rig) == plan_register(106, 270)
+        for threads in sorted({1, numba.config.NUMBA_NUM_THREADS}):
+            for chunks, bands in ((1, 1), (3, 17), (17, 3), (500, 500)):
+                plan = RegisterPlan(threads=threads, chunks=chunks, bands=bands)
+                np.testing.assert_array_equal(reproject_depth(depth, rig, plan=plan), ref)
+        frame = RGBDFrame(np.zeros((*rig.color.shape, 3), np.uint8), depth, rig)
+        np.testing.assert_array_equal(register_depth(frame, plan=RegisterPlan(1, 2, 5)), ref)
+
+    def test_small_quad_kernels_agree(self):
+        # the 4x4 block kernel and the per-pixel tests evaluate the same triangles (float32 against
+        # float64 edge functions): pixel centres on an edge may fall either way, depths agree
+        rig = make_rig((128, 106), (480, 270), fd=91.4, fc=265.2, ddist=DEPTH_DIST, cdist=COLOR_DIST)
+        depth, _, _ = TestOcclusion().scene(rig)
+        block = reproject_depth(depth, rig)
+        plain = reproject_depth(depth, rig, plan=dataclasses.replace(register_mod.plan_for(rig), block_kernel=False))
+        both = (block > 0) & (plain > 0)
+        assert both.sum() > 0.5 * block.size
+        assert np.count_nonzero((block > 0) != (plain > 0)) < 1e-3 * block.size
+        np.testing.assert_allclose(block[both], plain[both], rtol=1e-5)
+
+    def test_bad_plan(self):
+        rig = make_rig()
+        depth = np.ones(rig.depth.shape, np.float32)
+        with pytest.raises(InputError, match="plan must be a RegisterPlan"):
+            reproject_depth(depth, rig, plan={"threads": 1})
+        with pytest.raises(InputError, match="RegisterPlan.bands"):
+            reproject_depth(depth, rig, plan=RegisterPlan(threads=1, chunks=1, bands=0))
+        with pytest.raises(InputError, match="RegisterPlan.threads"):
+            reproject_depth(depth, rig, plan=RegisterPlan(threads=10**6, chunks=1, bands=1))
+        frame = RGBDFrame(np.zeros((*rig.color.shape, 3), np.uint8), depth, Rig.registered(rig.color))
+        with pytest.raises(InputError, match="RegisterPlan.chunks"):  # checked even when nothing is re-projected
+            register_depth(frame, plan=RegisterPlan(threads=1, chunks=-1, bands=1))
 
     def test_rig_work_is_done_once_per_calibration(self):
         rig = make_rig(ddist=DEPTH_DIST, cdist=COLOR_DIST)
         twin = Rig(rig.color, rig.depth, np.array(rig.T_color_from_depth))  # another object, same calibration
-        plan = register_mod._plan(rig)
-        assert register_mod._plan(twin) is plan
-        assert not plan.rays.flags.writeable and plan.rays.shape == (3, *rig.depth.shape)
+        consts = register_mod._rig_constants(rig)
+        assert register_mod._rig_constants(twin) is consts
+        assert not consts.rays.flags.writeable and consts.rays.shape == (3, *rig.depth.shape)
         other = make_rig(ddist=DEPTH_DIST, cdist=COLOR_DIST, t=(-0.04, 0.0, 0.0))
-        assert register_mod._plan(other) is not plan
-
-    def test_a_helper_that_never_runs_does_not_stall_the_call(self, monkeypatch):
-        import threading
-        from concurrent.futures import ThreadPoolExecutor
-
-        import numba
-
-        if numba.get_num_threads() < 2:
-            pytest.skip("needs two numba threads")
-        rig = make_rig((128, 106), (480, 270), fd=91.4, fc=265.2)
-        depth, _, _ = TestOcclusion().scene(rig)
-        ref = reproject_depth(depth, rig)
-        release = threading.Event()
-        busy = ThreadPoolExecutor(max_workers=1)
-        try:
-            busy.submit(release.wait, 60)  # the only helper thread is taken: its tasks never start
-            monkeypatch.setattr(register_mod, "_thread_pool", lambda: busy)
-            t0 = time.perf_counter()
-            out = reproject_depth(depth, rig)
-            assert time.perf_counter() - t0 < 30
-            np.testing.assert_array_equal(out, ref)
-        finally:
-            release.set()
-            busy.shutdown(wait=True)
+        assert register_mod._rig_constants(other) is not consts
 
     def test_full_opencv_lens_model(self):
         # rational (k4..k6), thin prism (s1..s4) and tilted-sensor terms of the colour camera; each

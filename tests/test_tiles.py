@@ -1,5 +1,6 @@
 """Tile classification and the renderer's tile paths: copied in-focus tiles and convolved uniform tiles."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -7,13 +8,13 @@ import pytest
 
 import pcdof.renderer as renderer
 from pcdof.errors import InputError
+from pcdof.plans import RenderPlan, plan_render
 from pcdof.tiles import TILE_PX, TileMap, classify_tiles
 
 from test_render import disc_kernel, psnr, texture
 
-
-def _without_uniform(monkeypatch):
-    monkeypatch.setattr(TileMap, "uniform", lambda self, *args: np.zeros_like(self.copy))
+#: the exact quality's plan with the convolution of uniform tiles switched off
+SCATTER_ONLY = dataclasses.replace(plan_render(quality="exact"), convolve_uniform=False)
 
 
 class TestClassify:
@@ -104,6 +105,21 @@ class TestRendererTiles:
         no_copy = TileMap(tiles.shape, tiles.tile_px, tiles.coc_min, tiles.coc_max, np.zeros_like(tiles.copy))
         reference, _ = renderer.render_layers_linear(lin, coc, tiles=no_copy)
         np.testing.assert_array_equal(out, reference)
+        # the same by the plan: copy tiles switched off
+        plan = dataclasses.replace(plan_render(), copy_tiles=False)
+        np.testing.assert_array_equal(renderer.render_layers_linear(lin, coc, plan=plan)[0], reference)
+
+    def test_tile_size_changes_only_the_convolved_region(self):
+        lin, coc = self.scene()
+        results = []
+        for tile_px in (8, 16, 32):
+            for copy in (True, False):
+                plan = dataclasses.replace(SCATTER_ONLY, tile_px=tile_px, copy_tiles=copy)
+                out, info = renderer.render_layers_linear(lin, coc, plan=plan)
+                assert info["tiles"]["tile_px"] == tile_px and info["plan"]["tile_px"] == tile_px
+                results.append(out)
+        for out in results[1:]:  # without the convolution, tiles only skip work: bit-identical
+            np.testing.assert_array_equal(out, results[0])
 
     @pytest.mark.parametrize("dtype", [np.uint16, np.float16])
     def test_copy_tiles_come_out_bit_exact(self, dtype):
@@ -120,15 +136,14 @@ class TestRendererTiles:
         np.testing.assert_array_equal(out[:, :48], color[:, :48])
         assert not np.array_equal(out[:, 80:], color[:, 80:])
 
-    def test_uniform_tiles_are_convolved_and_agree_with_the_scatter(self, monkeypatch):
+    def test_uniform_tiles_are_convolved_and_agree_with_the_scatter(self):
         lin, coc = self.scene()
         out, info = renderer.render_layers_linear(lin, coc, quality="exact")
         back = [l for l in info["layers"] if l.get("side") == "back"]
         assert back[0]["uniform_tiles"] > 0 and back[0]["kernels"] >= 1
         # only the sources near the layer's edge (within a footprint of a non-uniform pixel) are scattered
         assert 0 < back[0]["sources_scattered"] < back[0]["pixels"] / 2
-        _without_uniform(monkeypatch)
-        scattered, info_s = renderer.render_layers_linear(lin, coc, quality="exact")
+        scattered, info_s = renderer.render_layers_linear(lin, coc, plan=SCATTER_ONLY)
         assert all(l.get("uniform_tiles", 0) == 0 for l in info_s["layers"])
         # a radius bin is 4 % wide: the convolution uses the bin's centre, the scatter the exact radius
         assert psnr(out, scattered) > 50
@@ -138,7 +153,7 @@ class TestRendererTiles:
         expected = cv2.filter2D(lin, -1, disc_kernel(12.0), borderType=cv2.BORDER_REFLECT)
         assert psnr(out[:, 150:180], expected[:, 150:180]) > 40
 
-    def test_uniform_path_at_a_bin_centre_equals_the_scatter(self, monkeypatch):
+    def test_uniform_path_at_a_bin_centre_equals_the_scatter(self):
         step = math.log1p(renderer.UNIFORM_BIN)
         r = math.exp(30 * step)  # 3.24 px: exactly a bin centre, so one kernel of the exact radius
         lin = texture(80, 96, seed=5)
@@ -148,8 +163,7 @@ class TestRendererTiles:
         assert layer["uniform_tiles"] == 30 and layer["kernels"] == 1
         # the whole frame is one uniform region: nothing is left for the scatter
         assert layer["sources_scattered"] == 0
-        _without_uniform(monkeypatch)
-        scattered, info_s = renderer.render_layers_linear(lin, coc, quality="exact")
+        scattered, info_s = renderer.render_layers_linear(lin, coc, plan=SCATTER_ONLY)
         assert info_s["layers"][0]["sources_scattered"] == 80 * 96
         np.testing.assert_allclose(out, scattered, atol=2e-6)
 

@@ -23,13 +23,14 @@ def quick_report(tmp_path_factory):
 
 def test_every_part_is_reported(quick_report):
     out, report = quick_report
-    for part in ("dof", "speed", "cost", "registration", "fill"):
+    for part in ("dof", "wide", "wide_budget", "speed", "cost", "registration", "fill"):
         assert report.get(part), f"{part} missing from report.json"
     md = (out / "report.md").read_text()
     for heading in ("Depth of field against the ray-traced ground truth", "Speed",
                     "Registration against OpenCV and Open3D", "Hole filling against cv2.inpaint"):
         assert heading in md
-    for plot in ("pareto.png", "cost.png"):
+    assert "Wide benchmark" in md and "Error budget" in md and "tuning seeds" in md
+    for plot in ("pareto.png", "cost.png", "budget.png"):
         image = cv2.imread(str(out / plot))
         assert image is not None and image.std() > 5, f"{plot} is blank"
     assert (out / "dof.csv").read_text().count("\n") == len(report["dof"]) + 1
@@ -91,10 +92,6 @@ def test_registration_profile_script(capsys):
 @pytest.mark.parametrize("args, flag", [
     (["--only", "speed", "--repeats", "0"], "--repeats"),
     (["--only", "speed", "--repeats", "-3"], "--repeats"),
-    (["--quick", "--only", "dof", "--scenes", "slanted_plane,nosuch"], "--scenes"),
-    (["--only", "dof", "--scenes", ","], "--scenes"),
-    (["--only", " , "], "--only"),
-    (["--only", "dof,bogus"], "--only"),
     (["--only", "dof", "--size", "0x0"], "--size"),
     (["--only", "dof", "--depth-size", "64"], "--depth-size"),
     (["--only", "dof", "--samples", "0"], "--samples"),
@@ -112,6 +109,22 @@ def test_bad_options_fail_before_any_work(tmp_path, monkeypatch, args, flag):
     result = CliRunner().invoke(main, ["bench", "-o", str(out), *args])
     assert result.exit_code == 6, result.output
     assert result.output.startswith("pcdof: error: ") and result.output.count("\n") == 1 and flag in result.output
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("args, flag, valid", [
+    (["--quick", "--only", "dof", "--scenes", "slanted_plane,nosuch"], "--scenes", "portrait"),
+    (["--only", "dof", "--scenes", ","], "--scenes", "portrait"),
+    (["--only", " , "], "--only", "wide"),
+    (["--only", "dof,bogus"], "--only", "wide"),
+    (["--only", "foo"], "--only", "registration"),
+    (["--seeds", "0"], "--seeds", None),
+])
+def test_invalid_choices_are_usage_errors_listing_the_choices(tmp_path, args, flag, valid):
+    out = tmp_path / "b"
+    result = CliRunner().invoke(main, ["bench", "-o", str(out), *args])
+    assert result.exit_code == 2, result.output
+    assert flag in result.output and (valid is None or valid in result.output)
     assert not out.exists()
 
 
@@ -150,3 +163,39 @@ def test_bench_functions_check_their_arguments():
         dof.run_dof_bench(scenes=["slanted_plane", "nosuch"], progress=False)
     with pytest.raises(InputError, match="repeats"):
         dof.run_dof_bench(scenes=["slanted_plane"], repeats=0, progress=False)
+
+
+def test_quick_bench_prints_no_numpy_warning(quick_report, recwarn):
+    from pcdof.bench import dof
+
+    rows = [{"scene": "s", "setting": "wide", "f_number": 2.0, "max_coc_px": 3.0, "method": m, "psnr": 30.0,
+             "psnr_edge": float("nan"), "ssim": 0.9, "ms": 1.0} for m in ("pcdof-balanced", "paper", "baseline")]
+    dof.compact_table(rows)
+    dof.summarize(rows)
+    assert not [w for w in recwarn if "NaN" in str(w.message)]
+
+
+def test_wide_rows_cover_every_focus_and_the_budget(quick_report):
+    _, report = quick_report
+    rows = report["wide"]
+    assert {r["focus"] for r in rows} == {"near", "mid", "far"}
+    methods = {r["method"] for r in rows}
+    assert {"pcdof-exact", "pcdof-balanced", "pcdof-fast", "paper", "baseline"} <= methods
+    assert {"budget:measured", "budget:true depth", "budget:true depth+linear"} <= methods
+    for r in rows:
+        assert 10 < r["psnr"] < 80
+        assert all(seed >= 100 for seed in [r["seed"]])  # reported seeds never overlap the tuning seeds
+    pixels = sum(n for k, (_, n) in rows[0]["sse"].items() if k.endswith("|all"))
+    assert pixels == 64 * 48  # every pixel falls in exactly one blur bucket
+
+
+def test_lens_for_blur_gives_the_requested_largest_blur():
+    import numpy as np
+
+    from pcdof.synth.wide import lens_for_blur
+
+    depth = np.random.default_rng(1).uniform(0.5, 4.0, (30, 40)).astype(np.float32)
+    for focus in (0.6, 1.5, 3.9):
+        for blur in (4.0, 64.0):
+            lens = lens_for_blur(depth, 300.0, focus, blur)
+            assert float(lens.coc_px(depth, 300.0).max()) == pytest.approx(blur, rel=1e-4)

@@ -160,13 +160,19 @@ def run_dof_bench(*, scenes=None, size=(320, 240), depth_size=(256, 212), settin
     return rows
 
 
+def _mean_finite(values) -> float:
+    """Mean of the non-NaN values (NaN when there are none, without numpy's all-NaN warning)."""
+    v = [x for x in values if not np.isnan(x)]
+    return float(np.mean(v)) if v else float("nan")
+
+
 def summarize(rows: list[dict]) -> list[dict]:
     """Per method: mean PSNR overall / edge band, mean SSIM, median time, and wins over the others."""
     out = []
     for m in dict.fromkeys(r["method"] for r in rows):
         mine = [r for r in rows if r["method"] == m]
         out.append({"method": m, "psnr": float(np.mean([r["psnr"] for r in mine])),
-                    "psnr_edge": float(np.nanmean([r["psnr_edge"] for r in mine])),
+                    "psnr_edge": _mean_finite([r["psnr_edge"] for r in mine]),
                     "ssim": float(np.mean([r["ssim"] for r in mine])),
                     "ms": float(np.median([r["ms"] for r in mine]))})
     return out
@@ -199,7 +205,8 @@ def compact_table(rows: list[dict], ours: str = "pcdof-balanced", others=("paper
             return f"{r['psnr']:.1f} ({edge}) {r['ms']:.0f}"
 
         best = max(by[o]["psnr"] for o in others if o in by)
-        best_edge = np.nanmax([by[o]["psnr_edge"] for o in others if o in by] + [np.nan])
+        edges = [by[o]["psnr_edge"] for o in others if o in by and not np.isnan(by[o]["psnr_edge"])]
+        best_edge = max(edges) if edges else np.nan  # (np.nanmax of all-NaN warns)
         mine = by[ours]
         margin_edge = "-" if np.isnan(best_edge) else f"{mine['psnr_edge'] - best_edge:+.1f}"
         lines.append(f"| {scene} | {setting} (f/{mine['f_number']:g}) | {mine['max_coc_px']:.1f} | {cell(mine)} | "
@@ -216,25 +223,50 @@ def summary_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+#: one colour and marker per method (colour-blind-safe palette), reused by the other bench plots
+STYLE = {"pcdof-exact": ("#4477aa", "o"), "pcdof-high": ("#66ccee", "s"), "pcdof-balanced": ("#228833", "D"),
+         "pcdof-fast": ("#ccbb44", "^"), "pcdof-balanced+hl": ("#aa3377", "P"), "paper": ("#ee6677", "v"),
+         "baseline": ("#555555", "X")}
+
+
+def method_style(name: str, index: int) -> tuple[str, str]:
+    """(colour, marker) of a method: fixed for the known ones, distinct for the rest."""
+    if name in STYLE:
+        return STYLE[name]
+    extra = ("#bbbbbb", "#882255", "#117733", "#999933")
+    return extra[index % len(extra)], "ph*8"[index % 4]
+
+
 def pareto_plot(rows: list[dict], path: str) -> None:
-    """Median time against mean PSNR (overall and edge band) per method, as a PNG."""
+    """Median time against mean PSNR per method (filled: whole frame, hollow: edge band), as a PNG.
+
+    Each method has its own colour and marker; the names are in a legend outside the axes, so no
+    label covers a point or another label.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     summary = summarize(rows)
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
-    for s in summary:
-        ax.scatter(s["ms"], s["psnr"], s=50, label=f"{s['method']} (all)")
-        ax.scatter(s["ms"], s["psnr_edge"], s=50, marker="x", label=f"{s['method']} (edge band)")
-        ax.annotate(s["method"], (s["ms"], s["psnr"]), textcoords="offset points", xytext=(5, 5))
+    fig, ax = plt.subplots(figsize=(8, 4.2), dpi=110)
+    handles = []
+    for i, s in enumerate(summary):
+        colour, marker = method_style(s["method"], i)
+        ax.scatter(s["ms"], s["psnr"], s=60, color=colour, marker=marker, zorder=3)
+        if not np.isnan(s["psnr_edge"]):
+            ax.scatter(s["ms"], s["psnr_edge"], s=60, facecolors="none", edgecolors=colour, marker=marker, zorder=3)
+            ax.plot([s["ms"]] * 2, [s["psnr"], s["psnr_edge"]], color=colour, lw=0.8, alpha=0.6, zorder=2)
+        handles.append(Line2D([], [], color=colour, marker=marker, ls="", label=s["method"]))
+    handles += [Line2D([], [], color="k", marker="o", ls="", label="filled: whole frame"),
+                Line2D([], [], color="k", marker="o", ls="", markerfacecolor="none", label="hollow: depth-edge band")]
     ax.set_xscale("log")
     ax.set_xlabel("median time per frame, ms (log)")
     ax.set_ylabel("mean PSNR vs ray-traced ground truth, dB")
     ax.set_title("time against error (higher and further left is better)")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
     fig.tight_layout()
     try:
         save_figure(fig, path)

@@ -13,7 +13,9 @@ import click
 from ..errors import InputError
 from ._common import check_output_file, check_output_folder, handle_errors, make_output_folder
 
-PARTS = ("dof", "speed", "registration", "fill")
+#: every part; "wide-tune" (choosing the highlight default on the tuning seeds) runs only when named
+PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune")
+DEFAULT_PARTS = ("dof", "wide", "speed", "registration", "fill")
 
 
 def versions() -> dict:
@@ -49,11 +51,35 @@ def _split(text: str) -> list[str]:
     return [p.strip() for p in text.split(",") if p.strip()]
 
 
+def _choices(value, choices, flag):
+    """A comma-separated list of names from *choices*, or a usage error (exit 2) that lists them."""
+    if value is None:
+        return None
+    names = _split(value)
+    bad = [n for n in names if n not in choices]
+    if bad or not names:
+        what = f"unknown {', '.join(map(repr, bad))}" if bad else "selects nothing"
+        raise click.BadParameter(f"{what}; choose from {', '.join(choices)}", param_hint=flag)
+    return names
+
+
+def _parts(ctx, param, value):
+    return _choices(value, PARTS, "--only")
+
+
+def _scene_list(ctx, param, value):
+    from ..synth import SCENES
+
+    return _choices(value, list(SCENES), "--scenes")
+
+
 def _output_files(parts) -> list[str]:
     """The files a run of *parts* writes into its output folder."""
     files = ["report.json", "report.md"]
     if "dof" in parts:
         files += ["dof.csv", "pareto.png"]
+    if "wide" in parts:
+        files += ["wide.csv", "budget.png"]
     if "speed" in parts:
         files += ["cost.png"]
     return files
@@ -62,15 +88,21 @@ def _output_files(parts) -> list[str]:
 @click.command("bench")
 @click.option("-o", "--output", default="out/bench", show_default=True, type=click.Path(readable=False))
 @click.option("--quick", is_flag=True, help="Tiny scenes, few repeats: a smoke run for tests.")
-@click.option("--only", default=",".join(PARTS), show_default=True, help="Comma-separated parts to run.")
+@click.option("--only", default=",".join(DEFAULT_PARTS), show_default=True, callback=_parts,
+              help=f"Comma-separated parts to run, from {', '.join(PARTS)}.")
 @click.option("--size", default="320x240", show_default=True, help="Colour size of the ground-truth scenes.")
 @click.option("--depth-size", default="256x212", show_default=True, help="Depth camera size of the scenes.")
 @click.option("--repeats", type=int, default=5, show_default=True, help="Timed repeats per measurement (>= 1).")
 @click.option("--samples", type=int, default=None,
               help="Aperture samples for the ground truth, >= 1 (default: adaptive).")
-@click.option("--scenes", default=None, help="Comma-separated scene names (default: all).")
+@click.option("--scenes", default=None, callback=_scene_list,
+              help="Comma-separated scene names of the dof part (default: all).")
+@click.option("--seeds", type=click.IntRange(min=1), default=2, show_default=True,
+              help="Seeds per scene type of the wide part (reported seeds 100, 101, ...; tuning seeds 0, 1, ...).")
+@click.option("--wide-size", default="256x192", show_default=True,
+              help="Colour size of the wide part (its depth camera: --depth-size).")
 @handle_errors
-def command(output, quick, only, size, depth_size, repeats, samples, scenes):
+def command(output, quick, only, size, depth_size, repeats, samples, scenes, seeds, wide_size):
     """Run the benchmarks and write JSON, CSV, Markdown tables and plots into OUTPUT.
 
     Every option is checked before any work (--scenes applies to the dof part; --quick overrides
@@ -79,25 +111,24 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes):
     from ..bench import check_repeats, check_scenes
     from ..synth.rig import parse_size
 
-    parts = _split(only)
-    bad = [p for p in parts if p not in PARTS]
-    if bad:
-        raise InputError(f"--only: unknown part(s) {', '.join(map(repr, bad))}; choose from {', '.join(PARTS)}")
-    if not parts:
-        raise InputError(f"--only selects no part; choose from {', '.join(PARTS)}")
+    parts = only
     size, depth_size = parse_size(size, "--size"), parse_size(depth_size, "--depth-size")
+    wide_size = parse_size(wide_size, "--wide-size")
     check_repeats(repeats, "--repeats")
     if samples is not None and samples < 1:
         raise InputError(f"--samples must be an integer >= 1; got {samples}")
-    scene_list = check_scenes(_split(scenes), "--scenes") if scenes is not None else None
+    scene_list = check_scenes(scenes, "--scenes") if scenes is not None else None
     check_output_folder(output, "output")
     for name in _output_files(parts):
         check_output_file(os.path.join(output, name), "output")
-    if "dof" in parts:
+    if "dof" in parts or "wide" in parts or "wide-tune" in parts:
         check_output_folder(os.path.join(output, "cache"), "output")
+    wide_kw = {"kinds": None, "blurs": None, "size": wide_size, "depth_size": depth_size}
     if quick:
         size, depth_size, repeats = (96, 72), (80, 66), 1
         scene_list = scene_list or ["portrait", "slanted_plane"]
+        wide_kw = {"kinds": ["room"], "blurs": (12.0,), "size": (64, 48), "depth_size": (64, 53)}
+        seeds = 1
     make_output_folder(output, "output")
     report = {"versions": versions(), "quick": quick}
     md = [f"# pcdof benchmark\n\nversions: {json.dumps(report['versions'])}\n"]
@@ -120,6 +151,12 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes):
                dof.compact_table(rows), "", "All methods and quality levels:\n", dof.markdown_table(rows), ""]
         click.echo(dof.summary_table(rows))
         click.echo(dof.compact_table(rows))
+        save()
+    if "wide" in parts:
+        _wide_part(report, md, output, seeds, wide_kw)
+        save()
+    if "wide-tune" in parts:
+        _wide_tune_part(report, md, output, seeds, wide_kw)
         save()
     if "speed" in parts:
         from ..bench import speed
@@ -164,3 +201,38 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes):
         save()
     save()
     click.echo(f"wrote {output}/report.md and report.json", err=True)
+
+
+def _wide_part(report, md, output, seeds, kw) -> None:
+    from ..bench import wide
+
+    seed_list = wide.REPORT_SEEDS[:seeds] if seeds <= len(wide.REPORT_SEEDS) else tuple(range(100, 100 + seeds))
+    rows = wide.run_wide(kinds=kw["kinds"], seeds=seed_list, blurs=kw["blurs"] or wide.BLURS_PX, size=kw["size"],
+                         depth_size=kw["depth_size"], cache_dir=os.path.join(output, "cache"))
+    report["wide"] = rows
+    report["wide_budget"] = wide.budget_summary(rows)
+    _write_csv(os.path.join(output, "wide.csv"), [{k: v for k, v in r.items() if k != "sse"} for r in rows])
+    wide.budget_plot(rows, os.path.join(output, "budget.png"))
+    seeds_note = (f"Reported seeds {', '.join(map(str, seed_list))} (highlight settings were chosen on the "
+                  f"separate tuning seeds {', '.join(map(str, wide.TUNING_SEEDS))}; `--only wide-tune` reruns that).")
+    tables = ["### PSNR per blur bucket (overall / depth-edge band, dB; pixels pooled by their true CoC)\n",
+              wide.bucket_table(rows), "", "### PSNR per focus position and largest blur (overall / edge band, dB)\n",
+              wide.focus_table(rows), "", "### Error budget (pcdof exact)\n", wide.budget_table(rows), "",
+              "### Cases where pcdof-balanced loses to the paper method or the gather baseline\n",
+              wide.losses_table(rows), ""]
+    md += ["## Wide benchmark: blur to 64 px, focus near / mid / far, clipped 8-bit input\n", seeds_note, "",
+           *tables]
+    click.echo(seeds_note)
+    click.echo("\n".join(tables))
+
+
+def _wide_tune_part(report, md, output, seeds, kw) -> None:
+    from ..bench import wide
+
+    tuned = wide.tune_highlights(kinds=kw["kinds"], seeds=wide.TUNING_SEEDS[:seeds], blurs=kw["blurs"] or wide.BLURS_PX,
+                                 size=kw["size"], depth_size=kw["depth_size"], cache_dir=os.path.join(output, "cache"))
+    report["wide_tune"] = tuned
+    table = wide.tuning_table(tuned)
+    md += ["## Highlight settings on the tuning seeds (pcdof exact, true depth)\n",
+           f"Tuning seeds {', '.join(map(str, wide.TUNING_SEEDS[:seeds]))}, never reported elsewhere.\n", table, ""]
+    click.echo(table)

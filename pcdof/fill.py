@@ -31,6 +31,21 @@ The default method, ``"joint-bilateral"``, handles both with one rule per hole p
    across), where the lines of neighbouring pixels pass different boundary corners and leave
    thin streaks: a 5 x 5 median, twice.
 
+Three rules come before and after these steps:
+
+* **Outside the view.** A hole is outside the depth camera's field of view when, on its row or
+  its column, one side has no known pixel up to the frame border and neither line has known
+  pixels on both sides. It is not a disocclusion: it takes the plane-fitted depth of the nearest
+  known pixel on the other side of that line (the surface just inside the view), held constant.
+  Where neither its row nor its column has a known pixel (a corner), the nearest filled pixel.
+* **Narrow gaps.** When at least 4 of the 8 opposite pairs of candidates are both on surfaces
+  nearer than the farthest one and at most 48 pixels apart (at 640 across), the hole lies in a
+  narrow gap between foreground parts: a nearer surface needs ``background_bias ** 2`` times the
+  farthest one's support (not ``background_bias``), so the gap takes the background throughout
+  unless its colour clearly belongs to the foreground.
+* **Speckles.** A filled pixel whose depth differs from all 8 neighbours by more than
+  ``edge_ratio`` takes their median (one pass, after step 5).
+
 Filled values are clamped to the range of the known values. ``"nearest-background"`` is the same
 without colour (always the farthest surface); ``"telea"`` is OpenCV's ``cv2.inpaint`` (Telea), the
 usual baseline, which averages across depth edges and so smears foreground depth into

@@ -166,7 +166,10 @@ class TestFolders:
     def test_subfolders_paired_by_number(self, folders):
         assert source_format(folders) == "folder" and not is_recording(folders)
         with open_source(folders) as src:
-            assert src.format == "folder" and len(src) == 4 and src.info()["layout"] == "folders"
+            info = json.loads(json.dumps(src.info()))  # plain, JSON-ready
+            assert src.format == "folder" and len(src) == 4 and info["layout"] == "folders"
+            assert info["streams"]["depth"] == {"width": 256, "height": 212, "frames": 4}
+            assert info["calibration_from"] == os.path.join(folders, "calib.json")
             assert_matches_batch_and_load_frame(src, folders, None)
             # the frames differ, so a frame read at the wrong index would not have matched
             assert not np.array_equal(src.frame(0).color, src.frame(1).color)

@@ -61,7 +61,9 @@ class FileSource(FrameSource):
 
     def _info(self) -> dict:
         seq = self.sequence
-        return {"layout": seq.layout, "root": seq.root,
+        streams = {name: {"width": cam.width, "height": cam.height, "frames": len(seq)}
+                   for name, cam in (("color", self.rig.color), ("depth", self.rig.depth))}
+        return {"layout": seq.layout, "root": seq.root, "streams": streams,
                 "pairing": {"unpaired_color": seq.unmatched_color, "unpaired_depth": seq.unmatched_depth}}
 
 

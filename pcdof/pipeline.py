@@ -101,16 +101,17 @@ def register_stage(frame: RGBDFrame, trace: list) -> np.ndarray:
 
 def fill_stage(depth_m: np.ndarray, color: np.ndarray, trace: list, *, method: str) -> np.ndarray:
     """Hole-free depth; skipped when there are no holes."""
-    from .fill import fill_depth, needs_fill
+    from .fill import fill_depth, needs_fill, plan_fill
 
     with _Timer(trace, "fill") as rec:
         needed, reason = needs_fill(depth_m)
         if not needed:
             rec.skipped, rec.reason = True, reason
             return depth_m
-        rec.reason = f"{reason} ({method})"
-        rec.detail = {"holes": int(np.count_nonzero(depth_m == 0))}
-        return fill_depth(depth_m, color, method=method)
+        plan = plan_fill(depth_m)
+        rec.reason = f"{reason} ({method}; {plan.describe()})"
+        rec.detail = {"holes": plan.holes, "threads": plan.threads}
+        return fill_depth(depth_m, color, method=method, parallel=plan.threads > 1)
 
 
 def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False,

@@ -16,11 +16,13 @@ import shutil
 import cv2
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from pcdof import io
 from pcdof.batch.inputs import discover, load_rig
 from pcdof.batch.runner import read_frame
 from pcdof.camera import Intrinsics, Rig
+from pcdof.cli.info import command as info_command
 from pcdof.errors import ImageReadError, InputError, PcdofError
 from pcdof.lens import ThinLens
 from pcdof.pipeline import run
@@ -184,6 +186,14 @@ class TestFolders:
         with open_source(tmp_path, calib=calib, depth_scale=0.001) as src:
             assert src.info()["layout"] == "suffixes"
             assert_matches_batch_and_load_frame(src, str(tmp_path), calib, depth_scale=0.001)
+
+    def test_pcdof_info_describes_the_folder(self, folders):
+        result = CliRunner().invoke(info_command, [folders])
+        assert result.exit_code == 0, result.output
+        first, color = result.output.splitlines()[:2]
+        assert first == (f"{folders}: folder, 4 colour+depth frames (folders layout, paired by name; "
+                         "unpaired: 0 colour, 0 depth)")
+        assert color == "  color: 320x240, 4 frames"
 
     def test_no_pairs(self, tmp_path):
         for sub, name in (("color", "a.png"), ("depth", "b.png")):

@@ -30,12 +30,13 @@ def command(recording, calib, as_json):
 def format_info(info: dict) -> str:
     """The human-readable summary of :meth:`FrameSource.info`."""
     pair = info["pairing"]
+    within = (f"paired within {pair['max_difference_s'] * 1000:.1f} ms" if "max_difference_s" in pair
+              else f"{info.get('layout', info['format'])} layout, paired by name")
     lines = [f"{info['path']}: {info['format']}, {info['frames']} colour+depth frames "
-             f"(paired within {pair['max_difference_s'] * 1000:.1f} ms; unpaired: {pair['unpaired_color']} colour, "
-             f"{pair['unpaired_depth']} depth)"]
+             f"({within}; unpaired: {pair['unpaired_color']} colour, {pair['unpaired_depth']} depth)"]
     for name, s in info["streams"].items():
         extra = ", ".join(f"{k} {v}" for k, v in s.items() if k not in ("width", "height", "frames"))
-        lines.append(f"  {name}: {s['width']}x{s['height']}, {s['frames']} frames, {extra}")
+        lines.append(f"  {name}: {s['width']}x{s['height']}, {s['frames']} frames" + (f", {extra}" if extra else ""))
     cal = info["calibration"]
     lines.append(f"calibration (from {info['calibration_from']}): depth scale {cal['depth_scale']:g} m/unit, "
                  f"baseline {info['baseline_mm']:.2f} mm, max range {cal['max_range_m']:g} m")

@@ -462,6 +462,10 @@ class TestCli:
         assert result.exit_code == 0, result.output
         text = out.read_text(encoding="utf-8")
         assert text.lstrip().lower().startswith("<!doctype html") and len(text) > 10_000
+        # titled with the input and the lens, the lens values in the page, the 3-D view filling the window
+        assert "<title>pcdof \u2014 color.png \u2014 focus " in text and "VTK.js | Example" not in text
+        assert "max blur" in text and "sharp (CoC &lt;= 1 px)" in text
+        assert ".content { position: fixed; inset: 0; }" in text
         assert not [p for p in os.listdir(tmp_path) if p.startswith(".view.html")]  # no temporary left
 
     @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install -y chromium)")

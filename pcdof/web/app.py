@@ -130,7 +130,7 @@ class WebViewer:
         state.focal_length_mm, state.aperture_blades = lens.focal_length_mm, lens.aperture_blades
         state.coc_colors = color_by == "coc"
         state.stats = {"draft": 0, "full": 0, "scene": 0, "clients": 0}
-        state.message, state.picked_point = "", None
+        state.message, state.picked_point, state.picks = "", None, 0
         self._publish_numbers()
         self._show(draft=False)
 
@@ -197,6 +197,7 @@ class WebViewer:
 
     def on_scene_click(self, x_frac, y_frac) -> None:
         """Focus on the cloud point drawn at fractions (x_frac, y_frac) of the 3-D view (from its top-left)."""
+        self.state.picks = self.state.picks + 1
         width, height = self.plotter.render_window.GetSize()
         point = self.scene.pick(float(x_frac) * width, (1.0 - float(y_frac)) * height)
         if point is None:

@@ -65,7 +65,8 @@ def build_layout(app):
 
     with VAppLayout(app.server, full_height=True) as layout:
         with html.Div(style=STYLE["page"]):
-            with html.Div(id="scene", style=STYLE["scene"], dblclick=(app.on_scene_click, CLICK_FRACTIONS)):
+            with html.Div(id="scene", style=STYLE["scene"], __events=["dblclick"],
+                          dblclick=(app.on_scene_click, CLICK_FRACTIONS)):
                 view = PyVistaRemoteView(app.plotter, interactive_ratio=1, still_ratio=1)
             with html.Div(style=STYLE["side"]):
                 html.H1("{{ trame__title }}", style=STYLE["title"])

@@ -10,7 +10,7 @@ import click
 
 from ..errors import InputError
 from ..fill import FILL_METHODS
-from ._common import check_output_file, check_output_folder, handle_errors
+from ._common import check_output_file, check_output_folder, check_output_paths, handle_errors
 from .render import IMAGE_SUFFIXES, check_lens_flags, lens_options
 
 HTML_SUFFIXES = (".html", ".htm")
@@ -86,6 +86,8 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
         check_output_file(screenshot, "--screenshot")
     if html_path:
         check_output_file(html_path, "--html")
+    check_output_paths({"COLOR": color, "DEPTH": depth, "--calib": calib},
+                       {"--screenshot": screenshot, "--html": html_path}, {"--output-dir": output_dir})
     if screenshot and os.path.splitext(screenshot)[1].lower() not in IMAGE_SUFFIXES:
         raise InputError(f"--screenshot must end in one of {', '.join(IMAGE_SUFFIXES)}; got {screenshot!r}")
     if html_path and os.path.splitext(html_path)[1].lower() not in HTML_SUFFIXES:

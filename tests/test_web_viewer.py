@@ -347,3 +347,13 @@ def test_closing_the_last_tab_cancels_pending_work(served, tmp_path):
     finally:
         stop_server(proc)
     assert proc.returncode is not None
+
+
+def test_missing_web_extra_is_one_clear_error(monkeypatch):
+    """Without the web extra, --serve says what to install instead of failing on an import."""
+    from pcdof.errors import PcdofError
+    from pcdof.web.app import WebViewer
+
+    monkeypatch.setitem(sys.modules, "trame_vuetify", None)  # an import of it now fails
+    with pytest.raises(PcdofError, match=r"web extra \(trame_vuetify is missing\).*pcdof\[web\]"):
+        WebViewer(session())

@@ -97,8 +97,14 @@ class WebViewer:
     def __init__(self, session: ViewSession, *, stride: int = 2, color_by: str = "rgb", source_name: str = "frame",
                  output_dir: str | None = None):
         import pyvista as pv
-        from trame.app import get_server
 
+        try:
+            import trame_vtk  # noqa: F401 - the page's 3-D view
+            import trame_vuetify  # noqa: F401 - the page's controls
+            from trame.app import get_server
+        except ImportError as exc:
+            raise PcdofError(f"the browser viewer needs the web extra ({exc.name} is missing): "
+                             "pip install 'pcdof[web]'") from None
         if not isinstance(session, ViewSession):
             raise InputError(f"session must be a ViewSession; got {type(session).__name__}")
         self.session = session

@@ -20,7 +20,12 @@ Assumptions (what the estimates rely on)
   (a very bright or tiny source) the estimate is only a lower bound and ``gain`` is used instead
   when larger.
 * ``auto``: ``rim`` where a blob has enough edge pixels to count (``min_edge`` or more), ``gain``
-  otherwise; the defaults were chosen on the wide benchmark's tuning seeds (see docs/benchmarks.md).
+  otherwise.
+
+The defaults (``auto``, gain 8) are provisional: they have not been chosen by measurement yet.
+``pcdof bench --only wide-tune`` compares the settings on the wide benchmark's tuning seeds; its
+comparison is only meaningful once the renderer no longer copies small bright layers behind blurred
+foregrounds (a render from unclipped linear colour must then score above one from clipped input).
 
 The estimate is a guess about light the input never recorded: it raises the mean error where the
 guess is wrong, so ``off`` stays available.
@@ -37,7 +42,7 @@ from .errors import InputError
 
 #: linear clip level: sRGB code 254.5 / 255 decoded (pixels at or above it count as clipped)
 CLIP_LEVEL = float(((254.5 / 255 + 0.055) / 1.055) ** 2.4)
-#: default gain of clipped pixels (multiples of diffuse white), chosen on the wide benchmark's tuning seeds
+#: default gain of clipped pixels (multiples of diffuse white); provisional, not yet chosen by measurement
 DEFAULT_GAIN = 8.0
 #: largest radiance any estimate may give
 MAX_GAIN = 64.0

@@ -22,10 +22,13 @@ Assumptions (what the estimates rely on)
 * ``auto``: ``rim`` where a blob has enough edge pixels to count (``min_edge`` or more), ``gain``
   otherwise.
 
-The defaults (``auto``, gain 8) are provisional: they have not been chosen by measurement yet.
-``pcdof bench --only wide-tune`` compares the settings on the wide benchmark's tuning seeds; its
-comparison is only meaningful once the renderer no longer copies small bright layers behind blurred
-foregrounds (a render from unclipped linear colour must then score above one from clipped input).
+The defaults (``auto``, gain 8) are provisional. Measured on the wide benchmark's tuning seeds 0-4
+(90 cases at 128 x 96, blurs 16 and 64 px, pcdof exact given the true depth), but with the renderer's
+partial-occlusion extension limited to one layer per hidden pixel (a proposed renderer change; the
+renderer as it stands copies small bright layers behind blurred foregrounds, which penalises every
+reconstruction): mean PSNR off 24.40, gain 2/4/8/16/32 25.56/26.44/26.33/25.05/23.23, rim 26.16,
+auto with gain 4/8/16/32 26.16/26.63/26.25/24.82 dB, so ``auto`` with gain 8 was best. Rerun
+``pcdof bench --only wide-tune`` once the renderer change is in.
 
 The estimate is a guess about light the input never recorded: it raises the mean error where the
 guess is wrong, so ``off`` stays available.
@@ -42,7 +45,7 @@ from .errors import InputError
 
 #: linear clip level: sRGB code 254.5 / 255 decoded (pixels at or above it count as clipped)
 CLIP_LEVEL = float(((254.5 / 255 + 0.055) / 1.055) ** 2.4)
-#: default gain of clipped pixels (multiples of diffuse white); provisional, not yet chosen by measurement
+#: default gain of clipped pixels (multiples of diffuse white); provisional (see the module docstring)
 DEFAULT_GAIN = 8.0
 #: largest radiance any estimate may give
 MAX_GAIN = 64.0

@@ -54,10 +54,8 @@ INVALID_CHOICES = [
     pytest.param(["batch", S, "-o", "{tmp}/o", "--method", "nope"], "--method", id="batch-method"),
     pytest.param(["batch", S, "-o", "{tmp}/o", "--easing", "nope"], "--easing", id="batch-easing"),
     pytest.param(["batch", S, "-o", "{tmp}/o", "--fill-method", "nope"], "--fill-method", id="batch-fill-method"),
-    pytest.param(["bench", "-o", "{tmp}/b", "--only", "nope"], "--only", id="bench-only",
-                 marks=_api_checked("--only", "pcdof/cli/bench.py")),
-    pytest.param(["bench", "-o", "{tmp}/b", "--scenes", "nope"], "--scenes", id="bench-scenes",
-                 marks=_api_checked("--scenes", "pcdof/cli/bench.py")),
+    pytest.param(["bench", "-o", "{tmp}/b", "--only", "nope"], "--only", id="bench-only"),
+    pytest.param(["bench", "-o", "{tmp}/b", "--scenes", "nope"], "--scenes", id="bench-scenes"),
     pytest.param(["synth", "nope", "-o", "{tmp}/s"], "NAME", id="synth-name"),
 ]
 

@@ -54,7 +54,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..camera import RGBDFrame, Rig
-from ..errors import ImageWriteError, InputError, PcdofError
+from ..errors import ImageWriteError, InputError, PcdofError, is_out_of_memory
 from ..lens import PaperLens, ThinLens, check_radius_px, focus_depth_at, parse_focus_pixel, pixel_inside
 from .lock import folder_lock
 from .inputs import DEFAULT_MAX_DIFFERENCE_S, FramePair, Sequence, discover, load_rig
@@ -333,7 +333,9 @@ def render_frame(job: BatchJob, task: FrameTask) -> dict:
     except MemoryError:
         rec["status"], rec["error"] = "failed", "MemoryError: out of memory"
     except Exception as err:  # noqa: BLE001 - one bad frame must not stop the batch
-        rec["status"], rec["error"] = "failed", f"internal error: {type(err).__name__}: {err}"
+        rec["status"] = "failed"
+        rec["error"] = ("MemoryError: out of memory" if is_out_of_memory(err)  # e.g. OpenCV's "Insufficient memory"
+                        else f"internal error: {type(err).__name__}: {err}")
     if rec["status"] == "failed":
         with contextlib.suppress(ImageWriteError):
             _discard_outputs(task)  # e.g. the depth output, written before the image failed

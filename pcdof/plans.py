@@ -7,8 +7,10 @@ stage function takes ``plan=None`` (the planner's choice) or a plan made here (o
 tests pick a path by parameter. Every plan a stage accepts gives the same answer within the
 tolerance stated on its field (Halide's split of algorithm from schedule).
 
-Threading is numba's ``prange`` everywhere; a plan's ``threads`` is applied with
-:func:`numba.set_num_threads` for the duration of the call (:func:`threads_for`).
+The renderer runs on numba's ``prange``: its plan's ``threads`` is applied with
+:func:`numba.set_num_threads` for the duration of the call (:func:`threads_for`). Registration
+takes ``threads`` numba threads of its own (the caller and helpers sharing tasks through an atomic
+counter; see :mod:`pcdof.register` for why it does not use ``prange``).
 """
 
 from __future__ import annotations
@@ -91,7 +93,7 @@ class RegisterPlan:
 
     Attributes
     ----------
-    threads : numba threads, 1..numba.config.NUMBA_NUM_THREADS
+    threads : threads, 1..numba.config.NUMBA_NUM_THREADS (the caller and threads - 1 helpers)
     chunks : >= 1, chunks of depth rows of pass 1 (project rows, code quads), one task each
     bands : >= 1, bands of colour rows of pass 2 (draw), one task each; bands own disjoint rows
     block_kernel : draw quads of at most 4x4 colour pixels with the vectorised block kernel
@@ -114,7 +116,7 @@ class RegisterPlan:
 def plan_register(depth_rows: int, color_rows: int, *, threads: int | None = None) -> RegisterPlan:
     """The registration's plan for a depth map of *depth_rows* rows drawn into *color_rows* colour rows.
 
-    A few tasks per thread balance the load (tasks are taken dynamically, one at a time); bands
+    A few tasks per thread balance the load (threads take tasks one at a time); bands
     thinner than ~16 rows would waste re-visited quads, chunks re-project one row each.
     """
     n = _default_threads() if threads is None else threads

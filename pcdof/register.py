@@ -30,27 +30,37 @@ Everything that depends only on the calibration (the depth camera's rotated, und
 and the colour camera's lens constants) is computed once per rig and cached. Each call makes
 two passes: the depth rows are projected and their quads coded in chunks, then the colour
 bands are drawn. How they run (threads, chunks, bands, the small-quad kernel) is a
-:class:`pcdof.plans.RegisterPlan`; the tasks are numba ``prange`` iterations handed out one at a
-time (``numba.parallel_chunksize(1)``), so when another process keeps a core busy the threads
-that do get a CPU take over the remaining tasks. :func:`warmup` compiles (or loads from numba's
-cache) the kernels up front.
+:class:`pcdof.plans.RegisterPlan`. The passes are numba code that releases the GIL; the calling
+thread and ``plan.threads - 1`` helper threads take chunks and bands from an atomic counter and
+wait for each other in the operating system, without spinning. So when another process keeps a
+core busy, the threads that do get a CPU take over the remaining work instead of waiting,
+spinning, for one that does not. (The renderer and fill use numba's ``prange``; here it would
+compile the drawing kernel about 2.5 times slower, a cost paid at the first run after every
+install, for the same speed once compiled.) :func:`warmup` compiles (or loads from numba's
+cache) the kernels and starts the helper threads up front.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .camera import Rig, RGBDFrame
 from .distortion import distort_point, unpack
 from .errors import InputError
 from .geometry import dist14, max_radius2, pixel_rays, tilt_matrix
+from .kernels import ensure_warm
 from .lens import positive_number
-from .plans import RegisterPlan, as_dict, check_register_plan, plan_register, threads_for
+from .plans import RegisterPlan, as_dict, check_register_plan, plan_register
 
 #: Smallest automatic discontinuity ratio: a triangle is dropped when max z > (1 + ratio) * min z
 #: of its corners. At 0.03 a kept triangle never puts depth more than 3 % behind a corner it was built from.
@@ -113,6 +123,21 @@ def needs_registration(rig: Rig) -> tuple[bool, str]:
 
 # ---------------------------------------------------------------------------------------------
 # numba kernels
+
+
+@intrinsic
+def _claim(typingctx, counter):
+    """Atomically take the next task number: fetch-and-add 1 on ``counter[0]`` (int64)."""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64 and counter.ndim == 1):
+        return None
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [context.get_constant(types.intp, 0)])
+        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1), "monotonic")
+
+    return types.int64(counter), codegen
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
@@ -189,11 +214,15 @@ def _code_row(top, bottom, ratio, codes_row):
         codes_row[j] = np.uint8(code_ad if use_ad else code_bc)
 
 
-@njit(cache=True, parallel=True)
-def _prepare(n_tasks, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo, row_hi, codes):
-    """Pass 1: :func:`_prepare_chunk` for chunks 0 .. n_tasks - 1 in parallel."""
+@njit(cache=True, nogil=True)
+def _prepare(counter, n_tasks, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo,
+             row_hi, codes):
+    """Pass 1: :func:`_prepare_chunk` for the chunks claimed from *counter*, until all *n_tasks* are taken."""
     chunk = -(-depth.shape[0] // n_tasks)
-    for k in prange(n_tasks):
+    while True:
+        k = _claim(counter)
+        if k >= n_tasks:
+            break
         _prepare_chunk(k, chunk, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo,
                        row_hi, codes)
 
@@ -480,11 +509,14 @@ def _reach(IZ, i, j, wij, ratio, unknown):
     return 1.0
 
 
-@njit(cache=True, parallel=True)
-def _rasterise(n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out):
-    """Pass 2: :func:`_draw_band` for bands 0 .. n_bands - 1 in parallel."""
+@njit(cache=True, nogil=True)
+def _rasterise(counter, n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out):
+    """Pass 2: :func:`_draw_band` for the bands claimed from *counter*, until all *n_bands* are taken."""
     band_h = -(-out.shape[0] // n_bands)
-    for b in prange(n_bands):
+    while True:
+        b = _claim(counter)
+        if b >= n_bands:
+            break
         _draw_band(b, band_h, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out)
 
 
@@ -600,6 +632,45 @@ def _rig_constants(rig: Rig) -> _RigConstants:
     return _cached_constants(rig.color, rig.depth, T.tobytes())
 
 
+_pool_lock = threading.Lock()
+_pool_state: list = [None, None]  # [executor, pid that created it]
+
+
+def _thread_pool() -> ThreadPoolExecutor:
+    """Helper threads for the kernels (numba releases the GIL); a forked child makes its own."""
+    with _pool_lock:
+        pool, pid = _pool_state
+        if pool is None or pid != os.getpid():
+            workers = max(1, int(numba.config.NUMBA_NUM_THREADS) - 1)
+            pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="pcdof-register")
+            _pool_state[:] = [pool, os.getpid()]
+        return pool
+
+
+def _run_tasks(kernel, threads: int, n_tasks: int, *args) -> None:
+    """Run ``kernel(counter, n_tasks, *args)`` on up to *threads* threads.
+
+    The kernel claims task numbers from the shared counter until all are taken, so the calling
+    thread and the helpers share the work however the operating system schedules them; waiting
+    is done in the OS (no spinning), so a thread that gets no CPU (another busy process) only
+    leaves its share to the others instead of stalling them. Helpers that have not started when
+    the caller has finished are cancelled.
+    """
+    counter = np.zeros(1, dtype=np.int64)
+    helpers = min(threads, n_tasks) - 1
+    futures = []
+    if helpers > 0:
+        try:
+            pool = _thread_pool()
+            futures = [pool.submit(kernel, counter, n_tasks, *args) for _ in range(helpers)]
+        except RuntimeError:  # interpreter shutting down: no new threads
+            futures = []
+    kernel(counter, n_tasks, *args)
+    for f in futures:
+        if not f.cancel():
+            f.result()
+
+
 def _depth_input(depth_m, shape) -> np.ndarray:
     """Validated float32 view (a copy only when needed); the kernels treat NaN, inf and z <= 0 as unknown."""
     arr = np.asarray(depth_m)
@@ -657,6 +728,7 @@ def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None,
     ratio = _depth_ratio(max_depth_ratio, rig.depth)
     depth = _depth_input(depth_m, rig.depth.shape)
     plan = plan_for(rig) if plan is None else check_register_plan(plan)
+    ensure_warm()  # the first call after an install compiles every stage, saying so
     consts = _rig_constants(rig)
     h, w = depth.shape
     # (u, v, 1/z) per depth pixel in float32 planes (1/z = 0: not projected)
@@ -667,12 +739,11 @@ def reproject_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None,
     row_hi = np.empty(h)
     codes = np.zeros((h + 1, w + 1), dtype=np.uint8)
     out = np.empty(rig.color.shape, dtype=np.float32)
-    # tasks are handed out one at a time: a thread without a CPU leaves its tasks to the others
-    with threads_for(plan), numba.parallel_chunksize(1):
-        _prepare(min(plan.chunks, h), depth, consts.rays, consts.t, consts.cam, consts.dist, consts.tilt,
-                 consts.has_dist, consts.r2_max, float(consts.foot[1]), 1.0 + ratio, U, V, IZ, row_lo, row_hi, codes)
-        _rasterise(min(plan.bands, out.shape[0]), plan.block_kernel, depth, U, V, IZ, codes, row_lo, row_hi,
-                   consts.foot, 1.0 + ratio, _UNKNOWN_REACH, out)
+    _run_tasks(_prepare, plan.threads, min(plan.chunks, h), depth, consts.rays, consts.t, consts.cam, consts.dist,
+               consts.tilt, consts.has_dist, consts.r2_max, float(consts.foot[1]), 1.0 + ratio, U, V, IZ, row_lo,
+               row_hi, codes)
+    _run_tasks(_rasterise, plan.threads, min(plan.bands, out.shape[0]), plan.block_kernel, depth, U, V, IZ, codes,
+               row_lo, row_hi, consts.foot, 1.0 + ratio, _UNKNOWN_REACH, out)
     return out
 
 
@@ -718,7 +789,7 @@ def register_depth(frame: RGBDFrame, *, max_depth_ratio: float | None = None,
 
 
 def warmup() -> None:
-    """Compile (or load from numba's cache) the registration kernels on a tiny rig."""
+    """Compile (or load from numba's cache) the registration kernels on a tiny rig and start the helper threads."""
     from .camera import Intrinsics
 
     depth_intr = Intrinsics(4, 3, 3.0, 3.0, 1.5, 1.0, (0.01, 0.0, 0.0, 0.0, 0.0))
@@ -730,3 +801,8 @@ def warmup() -> None:
     depth[0, 0] = 2.0
     rig = Rig(color_intr, depth_intr, T)
     reproject_depth(depth, rig)
+    helpers = numba.get_num_threads() - 1
+    if helpers > 0:
+        pool = _thread_pool()
+        for f in [pool.submit(int) for _ in range(helpers)]:
+            f.result()

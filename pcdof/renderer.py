@@ -44,6 +44,7 @@ from numba import njit, prange
 from .camera import _short, check_color
 from .color import decode_to_linear, encode_from_linear, from_float, to_float
 from .errors import InputError, LensError
+from .kernels import ensure_warm
 from .lens import MAX_COC_PX, PaperLens, ThinLens
 from .plans import QUALITIES, UNIFORM_MIN_RADIUS_PX, check_quality  # noqa: F401  (re-exported)
 from .plans import RenderPlan, as_dict, check_render_plan, plan_render, threads_for
@@ -277,10 +278,9 @@ def _copy_tiles(src, copy, tile, out):
 def copy_tiles(src: np.ndarray, tiles: TileMap, out: np.ndarray) -> None:
     """Copy the copy tiles of *tiles* from *src* into *out* (same shape, (H, W) or (H, W, C))."""
     if tiles.copy.any():
-        # copied as unsigned integers of the same size: bit-exact for every dtype (float16 included)
-        bits = f"u{src.dtype.itemsize}"
-        _copy_tiles(src.view(bits).reshape(src.shape[0], src.shape[1], -1), tiles.copy, tiles.tile_px,
-                    out.view(bits).reshape(out.shape[0], out.shape[1], -1))
+        # copied as bytes: bit-exact for every dtype (float16 included), one compiled kernel for all
+        _copy_tiles(np.ascontiguousarray(src).view(np.uint8).reshape(src.shape[0], src.shape[1], -1), tiles.copy,
+                    tiles.tile_px, out.view(np.uint8).reshape(out.shape[0], out.shape[1], -1))
 
 
 @njit(parallel=True, cache=True)
@@ -949,6 +949,7 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
         return color.copy(), {"skipped": True, "reason": f"largest circle of confusion {cmax:.3f} px < "
                                                          f"{SHARP_COC_PX} px: nothing to blur",
                               "max_coc_px": cmax, "layers": []}
+    ensure_warm()  # the first call after an install compiles every stage, saying so
     if cmax > MAX_COC_PX:
         warnings.warn(f"circle of confusion up to {cmax:.0f} px clamped to {MAX_COC_PX:.0f} px", stacklevel=3)
     src = _as_channels(color)
@@ -1039,3 +1040,17 @@ def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.
         raise InputError(f"signed_coc must be (H, W) = {depth_m.shape}; got {np.shape(signed_coc)}")
     return METHODS[method](color, depth_m, lens, fx=fx, max_range_m=max_range_m, linear=linear, quality=quality,
                            signed_coc=signed_coc, plan=plan)
+
+
+def warmup() -> None:
+    """Compile (or load from numba's cache) every renderer kernel on a tiny frame that takes every path:
+    copy tiles, an in-focus layer, a blurred foreground extended behind, uniform tiles convolved and
+    reduced-resolution layers, encoded to 8 and 16 bits."""
+    h, w = 48, 96
+    depth = np.full((h, w), 2.0, np.float32)
+    depth[:, 40:48] = 1.0  # in front of focus: blurred, extends the layers behind it
+    depth[:, 56:] = 50.0  # far behind: a large blur, uniform tiles, reduced resolution
+    color = (np.indices((h, w)).sum(axis=0) % 7 * 36).astype(np.uint8)[:, :, None].repeat(3, axis=2)
+    lens = ThinLens(50.0, 1.4, 2.0)
+    for image in (color, color.astype(np.uint16) * 257):
+        render_image(image, depth, lens, fx=300.0, quality="balanced")

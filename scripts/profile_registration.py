@@ -4,8 +4,7 @@
 On the registration benchmark's calibrated box scene at Kinect v2 size (512x424 depth ->
 1920x1080 colour, with sensor noise), times pass 1 (project the depth rows and code their quads)
 and pass 2 (draw the quads and edge footprints into the 1/z buffer, convert to z) with one
-thread and with all of numba's threads (the plan's chunks and bands, tasks handed out one at a
-time), next to the whole call and Open3D's ``create_from_depth_image`` + ``project_to_depth_image``. All methods run in turn inside each
+thread and with all of numba's threads (the plan's chunks and bands), next to the whole call and Open3D's ``create_from_depth_image`` + ``project_to_depth_image``. All methods run in turn inside each
 round, so a burst of load from elsewhere hits them alike; the table gives the median over rounds
 of each round's fastest call, and the cost per drawn quad and per covered colour pixel.
 
@@ -63,15 +62,13 @@ def main(argv=None) -> int:
     out = np.empty(rig.color.shape, np.float32)
 
     def project_and_code():
-        with numba.parallel_chunksize(1):
-            reg._prepare(min(plan.chunks, h), depth, consts.rays, consts.t, consts.cam, consts.dist, consts.tilt,
-                         consts.has_dist, consts.r2_max, float(consts.foot[1]), ratio, U, V, IZ, row_lo, row_hi,
-                         codes)
+        reg._run_tasks(reg._prepare, numba.get_num_threads(), min(plan.chunks, h), depth, consts.rays, consts.t,
+                       consts.cam, consts.dist, consts.tilt, consts.has_dist, consts.r2_max, float(consts.foot[1]),
+                       ratio, U, V, IZ, row_lo, row_hi, codes)
 
     def draw():
-        with numba.parallel_chunksize(1):
-            reg._rasterise(min(plan.bands, ch), plan.block_kernel, depth, U, V, IZ, codes, row_lo, row_hi,
-                           consts.foot, ratio, reg._UNKNOWN_REACH, out)
+        reg._run_tasks(reg._rasterise, numba.get_num_threads(), min(plan.bands, ch), plan.block_kernel, depth, U, V,
+                       IZ, codes, row_lo, row_hi, consts.foot, ratio, reg._UNKNOWN_REACH, out)
 
     def whole():
         reg.reproject_depth(depth, rig, plan=dataclasses.replace(plan, threads=numba.get_num_threads()))
@@ -85,7 +82,7 @@ def main(argv=None) -> int:
     methods += [(f"reproject_depth, {n} thread(s)", whole, n) for n in sorted({1, threads})]
     methods += [("open3d", open3d, threads)]
     t0 = time.perf_counter()
-    for _, fn, _n in methods:  # compile / load the kernels
+    for _, fn, _n in methods:  # compile / load the kernels, start the helper threads
         fn()
     print(f"warm-up (JIT or cache load, first calls): {1e3 * (time.perf_counter() - t0):.0f} ms")
     times = {name: [] for name, _, _ in methods}

@@ -98,3 +98,30 @@ class TestPlanRegister:
         plan = RenderPlan(threads=1)
         assert plan.tile_px == renderer.classify_tiles(np.zeros((4, 4), np.float32)).tile_px
         assert plan.uniform_min_radius_px == renderer.UNIFORM_MIN_RADIUS_PX
+
+
+class TestKernels:
+    def test_warm_cache_is_silent_and_warmup_reports_every_stage(self):
+        import io
+
+        from click.testing import CliRunner
+
+        from pcdof import kernels
+        from pcdof.cli.warmup import command
+
+        seconds = kernels.warmup()
+        assert set(seconds) == set(kernels.STAGES) and all(s >= 0 for s in seconds.values())
+        assert kernels.cold_stages() == []
+        stream = io.StringIO()
+        kernels._checked = False
+        kernels.ensure_warm(stream)
+        assert stream.getvalue() == ""
+        result = CliRunner().invoke(command, ["--stages", "render"])
+        assert result.exit_code == 0, result.output
+        assert "render" in result.output and "already compiled" in result.output
+
+    def test_unknown_stage(self):
+        from pcdof import kernels
+
+        with pytest.raises(InputError, match="stages must be among"):
+            kernels.warmup(["render", "paint"])

@@ -339,6 +339,31 @@ class TestRegisterDepth:
         with pytest.raises(InputError, match="RegisterPlan.chunks"):  # checked even when nothing is re-projected
             register_depth(frame, plan=RegisterPlan(threads=1, chunks=-1, bands=1))
 
+    def test_a_helper_that_never_runs_does_not_stall_the_call(self, monkeypatch):
+        import threading
+        from concurrent.futures import ThreadPoolExecutor
+
+        import numba
+
+        if numba.get_num_threads() < 2:
+            pytest.skip("needs two numba threads")
+        rig = make_rig((128, 106), (480, 270), fd=91.4, fc=265.2)
+        depth, _, _ = TestOcclusion().scene(rig)
+        ref = reproject_depth(depth, rig)
+        release = threading.Event()
+        released = []  # True: the call returned first and released the helper; False: the call waited for it
+        busy = ThreadPoolExecutor(max_workers=1)
+        try:
+            busy.submit(lambda: released.append(release.wait(120)))  # the only helper thread is taken
+            monkeypatch.setattr(register_mod, "_thread_pool", lambda: busy)
+            out = reproject_depth(depth, rig)  # the caller does every task
+            release.set()
+            np.testing.assert_array_equal(out, ref)
+        finally:
+            release.set()
+            busy.shutdown(wait=True)
+        assert released == [True]
+
     def test_rig_work_is_done_once_per_calibration(self):
         rig = make_rig(ddist=DEPTH_DIST, cdist=COLOR_DIST)
         twin = Rig(rig.color, rig.depth, np.array(rig.T_color_from_depth))  # another object, same calibration

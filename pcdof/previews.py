@@ -64,12 +64,8 @@ def depth_preview(depth_m, *, near_m: float | None = None, far_m: float | None =
         finite number > 0, or near_m >= far_m.
     """
     depth = _as_map(depth_m, "depth_m")
-    near_m = _check_positive(near_m, "near_m")
-    far_m = _check_positive(far_m, "far_m")
-    if near_m is not None and far_m is not None and near_m >= far_m:
-        raise InputError(f"near_m must be < far_m; got near_m={near_m}, far_m={far_m}")
     known = np.isfinite(depth) & (depth > 0)
-    rng = _depth_range(depth[known], near_m, far_m)
+    rng = _depth_range(depth[known], *_check_range(near_m, far_m))
     if rng is None:  # nothing known and no range given: a grey map and an unlabelled bar
         return _compose(depth, known, lambda v: v * 0.0, lambda u: 1.0 - u, [], "m", "viridis")
     near, far = rng
@@ -83,6 +79,25 @@ def depth_preview(depth_m, *, near_m: float | None = None, far_m: float | None =
         return 1.0 / (inv_far + u * (inv_near - inv_far))
 
     return _compose(depth, known, to_unit, from_unit, _depth_ticks(near, far), "m", "viridis")
+
+
+def depth_range_m(depth_m, *, near_m: float | None = None, far_m: float | None = None):
+    """The (near, far) range in metres that :func:`depth_preview` maps, or None when nothing sets one.
+
+    Pass it to several previews (e.g. registered and filled depth) so they share one colour scale.
+
+    Parameters
+    ----------
+    depth_m, near_m, far_m : see :func:`depth_preview`
+
+    Returns
+    -------
+    (near, far) : tuple of float, metres, 0 < near < far; or None when *depth_m* has no known
+        value and neither end is given
+    """
+    depth = _as_map(depth_m, "depth_m")
+    known = np.isfinite(depth) & (depth > 0)
+    return _depth_range(depth[known], *_check_range(near_m, far_m))
 
 
 def coc_preview(coc_px, *, max_px: float | None = None) -> np.ndarray:
@@ -209,6 +224,15 @@ def _draw_labels(bar, rows, labels, x0, scale, thickness) -> None:
         r = int(round(row))
         bar[r, x0:x0 + pad + max(1, pad)] = BAR_INK_RGB
         cv2.putText(bar, label, (x0 + 2 * pad, top + glyph_h), _FONT, scale, BAR_INK_RGB, thickness, cv2.LINE_AA)
+
+
+def _check_range(near_m, far_m):
+    """(near_m, far_m) as floats or None, or InputError when either is not a finite number > 0 or near_m >= far_m."""
+    near_m = _check_positive(near_m, "near_m")
+    far_m = _check_positive(far_m, "far_m")
+    if near_m is not None and far_m is not None and near_m >= far_m:
+        raise InputError(f"near_m must be < far_m; got near_m={near_m}, far_m={far_m}")
+    return near_m, far_m
 
 
 def _depth_range(known_depths: np.ndarray, near_m, far_m):

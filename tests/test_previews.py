@@ -14,6 +14,7 @@ from pcdof.previews import (
     bar_width_px,
     coc_preview,
     depth_preview,
+    depth_range_m,
 )
 
 H, W = 241, 320  # odd height: the bar's middle row is exactly half way
@@ -281,3 +282,22 @@ def test_tick_marks_sit_at_their_depth():
         expected = (1 - (1 / depth - 1 / 4) / (1 - 1 / 4)) * (H - 1)
         assert np.min(np.abs(rows - expected)) <= 0.5
     assert rows[0] == 0  # 1 m at the top
+
+
+class TestDepthRange:
+    def test_is_the_range_the_preview_maps(self):
+        rng = np.random.default_rng(5)
+        depth = rng.uniform(0.7, 6.0, (H, W))
+        depth[rng.random((H, W)) < 0.2] = 0.0
+        near, far = depth_range_m(depth)
+        known = depth[depth > 0]
+        assert (near, far) == pytest.approx((np.percentile(known, 2), np.percentile(known, 98)))
+        np.testing.assert_array_equal(depth_preview(depth), depth_preview(depth, near_m=near, far_m=far))
+
+    def test_degenerate(self):
+        assert depth_range_m(np.zeros((3, 3))) is None
+        assert depth_range_m(np.zeros((3, 3)), far_m=2.0) == pytest.approx((2.0 / 1.1, 2.0))
+        near, far = depth_range_m(np.full((3, 3), 2.0))
+        assert near < 2.0 < far
+        with pytest.raises(InputError, match="near_m must be < far_m"):
+            depth_range_m(np.ones((3, 3)), near_m=2.0, far_m=1.0)

@@ -642,11 +642,14 @@ class TestProcesses:
 
     @pytest.mark.parametrize("delay", [0.0, 0.05, 0.15, 0.3, 0.5, 0.8])
     def test_ctrl_c_on_two_workers_is_clean(self, tmp_path, delay):
-        seq = write_sequence(tmp_path / "seq", 60)
+        # long enough that the run is still going after the largest delay (warm kernels render the
+        # tiny frames at about 60 per second)
+        seq = write_sequence(tmp_path / "seq", 400)
         out = tmp_path / "out"
         proc = start_batch(seq, out, "--workers", "2", "--no-progress", "--focus-distance", "1")
         assert wait_for(lambda: any(out.glob("frame_*.png")))
         time.sleep(delay)
+        assert proc.poll() is None, "the batch ended before the interrupt: lengthen the sequence"
         os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == 130, err

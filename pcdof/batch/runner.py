@@ -364,6 +364,13 @@ def _worker_stop(signum=None, frame=None) -> None:
     from ..io._files import remove_pending_temp_files
 
     remove_pending_temp_files()
+    # os._exit skips the interpreter's exit handlers, and with them multiprocessing's finalizers that
+    # unlink the semaphores this process made (numba's thread-start lock under fork/forkserver): run
+    # those first, or the resource tracker reports them as leaked when the batch ends.
+    with contextlib.suppress(Exception):
+        from multiprocessing import util as mp_util
+
+        mp_util._run_finalizers(0)  # noqa: SLF001 - the one way to run them without exiting
     os._exit(128 + signal.SIGTERM)
 
 

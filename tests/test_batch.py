@@ -737,22 +737,38 @@ class TestRunBatch:
         assert report["totals"]["pending"] >= 2
 
     def test_no_depth_at_the_focus_point_fails_every_frame_not_the_batch(self, tmp_path):
+        import cv2
+
         root = write_tum(tmp_path / "seq", 3)
-        for p in discover(root).pairs:
-            with open(p.depth, "wb") as f:
-                f.write(b"not a png")
+        for p in discover(root).pairs:  # readable depth, but nothing measured anywhere
+            depth = cv2.imread(p.depth, cv2.IMREAD_UNCHANGED)
+            cv2.imwrite(p.depth, np.zeros_like(depth))
         out = tmp_path / "out"
         (out).mkdir()
         (out / frame_name(0)).write_bytes(b"an earlier run's frame")
-        for focus_at in ("center", (5, 5)):
+        for focus_at, where in (("center", "the image centre"), ((5, 5), "the focus point")):
             rep = render_sequence(root, str(out), lens=lens(), focus_at=focus_at, workers=1)
             assert rep["exit_code"] == EXIT_ALL_FAILED and rep["status"] == "failed"
             with open(out / "report.json") as f:
                 frames = json.load(f)["frames"]
             for r in frames:
-                assert r["status"] == "failed" and "no frame of the 3 has depth at the focus point" in r["error"]
-                assert "--focus-distance" in r["error"] and "ImageReadError" in r["error"]  # and this frame's reason
+                assert r["status"] == "failed" and f"no frame of the 3 has depth at {where}" in r["error"]
+                assert "--focus-distance" in r["error"] and "no known depth" in r["error"]  # and this frame's reason
             assert sorted(os.listdir(out)) == ["report.json"]
+
+    def test_unreadable_files_are_named_first_not_the_focus(self, tmp_path):
+        root = write_tum(tmp_path / "seq", 3)
+        pairs = discover(root).pairs
+        for p in pairs:
+            with open(p.depth, "wb") as f:
+                f.write(b"not a png")
+        for focus_at in ("center", (5, 5), None):
+            out = tmp_path / f"out{focus_at}"
+            rep = render_sequence(root, str(out), lens=lens(), focus_at=focus_at, workers=1)
+            assert rep["exit_code"] == EXIT_ALL_FAILED
+            for r, p in zip(rep["frames"], pairs):
+                assert r["error"].startswith("ImageReadError: ") and p.depth in r["error"], r["error"]
+                assert "focus" not in r["error"]
 
     def test_unreachable_scheduler_is_named_in_the_report(self, tmp_path, monkeypatch):
         pytest.importorskip("distributed")

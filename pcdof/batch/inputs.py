@@ -62,6 +62,8 @@ class FramePair:
     key : str, what paired them (shared stem, number, or colour timestamp)
     color, depth : str, absolute paths
     color_time, depth_time : float or None, seconds (TUM timestamps)
+    frame : int or None, the frame's index in a recording file (``.mkv``, ``.bag``; *color* and *depth*
+        are then that file), read through :func:`pcdof.sources.open_source`
     """
 
     key: str
@@ -69,6 +71,7 @@ class FramePair:
     depth: str
     color_time: float | None = None
     depth_time: float | None = None
+    frame: int | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,7 +81,7 @@ class Sequence:
     Parameters
     ----------
     pairs : tuple of FramePair
-    layout : str, "folders", "suffixes", "tum" or "list"
+    layout : str, "folders", "suffixes", "tum", "list", or a recording's format ("realsense-bag", "azure-kinect")
     root : str, absolute folder the input paths are relative to (for reports)
     default_depth_scale : float or None, metres per depth unit implied by the layout (TUM: 0.0002)
     unmatched_color, unmatched_depth : int, images that found no partner and were dropped

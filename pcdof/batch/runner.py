@@ -170,6 +170,8 @@ class BatchJob:
     save_depth : bool, also write the registered, filled depth (16-bit PNG via :func:`pcdof.io.write_depth`)
     threads : int or None, numba / OpenCV threads per task (None = leave the libraries' defaults)
     parent_pid : int or None, the batch's process: local workers exit when it dies
+    quality : str, a key of :data:`pcdof.renderer.QUALITIES`
+    linear : bool, colour holds linear light
     """
 
     rig: Rig
@@ -179,6 +181,8 @@ class BatchJob:
     save_depth: bool = False
     threads: int | None = None
     parent_pid: int | None = None
+    quality: str = "balanced"
+    linear: bool = False
 
 
 @dataclass(frozen=True)
@@ -226,19 +230,71 @@ def input_stamps(pair: FramePair) -> dict:
 
 # ------------------------------------------------------------------------------------ per frame
 def read_frame(pair: FramePair, rig: Rig) -> RGBDFrame:
-    """Read one colour/depth pair into an :class:`~pcdof.camera.RGBDFrame` of *rig* (no calibration I/O)."""
+    """Read one colour/depth pair into an :class:`~pcdof.camera.RGBDFrame` of *rig* (no calibration I/O).
+
+    A recording's frame (``pair.frame`` set) is read through its source, kept open per process.
+    """
     from .. import io
 
+    if pair.frame is not None:
+        frame = _recording(pair.color).frame(pair.frame)
+        return RGBDFrame(frame.color, frame.depth_m, rig, n_invalid_depth=frame.n_invalid_depth)
     color = io.read_color(pair.color)
     depth = io.read_depth(pair.depth, depth_scale=rig.depth_scale)
     return RGBDFrame(color, depth, rig)
 
 
+def read_depth_m(pair: FramePair, rig: Rig) -> np.ndarray:
+    """The depth image of one pair, metres, on the depth camera's grid (checked against *rig*)."""
+    from .. import io
+
+    if pair.frame is not None:
+        depth = _recording(pair.color).frame(pair.frame).depth_m
+    else:
+        depth = io.read_depth(pair.depth, depth_scale=rig.depth_scale)
+    if depth.shape != rig.depth.shape:
+        raise InputError(f"depth must be (H, W) = {rig.depth.shape}; got {depth.shape}")
+    return depth
+
+
+# the recording this process reads frames from: {path: FrameSource}, at most one open at a time
+_OPEN_RECORDING: dict = {}
+
+
+def _recording(path: str):
+    """The recording *path* opened once per process (its own calibration: the job's rig replaces it)."""
+    from ..sources import open_source
+
+    if path not in _OPEN_RECORDING:
+        for source in _OPEN_RECORDING.values():
+            source.close()
+        _OPEN_RECORDING.clear()
+        _OPEN_RECORDING[path] = open_source(path)
+    return _OPEN_RECORDING[path]
+
+
+def open_recording(path: str, *, calib: str | None = None, max_difference: float | None = None) -> tuple:
+    """The frames of the recording *path* as a :class:`Sequence` of indexed pairs, and its rig.
+
+    *calib* (a calibration file) replaces the recording's calibration; *max_difference* (seconds) is
+    its colour/depth pairing tolerance (None: one frame period of the slower stream).
+    """
+    from ..sources import open_source
+
+    path = os.path.abspath(path)
+    with open_source(path, calib=calib, max_difference_s=max_difference) as src:
+        times = [(float(src.color_times[c]), float(src.depth_times[d])) for c, d in src.pairs]
+        pairs = tuple(FramePair(str(i), path, path, tc, td, frame=i) for i, (tc, td) in enumerate(times))
+        return Sequence(pairs, src.format, os.path.dirname(path)), src.rig
+
+
 def _render(frame: RGBDFrame, lens, job: BatchJob):
     """The one call into the renderer: register, fill, circle of confusion, render."""
     from .. import pipeline
+    from ..options import RenderOptions
 
-    return pipeline.run(frame, lens, method=job.method, fill_method=job.fill_method)
+    return pipeline.run(frame, RenderOptions(lens=lens, method=job.method, quality=job.quality,
+                                             fill_method=job.fill_method, linear=job.linear))
 
 
 def _set_threads(threads: int | None) -> None:
@@ -283,6 +339,7 @@ def base_record(task: FrameTask, output_dir: str, root: str | None = None) -> di
         "depth": rel_in(task.pair.depth),
         "color_time": task.pair.color_time,
         "depth_time": task.pair.depth_time,
+        **({"frame": task.pair.frame} if task.pair.frame is not None else {}),
         "output": os.path.relpath(task.output, output_dir),
         "depth_output": os.path.relpath(task.depth_output, output_dir) if task.depth_output else None,
         "status": "pending",
@@ -412,6 +469,10 @@ def _render_in_worker(task: FrameTask) -> dict:
 
 
 # ------------------------------------------------------------------------------------ focus pass
+#: how :func:`measure_focus_track` words a frame that was read but has no depth near the point
+NO_DEPTH_PREFIX = "InputError: no known depth"
+
+
 def measure_focus_track(sequence: Sequence, rig: Rig, xy, *, n_frames: int | None = None, radius_px: int = 7,
                         progress: bool = False) -> tuple[np.ndarray, dict[int, str]]:
     """Depth at colour pixel *xy* in every frame (registered depth, robust window median).
@@ -430,7 +491,6 @@ def measure_focus_track(sequence: Sequence, rig: Rig, xy, *, n_frames: int | Non
     raw_m : (n,) float64 ndarray, metres, NaN where the frame has no depth near *xy* or cannot be read
     problems : {frame index: reason} for the NaN entries
     """
-    from .. import io
     from ..register import needs_registration, reproject_depth
 
     x, y = _check_xy(xy, rig)
@@ -441,9 +501,7 @@ def measure_focus_track(sequence: Sequence, rig: Rig, xy, *, n_frames: int | Non
     problems: dict[int, str] = {}
     for i in _bar(range(n), progress, desc="focus", unit="frame"):
         try:
-            depth = io.read_depth(sequence.pairs[i].depth, depth_scale=rig.depth_scale)
-            if depth.shape != rig.depth.shape:
-                raise InputError(f"depth must be (H, W) = {rig.depth.shape}; got {depth.shape}")
+            depth = read_depth_m(sequence.pairs[i], rig)
             color_depth = depth if registered else reproject_depth(depth, rig)
             raw[i] = focus_depth_at(color_depth, x, y, radius_px=radius_px)
         except PcdofError as err:
@@ -489,26 +547,36 @@ def plan_lens(sequence: Sequence, rig: Rig, template, *, n_frames: int, focus_at
                               f_number_keyframes=f_number_keyframes, easing=easing)
     if focus_keyframes is not None:
         raise InputError("focus_at and focus keyframes exclude each other; give one")
-    if isinstance(focus_at, str) and focus_at in ("center", "centre"):
-        focus_at = ((rig.color.width - 1) / 2, (rig.color.height - 1) / 2)
+    if isinstance(focus_at, str) and focus_at not in ("center", "centre"):
+        raise InputError(f"focus_at must be (x, y), 'center' or None; got {focus_at!r}")
     params = {**DEFAULT_SMOOTHING, **(smoothing or {})}
     unknown = set(params) - set(DEFAULT_SMOOTHING)
     if unknown:
         raise InputError(f"smoothing keys must be among {sorted(DEFAULT_SMOOTHING)}; got {sorted(unknown)}")
+    centre = isinstance(focus_at, str)
+    if centre:
+        focus_at = ((rig.color.width - 1) / 2, (rig.color.height - 1) / 2)
     raw, problems = measure_focus_track(sequence, rig, focus_at, n_frames=n_frames, progress=progress)
     x, y = _check_xy(focus_at, rig)
     source = f"focus-at {x:g},{y:g}"
+    # a frame whose files cannot be read fails with that reason when it renders; only a missing
+    # measurement at a readable frame is the focus point's doing
+    no_depth = {i: why for i, why in problems.items() if why.startswith(NO_DEPTH_PREFIX)}
+    where = "the image centre" if centre else "the focus point"
     if not np.any(np.isfinite(raw) & (raw > 0)):  # nothing to follow: no frame can be focused
-        why = (f"no frame of the {len(raw)} has depth at the focus point ({x:g}, {y:g}), so none can be focused; "
+        why = (f"no frame of the {len(raw)} has depth at {where} ({x:g}, {y:g}), so none can be focused; "
                f"give --focus-distance or another --focus-at")
-        log.warning("%s", why)
-        failures = {i: f"InputError: {why} (this frame: {problems.get(i, 'no depth near the point')})"
+        if no_depth:
+            log.warning("%s", why)
+        failures = {i: problems[i] if i in problems and i not in no_depth
+                    else f"InputError: {why} (this frame: {problems.get(i, 'no depth near the point')})"
                     for i in range(len(raw))}
         schedule = build_schedule(template, n_frames, f_number_keyframes=f_number_keyframes, easing=easing,
                                   source=source, raw_focus_m=raw)
         return replace(schedule, failures=failures)
-    for i, why in sorted(problems.items())[:5]:
-        log.warning("focus point: frame %d has no depth measurement (%s); focus is held", i, why)
+    for i, why in sorted(no_depth.items())[:5]:
+        log.log(logging.INFO if centre else logging.WARNING,
+                "%s: frame %d has no depth there (%s); its focus follows the neighbouring frames", where, i, why)
     track = smooth_focus_track(raw, rate_hz=rate_hz, **params)
     return build_schedule(template, n_frames, focus_track_m=track, f_number_keyframes=f_number_keyframes,
                           easing=easing, source=source, raw_focus_m=raw)
@@ -618,6 +686,8 @@ def _settings(sequence: Sequence, rig: Rig, schedule: LensSchedule, job: BatchJo
         "rig": rig.to_dict(),
         "method": job.method,
         "fill_method": job.fill_method,
+        "quality": job.quality,
+        "linear": job.linear,
         **schedule.describe(),
         **(extra or {}),
     }
@@ -737,7 +807,7 @@ def check_inputs_kept(sequence: Sequence, output_dir: str, n_frames: int, *, sav
 
 
 def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, method: str = "physical",
-              fill_method: str = "joint-bilateral", save_depth: bool = False, resume: bool = False,
+              fill_method: str = "joint-bilateral", quality: str = "balanced", linear: bool = False, save_depth: bool = False, resume: bool = False,
               workers: int = 1, scheduler=None, threads: int | None = None, video: str | None = None,
               fps: float = 30.0, progress: bool = False, settings: dict | None = None) -> dict:
     """Render frames 0..len(schedule)-1 of *sequence* into *output_dir* and write ``report.json``.
@@ -749,6 +819,8 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     schedule : LensSchedule, the lens of every frame to render (its length = number of frames)
     output_dir : str, created if missing; frames go to ``frame_NNNNNN.png``, depth to ``depth/frame_NNNNNN.png``
     method, fill_method : renderer and hole-filling method
+    quality, linear : the physical renderer's quality tier, and whether colour holds linear light
+        (see :class:`pcdof.options.RenderOptions`)
     save_depth : bool, also write the registered, filled depth
     resume : bool, keep frames whose outputs exist and that the previous report records as done from the
         same inputs (recorded as ``"skipped": "resume"``); InputError when that report has other settings
@@ -771,8 +843,6 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     is one of the sequence's input files. Ctrl-C or SIGTERM: the workers stop, the report says
     "interrupted", and KeyboardInterrupt (:class:`Terminated` for SIGTERM) is raised.
     """
-    from ..renderer import check_method
-
     if not isinstance(sequence, Sequence):
         raise InputError(f"sequence must be a Sequence; got {type(sequence).__name__}")
     if not isinstance(rig, Rig):
@@ -781,9 +851,10 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
         raise InputError(f"schedule must be a LensSchedule; got {type(schedule).__name__}")
     if len(schedule) > len(sequence):
         raise InputError(f"schedule has {len(schedule)} frames but the sequence only {len(sequence)}")
-    check_method(method)
-    if method == "physical" and isinstance(schedule.template, PaperLens):
-        raise InputError("the physical method needs a ThinLens; a PaperLens only works with method='paper'")
+    from ..options import RenderOptions
+
+    # the options every frame shares, checked once (each frame's lens comes from the schedule)
+    RenderOptions(lens=schedule.template, method=method, quality=quality, fill_method=fill_method, linear=linear)
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise InputError(f"workers must be an integer >= 1; got {workers!r}")
     if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
@@ -806,7 +877,7 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
         sweep_temp_files(output_dir, n)  # an earlier run's, left by a kill -9
         try:
             return _run_locked(sequence, rig, schedule, output_dir, method=method, fill_method=fill_method,
-                               save_depth=save_depth, resume=resume, workers=workers, scheduler=scheduler,
+                               quality=quality, linear=linear, save_depth=save_depth, resume=resume, workers=workers, scheduler=scheduler,
                                threads=threads, video=video, fps=fps, progress=progress, settings=settings)
         finally:
             sweep_temp_files(output_dir, n)
@@ -838,7 +909,7 @@ def sweep_temp_files(output_dir: str, n_frames: int) -> int:
 
 
 def _run_locked(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, method: str,
-                fill_method: str, save_depth: bool, resume: bool, workers: int, scheduler, threads, video, fps: float,
+                fill_method: str, quality: str, linear: bool, save_depth: bool, resume: bool, workers: int, scheduler, threads, video, fps: float,
                 progress: bool, settings: dict | None) -> dict:
     """:func:`run_batch` once its arguments are checked and it holds the output folder."""
     n = len(schedule)
@@ -851,7 +922,8 @@ def _run_locked(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir
     else:
         backend = {"kind": "serial", "workers": 1}
     backend["threads_per_frame"] = threads
-    job = BatchJob(rig, output_dir, method, fill_method, bool(save_depth), threads, parent_pid=os.getpid())
+    job = BatchJob(rig=rig, output_dir=output_dir, method=method, fill_method=fill_method, save_depth=bool(save_depth),
+                   threads=threads, parent_pid=os.getpid(), quality=quality, linear=bool(linear))
     all_settings = _settings(sequence, rig, schedule, job, settings)
     report_path = os.path.join(output_dir, REPORT_NAME)
     done = {}
@@ -1175,7 +1247,8 @@ def _make_video(records: list[dict], output_dir: str, video: str, fps: float) ->
 
 
 # ------------------------------------------------------------------------------------ front door
-def render_sequence(input_path: str, output_dir: str, *, lens, calib: str | None = None, focus_at=None,
+def render_sequence(input_path: str, output_dir: str, *, lens=None, options=None, calib: str | None = None,
+                    focus_at=None,
                     focus_keyframes=None, f_number_keyframes=None, easing: str = "linear",
                     smoothing: dict | None = None, method: str = "physical", fill_method: str = "joint-bilateral",
                     depth_scale: float | None = None, max_difference: float = DEFAULT_MAX_DIFFERENCE_S,
@@ -1186,9 +1259,12 @@ def render_sequence(input_path: str, output_dir: str, *, lens, calib: str | None
 
     Parameters
     ----------
-    input_path : str, folder or list file (see :mod:`pcdof.batch.inputs`)
+    input_path : str, folder or list file (see :mod:`pcdof.batch.inputs`), or a recording
+        (``.mkv``, ``.bag``: :func:`pcdof.sources.is_recording`) read through its frame source
     output_dir : str
     lens : ThinLens or PaperLens, the fixed settings (focus / f-number unless keyframed or followed)
+    options : RenderOptions, instead of *lens*, *method* and *fill_method*: the lens, method, quality,
+        fill method and linear light of every frame (its ``focus_at`` is ignored: give *focus_at*)
     calib : str or None, calibration file (None = calib.json etc. in the input folder)
     focus_at : (x, y) colour pixel, "center" or None, focus follows the smoothed depth there
     focus_keyframes, f_number_keyframes : "FRAME:VALUE,..." or None
@@ -1204,12 +1280,30 @@ def render_sequence(input_path: str, output_dir: str, *, lens, calib: str | None
     -------
     dict, the report (see :func:`run_batch`)
     """
-    sequence = discover(input_path, max_difference=max_difference)
-    rig = load_rig(sequence, calib, depth_scale=depth_scale)
+    from ..options import RenderOptions
+    from ..sources import is_recording
+
+    if options is None:
+        if lens is None:
+            raise InputError("give lens (with method, fill_method) or options")
+        options = RenderOptions(lens=lens, method=method, fill_method=fill_method)
+    elif not isinstance(options, RenderOptions) or lens is not None:
+        raise InputError(f"options must be a RenderOptions (and no lens beside it); got {type(options).__name__}")
+    recording = isinstance(input_path, (str, os.PathLike)) and is_recording(input_path)
+    if recording:
+        if depth_scale is not None:
+            raise InputError(f"--depth-scale applies to integer depth files; the recording {input_path} carries "
+                             f"its own depth units")
+        sequence, rig = open_recording(input_path, calib=calib,
+                                       max_difference=None if max_difference == DEFAULT_MAX_DIFFERENCE_S
+                                       else max_difference)
+    else:
+        sequence = discover(input_path, max_difference=max_difference)
+        rig = load_rig(sequence, calib, depth_scale=depth_scale)
     if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, np.integer)) or limit < 1):
         raise InputError(f"limit must be an integer >= 1; got {limit!r}")
     n = len(sequence) if limit is None else min(int(limit), len(sequence))
-    extra = {"--calib": calib, "INPUT": input_path if os.path.isfile(input_path) else None}
+    extra = {"--calib": calib, "INPUT": input_path if os.path.isfile(input_path) and not recording else None}
     check_inputs_kept(sequence, output_dir, n, save_depth=save_depth, video=video,
                       extra_inputs=extra)  # before the focus pass
     output_dir = os.path.abspath(os.fspath(output_dir))
@@ -1219,7 +1313,7 @@ def render_sequence(input_path: str, output_dir: str, *, lens, calib: str | None
         raise ImageWriteError(f"cannot create output folder {output_dir!r}: {err.strerror or err}") from None
     with folder_lock(output_dir), _sigterm_interrupts():  # owned from the focus pass on; SIGTERM like Ctrl-C
         try:
-            schedule = plan_lens(sequence, rig, lens, n_frames=n, focus_at=focus_at, focus_keyframes=focus_keyframes,
+            schedule = plan_lens(sequence, rig, options.lens, n_frames=n, focus_at=focus_at, focus_keyframes=focus_keyframes,
                                  f_number_keyframes=f_number_keyframes, easing=easing, rate_hz=fps,
                                  smoothing=smoothing, progress=progress)
         except KeyboardInterrupt as err:
@@ -1227,8 +1321,7 @@ def render_sequence(input_path: str, output_dir: str, *, lens, calib: str | None
             raise
         return _render_planned(sequence, rig, schedule, output_dir, focus_at=focus_at,
                                focus_keyframes=focus_keyframes, f_number_keyframes=f_number_keyframes, easing=easing,
-                               smoothing=smoothing, method=method, fill_method=fill_method,
-                               max_difference=max_difference, save_depth=save_depth, video=video, fps=fps,
+                               smoothing=smoothing, options=options, max_difference=max_difference, save_depth=save_depth, video=video, fps=fps,
                                resume=resume, workers=workers, scheduler=scheduler, threads=threads,
                                progress=progress)
 
@@ -1262,7 +1355,7 @@ def _report_interrupted_early(output_dir: str, sequence: Sequence, n: int, err: 
 
 
 def _render_planned(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, focus_at,
-                    focus_keyframes, f_number_keyframes, easing, smoothing, method, fill_method, max_difference,
+                    focus_keyframes, f_number_keyframes, easing, smoothing, options, max_difference,
                     save_depth, video, fps, resume, workers, scheduler, threads, progress) -> dict:
     """:func:`render_sequence` once the lens of every frame is decided: the settings, then :func:`run_batch`."""
     if isinstance(focus_keyframes, str):
@@ -1279,6 +1372,6 @@ def _render_planned(sequence: Sequence, rig: Rig, schedule: LensSchedule, output
         "depth_scale": rig.depth_scale,
         "max_difference_s": max_difference if sequence.layout == "tum" else None,
     }
-    return run_batch(sequence, rig, schedule, output_dir, method=method, fill_method=fill_method,
-                     save_depth=save_depth, resume=resume, workers=workers, scheduler=scheduler, threads=threads,
+    return run_batch(sequence, rig, schedule, output_dir, method=options.method, fill_method=options.fill_method,
+                     quality=options.quality, linear=options.linear, save_depth=save_depth, resume=resume, workers=workers, scheduler=scheduler, threads=threads,
                      video=video, fps=fps, progress=progress, settings=settings)

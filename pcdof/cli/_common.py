@@ -8,6 +8,7 @@ its own exit code, not as a click usage error.
 from __future__ import annotations
 
 import functools
+import math
 import logging
 import os
 import sys
@@ -150,3 +151,211 @@ def check_output_paths(inputs: dict, outputs: dict, folders: dict | None = None)
         for in_label, in_path, in_ident in ins:
             if same_file(ident, in_ident):
                 raise InputError(f"{label} {path!r} is the input {in_label} {in_path!r}; choose another folder")
+
+
+# ------------------------------------------------------------------------------------ frame sources
+def source_arguments(func):
+    """``INPUT [DEPTH]``, ``--calib``, ``--depth-scale``, ``--frame``, ``--time``: one frame from any source.
+
+    INPUT is a colour image (then DEPTH and ``--calib`` go with it, as always), or alone a recording
+    (``.mkv``, ``.bag``: calibration from the file, ``--calib`` overrides) or a sequence (a folder,
+    TUM folder or list file), read through :func:`pcdof.sources.open_source`. Read the frame with
+    :func:`load_source_frame`.
+    """
+    decorators = [
+        click.argument("color", metavar="INPUT", type=click.Path(readable=False)),
+        click.argument("depth", metavar="[DEPTH]", required=False, default=None, type=click.Path(readable=False)),
+        click.option("--calib", type=click.Path(readable=False), default=None,
+                     help="Calibration: calib.json, OpenCV .yml/.xml, or Open3D intrinsic JSON (needed with COLOR "
+                          "DEPTH; a recording's own otherwise, a sequence's calib.json in its folder)."),
+        click.option("--depth-scale", type=float, default=None,
+                     help="Metres per depth unit (overrides the calibration; image files only)."),
+        click.option("--frame", "frame_index", type=int, default=None,
+                     help="With a recording or sequence INPUT: the frame index [default: 0; negative from the end]."),
+        click.option("--time", "time_s", type=float, default=None,
+                     help="With a recording or sequence INPUT: the frame nearest this time (seconds on its clock)."),
+    ]
+    for decorator in reversed(decorators):
+        func = decorator(func)
+    return func
+
+
+def source_inputs(color, depth=None, calib=None) -> dict:
+    """The input files the command line names, labelled for :func:`check_output_paths`."""
+    if depth is not None:
+        return {"COLOR": color, "DEPTH": depth, "--calib": calib}
+    return {"INPUT": color, "--calib": calib}
+
+
+def load_source_frame(color, depth=None, *, calib=None, depth_scale=None, frame_index=None, time_s=None,
+                      outputs: dict | None = None, folders: dict | None = None):
+    """The frame the command line names (see :func:`source_arguments`), outputs checked before it is read.
+
+    Parameters
+    ----------
+    color : str, a colour image (with *depth*) or a recording / sequence path
+    depth : str or None, the depth image of the colour image *color*
+    calib : str or None, calibration file
+    depth_scale : float or None, metres per depth unit
+    frame_index, time_s : int or None, float or None, which frame of a recording or sequence
+    outputs, folders : {label: path}, the command's outputs, refused when one is an input
+        (:func:`check_output_paths`, run before any frame is read)
+
+    Returns
+    -------
+    (RGBDFrame, str): the frame, and what it is (``"rec.bag frame 0 at 12.345 s"``) for messages
+    """
+    from ..io import load_frame
+    from ..sources import open_source
+
+    if depth is not None:
+        if frame_index is not None or time_s is not None:
+            raise InputError("--frame and --time choose a frame of a recording or sequence; COLOR DEPTH is one "
+                             "frame (give INPUT alone)")
+        if calib is None:
+            raise click.UsageError("Missing option '--calib' (COLOR DEPTH needs a calibration)")
+        check_output_paths(source_inputs(color, depth, calib), outputs or {}, folders)
+        return load_frame(color, depth, calib, depth_scale=depth_scale), f"{color} + {depth}"
+    if frame_index is not None and time_s is not None:
+        raise InputError("--frame and --time exclude each other; give one")
+    check_output_paths(source_inputs(color, None, calib), outputs or {}, folders)
+    with open_source(color, calib=calib, depth_scale=depth_scale) as src:
+        index = src.index_at(time_s) if time_s is not None else src.check_index(0 if frame_index is None
+                                                                                   else frame_index)
+        pairs = getattr(getattr(src, "sequence", None), "pairs", None)
+        if pairs is not None:  # a sequence of image files: the frame's own files are inputs too
+            check_output_paths({"COLOR": pairs[index].color, "DEPTH": pairs[index].depth}, outputs or {}, folders)
+        frame = src.frame(index)
+    when = f" at {frame.timestamp_s:.3f} s" if frame.timestamp_s is not None else ""
+    return frame.rgbd(), f"{color} frame {index}{when}"
+
+
+# ------------------------------------------------------------------------------------ render options
+def check_positive_flags(flags: dict, error=InputError, *, allow_zero: bool = False) -> None:
+    """Refuse flag values that are not finite numbers > 0 (>= 0 with *allow_zero*; None = not given).
+
+    *flags* maps flag names (``"--f-number"``) to their values; the error names the flag.
+    """
+    for flag, value in flags.items():
+        if value is not None and not (math.isfinite(value) and (value >= 0 if allow_zero else value > 0)):
+            raise error(f"{flag} must be a finite number {'>=' if allow_zero else '>'} 0; got {value}")
+
+
+def _parse_xy(ctx, param, value):
+    """Click callback: "X,Y" -> (float, float)."""
+    if value is None:
+        return None
+    try:
+        x, y = (float(v) for v in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"expected X,Y in pixels (e.g. 320,240); got {value!r}") from None
+    return x, y
+
+
+def _render_option_decorators() -> list:
+    from ..fill import FILL_METHODS
+    from ..renderer import METHODS, QUALITIES
+
+    return [
+        click.option("--focal-length", "focal_length_mm", type=float, default=50.0, show_default=True,
+                     help="Simulated focal length in mm (sets the aperture A = f/N)."),
+        click.option("--f-number", type=float, default=1.8, show_default=True, help="Simulated f-number N."),
+        click.option("--focus-distance", "focus_distance_m", type=float, default=None,
+                     help="Focus distance in metres (default: depth at the image centre)."),
+        click.option("--focus-at", type=str, default=None, callback=_parse_xy, metavar="X,Y",
+                     help="Focus at the robust depth around this colour pixel."),
+        click.option("--aperture-blades", type=int, default=0, show_default=True,
+                     help="0 = circular aperture; N >= 3 = polygon with N blades."),
+        click.option("--aperture-rotation", "aperture_rotation_deg", type=float, default=0.0,
+                     help="Rotation of the polygonal aperture in degrees."),
+        click.option("--method", type=click.Choice(list(METHODS)), default="physical", show_default=True,
+                     help="Rendering method."),
+        click.option("--quality", type=click.Choice(list(QUALITIES)), default="balanced", show_default=True,
+                     help="Physical method: speed/accuracy trade-off for large blur."),
+        click.option("--fill-method", type=click.Choice(list(FILL_METHODS)), default="joint-bilateral",
+                     show_default=True, help="Depth hole filling method."),
+        click.option("--linear", is_flag=True, help="Colour is linear light (float EXR/TIFF/NPY), not sRGB."),
+        click.option("--sigma", "blur_sigma_px", type=float, default=4.0, show_default=True,
+                     help="Paper method: Gaussian blur sigma in pixels."),
+        click.option("--weight", type=click.Choice(["eq2", "eq1"]), default="eq2", show_default=True,
+                     help="Paper method: blend weight (eq. 2 Gaussian or eq. 1 CoC)."),
+        click.option("--weight-sigma", type=float, default=0.3, show_default=True,
+                     help="Paper method: eq. 2 sigma on depth normalised by the sensor range."),
+        click.option("--eq1-aperture", type=float, default=1.0, show_default=True,
+                     help="Paper method with --weight eq1: the dimensionless A of C = A|d - d_f|/d "
+                          "(weight = min(1, C))."),
+    ]
+
+
+#: the keyword names of the flags :func:`render_options` adds
+RENDER_FLAG_NAMES = ("focal_length_mm", "f_number", "focus_distance_m", "focus_at", "aperture_blades",
+                     "aperture_rotation_deg", "method", "quality", "fill_method", "linear", "blur_sigma_px",
+                     "weight", "weight_sigma", "eq1_aperture")
+
+
+def render_options(func):
+    """Add the render flags every rendering command shares; the command gets them as one dict, ``render_flags``.
+
+    Turn them into the one :class:`~pcdof.options.RenderOptions` with :func:`build_render_options`
+    (inside the command, so that a bad value is reported like any error).
+    """
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        flags = {name: kwargs.pop(name) for name in RENDER_FLAG_NAMES}
+        return func(*args, render_flags=flags, **kwargs)
+
+    for decorator in reversed(_render_option_decorators()):
+        wrapper = decorator(wrapper)
+    return wrapper
+
+
+def build_render_options(flags: dict, *, extra_positive: dict | None = None, thin_lens: bool = False):
+    """The :class:`~pcdof.options.RenderOptions` of the flags of :func:`render_options`, every value checked.
+
+    Parameters
+    ----------
+    flags : dict, ``render_flags`` as the command received it
+    extra_positive : {flag: value}, more of the command's flags that must be finite numbers > 0
+    thin_lens : bool, always a ThinLens (the viewer), also with ``--method paper``
+
+    Returns
+    -------
+    RenderOptions; ``focus_at`` is None when no focus flag was given (see :func:`focus_on_centre`)
+    """
+    from ..errors import LensError
+    from ..lens import PaperLens, ThinLens
+    from ..options import RenderOptions
+
+    f = flags
+    if f["focus_distance_m"] is not None and f["focus_at"] is not None:
+        raise InputError("--focus-distance and --focus-at exclude each other; give one")
+    positive = {"--focus-distance": f["focus_distance_m"], "--focal-length": f["focal_length_mm"],
+                "--f-number": f["f_number"], "--sigma": f["blur_sigma_px"], "--weight-sigma": f["weight_sigma"],
+                "--eq1-aperture": f["eq1_aperture"], **(extra_positive or {})}
+    check_positive_flags(positive, LensError)  # every lens flag is checked, whichever method uses it
+    provisional = f["focus_distance_m"] if f["focus_distance_m"] is not None else 1.0
+    thin = ThinLens(focal_length_mm=f["focal_length_mm"], f_number=f["f_number"], focus_distance_m=provisional,
+                    aperture_blades=f["aperture_blades"], aperture_rotation_deg=f["aperture_rotation_deg"])
+    paper = PaperLens(focus_distance_m=provisional, sigma=f["weight_sigma"], blur_sigma_px=f["blur_sigma_px"],
+                      weight=f["weight"], eq1_aperture=f["eq1_aperture"])
+    lens = paper if f["method"] == "paper" and not thin_lens else thin
+    return RenderOptions(lens=lens, method=f["method"], quality=f["quality"], fill_method=f["fill_method"],
+                         linear=f["linear"], focus_at=f["focus_at"])
+
+
+def focus_source(flags: dict) -> str:
+    """How the focus was chosen, for the command's report line."""
+    if flags["focus_distance_m"] is not None:
+        return "--focus-distance"
+    if flags["focus_at"] is not None:
+        x, y = flags["focus_at"]
+        return f"--focus-at {x:g},{y:g}"
+    return "depth at the image centre"
+
+
+def focus_on_centre(options, flags: dict, rig):
+    """*options*, focused at the image centre of *rig*'s colour camera when no focus flag (in *flags*) chose one."""
+    if flags["focus_distance_m"] is not None or flags["focus_at"] is not None:
+        return options
+    return options.replace(focus_at=((rig.color.width - 1) / 2, (rig.color.height - 1) / 2))

@@ -10,13 +10,13 @@ import click
 
 from ..batch.schedule import MAX_BETA, check_rate
 from ..errors import InputError, one_line
-from ..fill import FILL_METHODS
-from ..renderer import METHODS
-from ._common import check_output_file, check_output_folder, check_output_paths, handle_errors
-from .render import check_lens_flags, check_positive_flags, lens_options
+from ._common import build_render_options, check_output_file, check_output_folder, check_output_paths, \
+    check_positive_flags, handle_errors, render_options
+from ._report import report_decision
 
 EPILOG = """\b
 INPUT is one of:
+  a recording: Azure Kinect .mkv or RealSense .bag (calibration from the file; --calib overrides)
   a folder with color/ (or rgb/) and depth/ holding files with the same stem or number
   a folder of NAME_color.* + NAME_depth.* files
   a TUM RGB-D folder with rgb.txt and depth.txt (paired by timestamp; depth 5000 units/m)
@@ -39,6 +39,23 @@ a running batch, e.g. an unreachable --scheduler, leaves report.json saying "err
 """
 
 
+def describe_focus(report: dict, focus_keyframes, render_flags: dict, options) -> str:
+    """How the batch focused, and the focus range its written frames used, for the report line."""
+    used = [r["focus_distance_m"] for r in report["frames"]
+            if r["status"] in ("ok", "skipped") and r.get("focus_distance_m") is not None]
+    span = (f"{min(used):.2f} m" if max(used) - min(used) < 0.005 else f"{min(used):.2f}-{max(used):.2f} m") \
+        if used else "no frame written"
+    if focus_keyframes is not None:
+        how = "--focus-keyframes"
+    elif render_flags["focus_distance_m"] is not None:
+        how = "--focus-distance"
+    elif render_flags["focus_at"] is not None:
+        how = "follows --focus-at {:g},{:g}".format(*render_flags["focus_at"])
+    else:
+        how = "follows the depth at the image centre"
+    return f"focus {span} ({how}), {options.method} method, {options.quality} quality"
+
+
 def _resolve_workers(ctx, param, value):
     if value is None:
         import os
@@ -55,7 +72,7 @@ def _resolve_workers(ctx, param, value):
               help="Calibration file (default: calib.json etc. in the INPUT folder).")
 @click.option("-o", "--output", "output_dir", required=True, type=click.Path(readable=False),
               help="Output folder.")
-@lens_options
+@render_options
 @click.option("--focus-keyframes", default=None, metavar="F:M,...",
               help="Focus pull: frame:metres keyframes, e.g. '0:1.2,50:3.0' (held before/after).")
 @click.option("--f-number-keyframes", default=None, metavar="F:N,...",
@@ -68,13 +85,11 @@ def _resolve_workers(ctx, param, value):
               help="--focus-at: one-euro cut-off in Hz when the subject is still (lower = steadier).")
 @click.option("--focus-beta", type=float, default=1.0, show_default=True,
               help="--focus-at: one-euro speed coefficient (higher = follows motion faster).")
-@click.option("--method", type=click.Choice(list(METHODS)), default="physical", show_default=True)
-@click.option("--fill-method", type=click.Choice(list(FILL_METHODS)), default="joint-bilateral", show_default=True,
-              help="Depth hole filling method.")
 @click.option("--depth-scale", type=float, default=None,
-              help="Metres per depth unit (overrides the calibration; TUM default 0.0002).")
+              help="Metres per depth unit (overrides the calibration; TUM default 0.0002; image files only).")
 @click.option("--max-time-difference", "max_difference", type=float, default=0.02, show_default=True,
-              help="TUM: largest colour/depth timestamp difference for a pair, seconds.")
+              help="TUM: largest colour/depth timestamp difference for a pair, seconds (a recording: one frame "
+                   "period of the slower stream unless given).")
 @click.option("--save-depth", is_flag=True, help="Also write the registered, filled depth (16-bit mm PNG).")
 @click.option("--video", type=click.Path(readable=False), default=None, help="Also encode an H.264 .mp4.")
 @click.option("--fps", type=float, default=30.0, show_default=True,
@@ -92,25 +107,23 @@ def _resolve_workers(ctx, param, value):
 @click.option("--limit", type=click.IntRange(min=1), default=None, help="Render only the first N frames.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Progress bar on stderr.")
 @handle_errors
-def command(input_path, calib, output_dir, focal_length_mm, f_number, focus_distance_m, focus_at, aperture_blades,
-            aperture_rotation_deg, focus_keyframes, f_number_keyframes, easing, focus_window, focus_min_cutoff,
-            focus_beta, method, fill_method, depth_scale, max_difference, save_depth, video, fps, resume, workers,
+def command(input_path, calib, output_dir, render_flags, focus_keyframes, f_number_keyframes, easing, focus_window,
+            focus_min_cutoff, focus_beta, depth_scale, max_difference, save_depth, video, fps, resume, workers,
             scheduler, threads, limit, progress):
-    """Render every frame of the RGB-D sequence INPUT with a shallow depth of field into OUTDIR."""
+    """Render every frame of the RGB-D sequence or recording INPUT with a shallow depth of field into OUTDIR."""
     from ..batch import exit_code, render_sequence
     from ..batch.runner import Terminated
-    from ..lens import PaperLens, ThinLens
 
     check_output_folder(output_dir, "output")
     if video is not None:
         check_output_file(video, "--video")
         check_output_paths({"INPUT": input_path, "--calib": calib}, {"--video": video}, {"-o": output_dir})
+    focus_distance_m, focus_at = render_flags["focus_distance_m"], render_flags["focus_at"]
     given = [name for name, v in (("--focus-distance", focus_distance_m), ("--focus-at", focus_at),
                                   ("--focus-keyframes", focus_keyframes)) if v is not None]
     if len(given) > 1:
         raise InputError(f"{' and '.join(given)} exclude each other; give one")
-    check_lens_flags(None, None, {"--focal-length": focal_length_mm, "--f-number": f_number,
-                                  "--focus-distance": focus_distance_m})
+    options = build_render_options(render_flags).replace(focus_at=None)  # the focus is followed per frame
     check_positive_flags({"--max-time-difference": max_difference})
     for flag, value in (("--focus-min-cutoff", focus_min_cutoff), ("--fps", fps)):
         check_rate(flag, value)
@@ -120,17 +133,12 @@ def command(input_path, calib, output_dir, focal_length_mm, f_number, focus_dist
         raise InputError(f"--focus-window must be a whole number of frames >= 1; got {focus_window}")
     if not given:  # like `pcdof render`: focus on the depth at the image centre (followed over time)
         focus_at = "center"
-    provisional = focus_distance_m if focus_distance_m is not None else 1.0
-    if method == "paper":
-        lens = PaperLens(provisional)
-    else:
-        lens = ThinLens(focal_length_mm, f_number, provisional, aperture_blades, aperture_rotation_deg)
     try:
         report = render_sequence(
-            input_path, output_dir, lens=lens, calib=calib, focus_at=focus_at, focus_keyframes=focus_keyframes,
+            input_path, output_dir, options=options, calib=calib, focus_at=focus_at, focus_keyframes=focus_keyframes,
             f_number_keyframes=f_number_keyframes, easing=easing,
             smoothing={"median_window": focus_window, "min_cutoff_hz": focus_min_cutoff, "beta": focus_beta},
-            method=method, fill_method=fill_method, depth_scale=depth_scale, max_difference=max_difference,
+            depth_scale=depth_scale, max_difference=max_difference,
             save_depth=save_depth, video=video, fps=fps, resume=resume, workers=workers, scheduler=scheduler,
             threads=threads, limit=limit, progress=progress)
     except Terminated:
@@ -141,10 +149,16 @@ def command(input_path, calib, output_dir, focal_length_mm, f_number, focus_dist
     click.echo(f"pcdof: {t['ok']} written, {t['skipped']} kept (resume), {t['failed']} failed of {t['frames']} "
                f"frames in {t['wall_seconds']:.1f} s{fps_txt}; report: {one_line(os.path.join(output_dir, 'report.json'))}",
                err=True)
+    root = report["input"]["path"]
     for rec in report["frames"]:
-        if rec["status"] == "failed":
-            click.echo(f"pcdof: frame {rec['index']} ({one_line(repr(rec['color']))}): {one_line(rec['error'])}",
-                       err=True)
+        if rec["status"] == "failed":  # the reason first (it names the file that failed), then the frame's input
+            where = os.path.join(root, rec["color"]) + (f" frame {rec['frame']}" if rec.get("frame") is not None
+                                                        else "")
+            click.echo(f"pcdof: frame {rec['index']}: {one_line(rec['error'])} (input {one_line(where)})", err=True)
     if report.get("video", {}).get("error"):
         click.echo(f"pcdof: video: {one_line(report['video']['error'])}", err=True)
+    report_decision("batch", output=one_line(os.path.abspath(output_dir)),
+                    details=describe_focus(report, focus_keyframes, render_flags, options)
+                    + (f", video {one_line(os.path.abspath(video))}" if video and "error" not in report.get("video", {})
+                       else ""))
     sys.exit(exit_code(report))

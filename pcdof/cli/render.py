@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 
 import click
 import numpy as np
 
-from ..errors import InputError, LensError
+from ..errors import InputError
 from ..io.writers import IMAGE_FORMATS
-from ._common import check_output_file, check_output_folder, check_output_paths, handle_errors, make_output_folder
+from ._common import build_render_options, check_output_file, check_positive_flags, check_output_folder, focus_on_centre, focus_source, \
+    handle_errors, load_source_frame, make_output_folder, render_options, source_arguments
+from ._report import report_decision
 
 #: 8/16-bit image files (screenshots, and renders of 8/16-bit colour).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
@@ -22,84 +23,21 @@ MAP_NAMES = ("depth_registered.png", "depth_filled.npy", "depth_filled.png", "co
              "trace.json")
 
 
-def parse_xy(ctx, param, value):
-    """Click callback: "X,Y" -> (float, float)."""
-    if value is None:
-        return None
-    try:
-        x, y = (float(v) for v in value.split(","))
-    except ValueError:
-        raise click.BadParameter(f"expected X,Y in pixels (e.g. 320,240); got {value!r}") from None
-    return x, y
-
-
-def check_positive_flags(flags: dict, error=InputError, *, allow_zero: bool = False) -> None:
-    """Refuse flag values that are not finite numbers > 0 (>= 0 with *allow_zero*; None = not given).
-
-    *flags* maps flag names (``"--f-number"``) to their values; the error names the flag.
-    """
-    for flag, value in flags.items():
-        if value is not None and not (math.isfinite(value) and (value >= 0 if allow_zero else value > 0)):
-            raise error(f"{flag} must be a finite number {'>=' if allow_zero else '>'} 0; got {value}")
-
-
-def check_lens_flags(focus_distance_m, focus_at, positive: dict) -> None:
-    """Refuse contradictory focus flags, and lens flags that are not finite numbers > 0 (LensError)."""
-    if focus_distance_m is not None and focus_at is not None:
-        raise InputError("--focus-distance and --focus-at exclude each other; give one")
-    check_positive_flags({"--focus-distance": focus_distance_m, **positive}, LensError)
-
-
-def lens_options(func):
-    """The lens options shared by render, view and batch."""
-    options = [
-        click.option("--focal-length", "focal_length_mm", type=float, default=50.0, show_default=True,
-                     help="Simulated focal length in mm (sets the aperture A = f/N)."),
-        click.option("--f-number", type=float, default=1.8, show_default=True, help="Simulated f-number N."),
-        click.option("--focus-distance", "focus_distance_m", type=float, default=None,
-                     help="Focus distance in metres (default: depth at the image centre)."),
-        click.option("--focus-at", type=str, default=None, callback=parse_xy, metavar="X,Y",
-                     help="Focus at the robust depth around this colour pixel."),
-        click.option("--aperture-blades", type=int, default=0, show_default=True,
-                     help="0 = circular aperture; N >= 3 = polygon with N blades."),
-        click.option("--aperture-rotation", "aperture_rotation_deg", type=float, default=0.0,
-                     help="Rotation of the polygonal aperture in degrees."),
-    ]
-    for option in reversed(options):
-        func = option(func)
-    return func
-
-
 @click.command("render")
-@click.argument("color", type=click.Path(readable=False))
-@click.argument("depth", type=click.Path(readable=False))
-@click.option("--calib", required=True, type=click.Path(readable=False), help="Calibration file.")
+@source_arguments
 @click.option("-o", "--output", required=True, type=click.Path(readable=False), help="Output image (.png/.jpg/.tif).")
-@lens_options
-@click.option("--method", type=click.Choice(["physical", "paper"]), default="physical", show_default=True)
-@click.option("--quality", type=click.Choice(["exact", "high", "balanced", "fast"]), default="balanced",
-              show_default=True, help="Physical method: speed/accuracy trade-off for large blur.")
-@click.option("--sigma", "blur_sigma_px", type=float, default=4.0, show_default=True,
-              help="Paper method: Gaussian blur sigma in pixels.")
-@click.option("--weight", type=click.Choice(["eq2", "eq1"]), default="eq2", show_default=True,
-              help="Paper method: blend weight (eq. 2 Gaussian or eq. 1 CoC).")
-@click.option("--weight-sigma", type=float, default=0.3, show_default=True,
-              help="Paper method: eq. 2 sigma on depth normalised by the sensor range.")
-@click.option("--eq1-aperture", type=float, default=1.0, show_default=True,
-              help="Paper method with --weight eq1: the dimensionless A of C = A|d - d_f|/d (weight = min(1, C)).")
-@click.option("--fill-method", default="joint-bilateral", show_default=True, help="Depth hole filling method.")
-@click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
-@click.option("--linear", is_flag=True, help="Colour is linear light (float EXR/TIFF/NPY), not sRGB.")
+@render_options
 @click.option("--save-maps", type=click.Path(readable=False), default=None,
               help="Also write registered depth, filled depth and the CoC map into this folder.")
 @click.option("--explain", is_flag=True, help="Print each stage's time and what was skipped.")
 @handle_errors
-def command(color, depth, calib, output, focal_length_mm, f_number, focus_distance_m, focus_at, aperture_blades,
-            aperture_rotation_deg, method, quality, blur_sigma_px, weight, weight_sigma, eq1_aperture, fill_method, depth_scale, linear,
-            save_maps, explain):
-    """Render COLOR + DEPTH with a shallow depth of field into OUTPUT."""
+def command(color, depth, calib, depth_scale, frame_index, time_s, output, render_flags, save_maps, explain):
+    """Render one frame with a shallow depth of field into OUTPUT.
+
+    INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
+    (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
+    """
     from .. import io, pipeline
-    from ..lens import PaperLens, ThinLens
 
     check_output_file(output)
     suffix = os.path.splitext(output)[1].lower()
@@ -108,27 +46,15 @@ def command(color, depth, calib, output, focal_length_mm, f_number, focus_distan
     if save_maps:
         check_output_folder(save_maps, "--save-maps")
     maps = {f"--save-maps {name}": os.path.join(save_maps, name) for name in MAP_NAMES} if save_maps else {}
-    check_output_paths({"COLOR": color, "DEPTH": depth, "--calib": calib}, {"-o": output, **maps},
-                       {"--save-maps": save_maps})
-    check_lens_flags(focus_distance_m, focus_at, {
-        "--focal-length": focal_length_mm, "--f-number": f_number, "--sigma": blur_sigma_px,
-        "--weight-sigma": weight_sigma, "--eq1-aperture": eq1_aperture})
-    # every lens flag is checked, whichever method uses it
-    provisional = focus_distance_m if focus_distance_m is not None else 1.0
-    thin = ThinLens(focal_length_mm, f_number, provisional, aperture_blades, aperture_rotation_deg)
-    paper = PaperLens(provisional, sigma=weight_sigma, blur_sigma_px=blur_sigma_px, weight=weight,
-                      eq1_aperture=eq1_aperture)
-    lens = paper if method == "paper" else thin
-    frame = io.load_frame(color, depth, calib, depth_scale=depth_scale)
+    options = build_render_options(render_flags)
+    frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
+                                     time_s=time_s, outputs={"-o": output, **maps}, folders={"--save-maps": save_maps})
     out_dtype = "float32" if frame.color.dtype.kind == "f" else frame.color.dtype.name
     if out_dtype not in IMAGE_FORMATS[suffix]:  # the render keeps the colour's dtype: refuse before the work
         fits = [ext for ext, dtypes in IMAGE_FORMATS.items() if out_dtype in dtypes]
         raise InputError(f"COLOR is {out_dtype}, which {suffix} cannot store; write the render as "
                          f"{'/'.join(fits)}")
-    if focus_distance_m is None and focus_at is None:
-        focus_at = ((frame.rig.color.width - 1) / 2, (frame.rig.color.height - 1) / 2)
-    result = pipeline.run(frame, lens, method=method, fill_method=fill_method, focus_at=focus_at, linear=linear,
-                          quality=quality)
+    result = pipeline.run(frame, focus_on_centre(options, render_flags, frame.rig))
     if save_maps:  # the maps first and the image last: a failure leaves neither behind
         created = not os.path.isdir(save_maps)
         make_output_folder(save_maps, "--save-maps")
@@ -148,6 +74,10 @@ def command(color, depth, calib, output, focal_length_mm, f_number, focus_distan
     if explain:
         click.echo(f"focus distance: {result.lens.focus_distance_m:.3f} m", err=True)
         click.echo(result.explain(), err=True)
+    report_decision("render", output=output, focus_distance_m=float(result.lens.focus_distance_m),
+                    focus_source=focus_source(render_flags),
+                    max_blur_px=float(result.coc_px.max()) if result.coc_px is not None and result.coc_px.size
+                    else None, details=f"{options.method} method")
 
 
 def write_maps(folder: str, result, written: list | None = None) -> None:

@@ -9,9 +9,10 @@ import sys
 import click
 
 from ..errors import InputError
-from ..fill import FILL_METHODS
-from ._common import check_output_file, check_output_folder, check_output_paths, handle_errors
-from .render import IMAGE_SUFFIXES, check_lens_flags, lens_options
+from ._common import build_render_options, check_output_file, check_output_folder, focus_on_centre, focus_source, \
+    handle_errors, load_source_frame, render_options, source_arguments
+from ._report import report_decision
+from .render import IMAGE_SUFFIXES
 
 HTML_SUFFIXES = (".html", ".htm")
 
@@ -35,19 +36,14 @@ def has_display() -> bool:
 
 
 @click.command("view")
-@click.argument("color", type=click.Path(readable=False))
-@click.argument("depth", type=click.Path(readable=False))
-@click.option("--calib", required=True, type=click.Path(readable=False), help="Calibration file.")
-@lens_options
+@source_arguments
+@render_options
 @click.option("--coc-limit", "coc_limit_px", type=float, default=1.0, show_default=True,
               help="Acceptable circle of confusion in pixels: bounds the depth-of-field slab.")
 @click.option("--color-by", type=click.Choice(["rgb", "coc"]), default="rgb", show_default=True,
               help="Colour the points by their RGB or by their circle of confusion.")
 @click.option("--stride", type=click.IntRange(min=1), default=2, show_default=True,
               help="Keep every N-th pixel in x and y for the point cloud.")
-@click.option("--fill-method", type=click.Choice(list(FILL_METHODS)), default="joint-bilateral", show_default=True,
-              help="Depth hole filling method.")
-@click.option("--depth-scale", type=float, default=None, help="Metres per depth unit (overrides the calibration).")
 @click.option("--screenshot", type=click.Path(readable=False), default=None,
               help="Render off screen (no display needed) and write this PNG.")
 @click.option("--html", "html_path", type=click.Path(readable=False), default=None,
@@ -62,10 +58,12 @@ def has_display() -> bool:
 @click.option("--output-dir", type=click.Path(readable=False), default=None,
               help="With --serve: folder where the download button also saves the full-resolution PNG.")
 @handle_errors
-def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, focus_at, aperture_blades,
-            aperture_rotation_deg, coc_limit_px, color_by, stride, fill_method, depth_scale, screenshot, html_path,
-            window_size, serve, host, port, output_dir):
-    """Inspect the focal plane and depth of field of COLOR + DEPTH in 3-D.
+def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags, coc_limit_px, color_by, stride,
+            screenshot, html_path, window_size, serve, host, port, output_dir):
+    """Inspect the focal plane and depth of field of one frame in 3-D.
+
+    INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
+    (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
 
     Opens a window with the point cloud in the colour camera's frame, the camera frustum, the focal
     plane, the depth-of-field slab and a live preview of the photograph, with sliders for the focus
@@ -73,8 +71,6 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
     circle of confusion. With --screenshot or --html nothing opens: the scene is written instead. With --serve
     the same viewer is served to a web browser (http://127.0.0.1:8080/ by default; Ctrl-C stops it).
     """
-    from .. import io
-    from ..lens import ThinLens
     from ..viewer import check_window_size, scene_from_frame
 
     window_size = check_window_size(window_size, name="--window-size")
@@ -86,14 +82,11 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
         check_output_file(screenshot, "--screenshot")
     if html_path:
         check_output_file(html_path, "--html")
-    check_output_paths({"COLOR": color, "DEPTH": depth, "--calib": calib},
-                       {"--screenshot": screenshot, "--html": html_path}, {"--output-dir": output_dir})
     if screenshot and os.path.splitext(screenshot)[1].lower() not in IMAGE_SUFFIXES:
         raise InputError(f"--screenshot must end in one of {', '.join(IMAGE_SUFFIXES)}; got {screenshot!r}")
     if html_path and os.path.splitext(html_path)[1].lower() not in HTML_SUFFIXES:
         raise InputError(f"--html must end in one of {', '.join(HTML_SUFFIXES)}; got {html_path!r}")
-    check_lens_flags(focus_distance_m, focus_at, {"--focal-length": focal_length_mm, "--f-number": f_number,
-                                                  "--coc-limit": coc_limit_px})
+    options = build_render_options(render_flags, extra_positive={"--coc-limit": coc_limit_px}, thin_lens=True)
     off_screen = bool(screenshot or html_path or serve)
     if output_dir:
         check_output_folder(output_dir, "--output-dir")
@@ -107,18 +100,18 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
     if html_path:  # the HTML exporter loads a trame module that tries to download VTK's WebAssembly
         # build in the background; offline, its failed task would be logged with a traceback
         logging.getLogger("asyncio").setLevel(logging.CRITICAL)
-    frame = io.load_frame(color, depth, calib, depth_scale=depth_scale)
-    provisional = focus_distance_m if focus_distance_m is not None else 1.0
-    lens = ThinLens(focal_length_mm, f_number, provisional, aperture_blades, aperture_rotation_deg)
-    if focus_distance_m is None and focus_at is None:
-        focus_at = ((frame.rig.color.width - 1) / 2, (frame.rig.color.height - 1) / 2)
+    frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
+                                     time_s=time_s, outputs={"--screenshot": screenshot, "--html": html_path},
+                                     folders={"--output-dir": output_dir})
+    options = focus_on_centre(options, render_flags, frame.rig)
     if serve:
-        serve_frame(frame, lens, fill_method=fill_method, focus_at=focus_at, coc_limit_px=coc_limit_px,
-                    stride=stride, color_by=color_by, source_name=os.path.basename(color), host=host, port=port,
-                    output_dir=output_dir)
+        serve_frame(frame, options.lens, fill_method=options.fill_method, focus_at=options.focus_at,
+                    coc_limit_px=coc_limit_px, stride=stride, color_by=color_by, source_name=os.path.basename(color),
+                    host=host, port=port, output_dir=output_dir)
         return
-    viewer = scene_from_frame(frame, lens, fill_method=fill_method, focus_at=focus_at, coc_limit_px=coc_limit_px,
-                              stride=stride, color_by=color_by, off_screen=off_screen, window_size=window_size)
+    viewer = scene_from_frame(frame, options.lens, fill_method=options.fill_method, focus_at=options.focus_at,
+                              coc_limit_px=coc_limit_px, stride=stride, color_by=color_by, off_screen=off_screen,
+                              window_size=window_size, preview_method=options.method)
     try:
         # the screenshot first: rendering after the HTML export starts the exporter's network tasks
         if screenshot:
@@ -132,7 +125,10 @@ def command(color, depth, calib, focal_length_mm, f_number, focus_distance_m, fo
                 raise
         for path in (screenshot, html_path):
             if path:
-                click.echo(f"wrote {path}", err=True)
+                report_decision("view", output=path, focus_distance_m=float(viewer.lens.focus_distance_m),
+                                focus_source=focus_source(render_flags),
+                                details=f"f/{viewer.lens.f_number:g}, depth of field for a {coc_limit_px:g} px "
+                                        f"circle of confusion")
         if not off_screen:
             viewer.show()
     finally:

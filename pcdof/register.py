@@ -214,7 +214,7 @@ def _code_row(top, bottom, ratio, codes_row):
         codes_row[j] = np.uint8(code_ad if use_ad else code_bc)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _prepare(counter, n_tasks, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo,
              row_hi, codes):
     """Pass 1: :func:`_prepare_chunk` for the chunks claimed from *counter*, until all *n_tasks* are taken."""
@@ -227,7 +227,7 @@ def _prepare(counter, n_tasks, depth, rays, t, cam, d, tilt, has_dist, r2_max, f
                        row_hi, codes)
 
 
-@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _prepare_chunk(k, chunk, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo, row_hi,
                    codes):
     """Pass 1 for depth rows k * chunk .. (k + 1) * chunk - 1: project the rows, then code the quads below them.
@@ -509,7 +509,7 @@ def _reach(IZ, i, j, wij, ratio, unknown):
     return 1.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _rasterise(counter, n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out):
     """Pass 2: :func:`_draw_band` for the bands claimed from *counter*, until all *n_bands* are taken."""
     band_h = -(-out.shape[0] // n_bands)
@@ -520,7 +520,7 @@ def _rasterise(counter, n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_
         _draw_band(b, band_h, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out)
 
 
-@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _draw_band(b, band_h, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out):
     """Pass 2 for colour rows b * band_h .. (b + 1) * band_h - 1: draw kept triangles, then the
     footprints of the mesh's edge pixels.

@@ -300,15 +300,22 @@ def _normalise(acc, acc_a, lin, out):
 
 
 @njit(parallel=True, cache=True)
-def _classify(coc, edges):
-    """Layer id per pixel, numbering the signed layer keys present from near to far.
+def _classify_layers(raw, max_coc, edges):
+    """One pass over a signed CoC map (H, W): cleaned CoC, footprint radius, layer ids and per-layer statistics.
 
-    The signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k]
-    (negative in front of focus). Returns ((H, W) int32 layer ids, the keys present, ascending).
-    Rows run in parallel; each row notes the keys it saw.
+    The CoC is cleaned as NaN -> 0 and clipped to +-max_coc; the footprint radius is |c| / 2. The
+    signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k]
+    (negative in front of focus); layers number the keys present from near to far. Bands of rows
+    run in parallel and note, per key, the pixel count, largest radius and bounding box; the
+    bands are merged exactly (counts, maxima and bounds do not depend on the order), then the
+    keys are replaced by layer ids in a second parallel pass.
+
+    Returns (coc, radius) float32 (H, W), layer (H, W) int32, keys (L,) int64 ascending, and per
+    layer: count (L,) int64, largest radius (L,) float32, box (L, 4) int64 (row0, row1, col0, col1; inclusive).
     """
-    h, w = coc.shape
+    h, w = raw.shape
     n = edges.size
+    n_keys = 2 * n + 1
     # every finite edge is a multiple of 1/2 px: the layer is constant on [i/2, (i+1)/2)
     n_half = int(2 * edges[n - 2]) + 1
     by_half = np.empty(n_half, np.int32)
@@ -317,99 +324,67 @@ def _classify(coc, edges):
         while j < n and 0.5 * i >= edges[j]:
             j += 1
         by_half[i] = j
-    shifted = np.empty((h, w), np.int32)
-    seen_rows = np.zeros((h, 2 * n + 1), np.bool_)
-    for y in prange(h):
-        for x in range(w):
-            c = coc[y, x]
-            a = abs(c)
-            i = int(2.0 * a) if a < 0.5 * (n_half - 1) else n_half - 1
-            j = by_half[i]
-            k = n + (-j if c < 0 else j)
-            shifted[y, x] = k
-            seen_rows[y, k] = True
-    seen = np.zeros(2 * n + 1, np.bool_)
-    for y in range(h):
-        for k in range(2 * n + 1):
-            seen[k] |= seen_rows[y, k]
-    lookup = np.full(2 * n + 1, -1, np.int32)
-    keys = np.empty(int(seen.sum()), np.int64)
-    i = 0
-    for k in range(2 * n + 1):  # ascending signed CoC = near to far (c is monotone in z)
-        if seen[k]:
-            lookup[k] = i
-            keys[i] = k - n
-            i += 1
-    for y in prange(h):
-        for x in range(w):
-            shifted[y, x] = lookup[shifted[y, x]]
-    return shifted, keys
-
-
-@njit(parallel=True, cache=True)
-def _layer_stats(layer, radius, n_layers):
-    """Per layer id: pixel count, largest radius and bounding box (row0, row1, col0, col1; inclusive).
-
-    Bands of rows are reduced in parallel, then merged (counts, maxima and box bounds are exact
-    in any order).
-    """
-    h, w = layer.shape
+    coc = np.empty((h, w), np.float32)
+    radius = np.empty((h, w), np.float32)
+    layer = np.empty((h, w), np.int32)
     n_bands = min(h, 64)
-    count = np.zeros((n_bands, n_layers), np.int64)
-    r_max = np.zeros((n_bands, n_layers), np.float32)
-    box = np.empty((n_bands, n_layers, 4), np.int64)
+    count = np.zeros((n_bands, n_keys), np.int64)
+    r_max = np.zeros((n_bands, n_keys), np.float32)
+    box = np.empty((n_bands, n_keys, 4), np.int64)
+    lim = np.float32(max_coc)
     for b in prange(n_bands):
-        for i in range(n_layers):
-            box[b, i, 0] = h
-            box[b, i, 1] = -1
-            box[b, i, 2] = w
-            box[b, i, 3] = -1
+        for k in range(n_keys):
+            box[b, k, 0] = h
+            box[b, k, 1] = -1
+            box[b, k, 2] = w
+            box[b, k, 3] = -1
         for y in range(b * h // n_bands, (b + 1) * h // n_bands):
             for x in range(w):
-                i = layer[y, x]
-                count[b, i] += 1
-                r_max[b, i] = max(r_max[b, i], radius[y, x])
-                box[b, i, 0] = min(box[b, i, 0], y)
-                box[b, i, 1] = max(box[b, i, 1], y)
-                box[b, i, 2] = min(box[b, i, 2], x)
-                box[b, i, 3] = max(box[b, i, 3], x)
+                c = raw[y, x]
+                c = np.float32(0.0) if c != c else min(max(c, -lim), lim)
+                a = abs(c)
+                r = a * np.float32(0.5)
+                coc[y, x] = c
+                radius[y, x] = r
+                i = int(2.0 * a) if a < 0.5 * (n_half - 1) else n_half - 1
+                j = by_half[i]
+                k = n + (-j if c < 0 else j)
+                layer[y, x] = k
+                count[b, k] += 1
+                r_max[b, k] = max(r_max[b, k], r)
+                box[b, k, 0] = min(box[b, k, 0], y)
+                box[b, k, 1] = max(box[b, k, 1], y)
+                box[b, k, 2] = min(box[b, k, 2], x)
+                box[b, k, 3] = max(box[b, k, 3], x)
+    present = count.sum(axis=0) > 0
+    n_layers = int(present.sum())
+    lookup = np.full(n_keys, -1, np.int32)
+    keys = np.empty(n_layers, np.int64)
     total = np.zeros(n_layers, np.int64)
     r_all = np.zeros(n_layers, np.float32)
     box_all = np.empty((n_layers, 4), np.int64)
-    for i in range(n_layers):
+    i = 0
+    for k in range(n_keys):  # ascending signed CoC = near to far (c is monotone in z)
+        if not present[k]:
+            continue
+        lookup[k] = i
+        keys[i] = k - n
         box_all[i, 0] = h
         box_all[i, 1] = -1
         box_all[i, 2] = w
         box_all[i, 3] = -1
         for b in range(n_bands):
-            total[i] += count[b, i]
-            r_all[i] = max(r_all[i], r_max[b, i])
-            box_all[i, 0] = min(box_all[i, 0], box[b, i, 0])
-            box_all[i, 1] = max(box_all[i, 1], box[b, i, 1])
-            box_all[i, 2] = min(box_all[i, 2], box[b, i, 2])
-            box_all[i, 3] = max(box_all[i, 3], box[b, i, 3])
-    return total, r_all, box_all
-
-
-@njit(parallel=True, cache=True)
-def _clean_coc(coc, max_coc):
-    """The signed CoC with NaN as 0 and clipped to +-max_coc, and the footprint radius |c| / 2 (float32)."""
-    h, w = coc.shape
-    out = np.empty((h, w), np.float32)
-    radius = np.empty((h, w), np.float32)
-    lim = np.float32(max_coc)
+            total[i] += count[b, k]
+            r_all[i] = max(r_all[i], r_max[b, k])
+            box_all[i, 0] = min(box_all[i, 0], box[b, k, 0])
+            box_all[i, 1] = max(box_all[i, 1], box[b, k, 1])
+            box_all[i, 2] = min(box_all[i, 2], box[b, k, 2])
+            box_all[i, 3] = max(box_all[i, 3], box[b, k, 3])
+        i += 1
     for y in prange(h):
         for x in range(w):
-            c = coc[y, x]
-            c = np.float32(0.0) if c != c else min(max(c, -lim), lim)
-            out[y, x] = c
-            radius[y, x] = abs(c) * np.float32(0.5)
-    return out, radius
-
-
-def _layer_of(signed_coc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Layer id per pixel (0 = nearest present) and the signed layer keys in near-to-far order."""
-    return _classify(np.ascontiguousarray(signed_coc, np.float32), LAYER_EDGES_PX)
+            layer[y, x] = lookup[layer[y, x]]
+    return coc, radius, layer, keys, total, r_all, box_all
 
 
 @njit(parallel=True, cache=True)
@@ -417,7 +392,7 @@ def _reduce_cells(lin, radius, member, hidden, has_hidden, s):
     """Block means over s x s cells (zero-padded): member-weighted colour and radius, member share
     and hidden share. Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s, hid_s) as float32.
 
-    Rows of cells run in parallel; within a cell, pixels are summed in raster order."""
+    Rows of cells run in parallel; each cell is summed in local accumulators, its pixels in raster order."""
     h, w, nc = lin.shape
     hs, ws = (h + s - 1) // s, (w + s - 1) // s
     lin_s = np.zeros((hs, ws, nc), np.float32)
@@ -426,25 +401,30 @@ def _reduce_cells(lin, radius, member, hidden, has_hidden, s):
     hid_s = np.zeros((hs, ws), np.float32)
     inv_area = 1.0 / (s * s)
     for cy in prange(hs):
-        for y in range(cy * s, min(h, (cy + 1) * s)):
-            for x in range(w):
-                cx = x // s
-                if member[y, x]:
-                    m_s[cy, cx] += 1.0
-                    r_s[cy, cx] += radius[y, x]
-                    for c in range(nc):
-                        lin_s[cy, cx, c] += lin[y, x, c]
-                elif has_hidden and hidden[y, x]:
-                    hid_s[cy, cx] += 1.0
+        acc = np.empty(nc, np.float32)
+        y0, y1 = cy * s, min(h, (cy + 1) * s)
         for cx in range(ws):
-            m = m_s[cy, cx]
+            x0, x1 = cx * s, min(w, (cx + 1) * s)
+            m = np.float32(0.0)
+            r = np.float32(0.0)
+            hid = np.float32(0.0)
+            acc[:] = 0.0
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    if member[y, x]:
+                        m += np.float32(1.0)
+                        r += radius[y, x]
+                        for c in range(nc):
+                            acc[c] += lin[y, x, c]
+                    elif has_hidden and hidden[y, x]:
+                        hid += np.float32(1.0)
             if m > 0:
                 inv = 1.0 / m
-                r_s[cy, cx] *= inv
+                r_s[cy, cx] = r * inv
                 for c in range(nc):
-                    lin_s[cy, cx, c] *= inv
+                    lin_s[cy, cx, c] = acc[c] * inv
             m_s[cy, cx] = m * inv_area
-            hid_s[cy, cx] *= inv_area
+            hid_s[cy, cx] = hid * inv_area
     return lin_s, r_s, m_s, hid_s
 
 
@@ -858,9 +838,9 @@ def _blur_layer(frame: _Frame, canvas: _Canvas, li: int, key: int, n_members: in
             "uniform_tiles": int(uniform.sum()), "kernels": n_kernels, "sources_scattered": n_scattered}
 
 
-def _composite_layers(frame: _Frame, canvas: _Canvas, keys) -> list:
-    """Render and composite every layer, near to far; returns one record per layer."""
-    counts, r_maxes, boxes = _layer_stats(frame.layer, frame.radius, len(keys))
+def _composite_layers(frame: _Frame, canvas: _Canvas, keys, counts, r_maxes, boxes) -> list:
+    """Render and composite every layer, near to far (per layer: pixel count, largest radius, bounding box);
+    returns one record per layer."""
     r_front = 0.0  # largest blur radius of the layers composited so far
     layers_run = []
     for li, key in enumerate(keys):
@@ -912,13 +892,13 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     h, w, _ = lin.shape
     lin = np.ascontiguousarray(lin, np.float32)
     with threads_for(plan):
-        coc, radius = _clean_coc(np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX)
+        coc, radius, layer, keys, counts, r_maxes, boxes = _classify_layers(
+            np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX, LAYER_EDGES_PX)
         tiles = _tiles_for(coc, tiles, plan)
-        layer, keys = _layer_of(coc)
         rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
         frame = _Frame(lin, radius, layer, tiles, plan, _Aperture(int(blades), _aperture(blades, rot)), extend_behind)
         canvas = _Canvas.start(lin.shape, tiles, plan.copy_tiles)
-        layers_run = _composite_layers(frame, canvas, keys)
+        layers_run = _composite_layers(frame, canvas, keys, counts, r_maxes, boxes)
         out = np.empty_like(lin)
         _normalise(canvas.acc, canvas.acc_a, lin, out)
     in_focus = sum(l["pixels"] for l in layers_run if not l["blurred"])

@@ -181,3 +181,21 @@ def reconstruct_highlights(linear_rgb, *, method: str = "auto", gain: float = DE
     if method not in HIGHLIGHT_METHODS:
         raise InputError(f"method must be one of {', '.join(HIGHLIGHT_METHODS)}; got {method!r}")
     return HIGHLIGHT_METHODS[method](linear_rgb, gain=gain, clip_level=clip_level)
+
+
+def parse_highlights(value) -> tuple[str, float]:
+    """A ``--highlights`` / ``RenderOptions.highlights`` value as (method, gain).
+
+    ``"off"``, ``"auto"``, ``"gain"``, ``"rim"`` (a key of :data:`HIGHLIGHT_METHODS`, with the
+    default gain) or a number >= 1 (the ``gain`` method with that gain; ``"8"`` as text too).
+    """
+    if isinstance(value, str) and value in HIGHLIGHT_METHODS:
+        return value, DEFAULT_GAIN
+    try:
+        gain = float(value) if not isinstance(value, (bool, np.bool_)) else math.nan
+    except (TypeError, ValueError):
+        gain = math.nan
+    if not (math.isfinite(gain) and 1.0 <= gain <= 1e6):
+        raise InputError(f"highlights must be one of {', '.join(HIGHLIGHT_METHODS)} or a gain from 1 to 1e6; "
+                         f"got {value!r}")
+    return "gain", gain

@@ -32,6 +32,8 @@ class RenderOptions:
     fill_method : depth hole filling, a key of :data:`pcdof.fill.FILL_METHODS`
     linear : colour holds linear light (float, may exceed 1) instead of sRGB
     focus_at : optional (x, y) colour pixel; the focus distance becomes the robust depth there
+    highlights : radiance of clipped highlights before the blur (physical method, sRGB input only):
+        "off", "auto", "gain", "rim" (:data:`pcdof.highlights.HIGHLIGHT_METHODS`) or a gain >= 1
     device : where the pipeline runs, one of :data:`DEVICES`
     """
 
@@ -41,6 +43,7 @@ class RenderOptions:
     fill_method: str = "joint-bilateral"
     linear: bool = False
     focus_at: tuple[float, float] | None = None
+    highlights: str | float = "off"
     device: str = "auto"
 
     def __post_init__(self) -> None:
@@ -57,6 +60,11 @@ class RenderOptions:
         if not isinstance(self.linear, bool):
             raise InputError(f"linear must be True or False; got {_short(self.linear)}")
         object.__setattr__(self, "focus_at", parse_focus_pixel(self.focus_at))
+        from .highlights import HIGHLIGHT_METHODS, parse_highlights
+
+        _, gain = parse_highlights(self.highlights)  # a method's name stays a name; a number becomes a float
+        if not (isinstance(self.highlights, str) and self.highlights in HIGHLIGHT_METHODS):
+            object.__setattr__(self, "highlights", gain)
         if not isinstance(self.device, str) or self.device not in DEVICES:
             raise InputError(f"device must be one of {list(DEVICES)}; got {_short(self.device)}")
 

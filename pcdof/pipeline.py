@@ -114,8 +114,35 @@ def fill_stage(depth_m: np.ndarray, color: np.ndarray, trace: list, *, method: s
         return fill_depth(depth_m, color, method=method, parallel=plan.threads > 1)
 
 
+def highlights_stage(color, trace: list, *, highlights, method: str, linear: bool):
+    """Clipped highlights raised to an estimate of their radiance (:mod:`pcdof.highlights`).
+
+    Returns (colour to render, linear flag): linear float32 light when something was reconstructed,
+    else *color* and *linear* unchanged (skipped: off, the paper method, linear input, nothing clipped).
+    """
+    from .highlights import CLIP_LEVEL, needs_reconstruction, parse_highlights, reconstruct_highlights
+
+    with _Timer(trace, "highlights") as rec:
+        how, gain = parse_highlights(highlights)
+        reason = ("off" if how == "off" else "the paper method blends as written" if method != "physical"
+                  else "linear input is not clipped" if not needs_reconstruction(color, linear=linear) else "")
+        if reason:
+            rec.skipped, rec.reason = True, reason
+            return color, linear
+        from .color import decode_to_linear
+
+        lin = decode_to_linear(color)
+        clipped = int(np.count_nonzero((lin >= CLIP_LEVEL).any(axis=-1))) if lin.ndim == 3 else 0
+        if clipped == 0:
+            rec.skipped, rec.reason = True, "nothing clipped"
+            return color, linear
+        rec.reason = f"{how} (gain {gain:g}): {clipped} clipped pixels"
+        rec.detail = {"method": how, "gain": gain, "clipped_pixels": clipped}
+        return reconstruct_highlights(lin, method=how, gain=gain), True
+
+
 def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False,
-                  quality="balanced"):
+                  quality="balanced", highlights="off"):
     """Circle of confusion + render stages on registered, filled depth. Returns (image, coc_px)."""
     coc = signed = None
     if isinstance(lens, ThinLens):
@@ -125,10 +152,15 @@ def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", 
             rec.detail = {"max_coc_px": float(coc.max()) if coc.size else 0.0,
                           "out_of_focus_share": float(np.mean(coc >= 1.0)) if coc.size else 0.0}
             rec.reason = f"max {rec.detail['max_coc_px']:.2f} px"
+    source, source_linear = highlights_stage(color, trace, highlights=highlights, method=method, linear=linear)
     with _Timer(trace, "render") as rec:
-        image, info = render_image(color, depth_filled_m, lens, fx=fx, method=method,
-                                   max_range_m=max_range_m, linear=linear, quality=quality, signed_coc=signed)
+        image, info = render_image(source, depth_filled_m, lens, fx=fx, method=method,
+                                   max_range_m=max_range_m, linear=source_linear, quality=quality, signed_coc=signed)
         rec.skipped = bool(info.pop("skipped", False))
+        if source is not color:  # rendered from reconstructed linear light: back to the input's encoding
+            from .color import encode_from_linear
+
+            image = color.copy() if rec.skipped else encode_from_linear(image, color.dtype)
         rec.reason = info.pop("reason", method)
         if not rec.skipped and method == "physical":
             blurred = [f"{l['side']}[{l['coc_px'][0]:g},{l['coc_px'][1]:g})" for l in info["layers"] if l["blurred"]]
@@ -171,7 +203,8 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
     filled = fill_stage(registered, frame.color, trace, method=opts.fill_method)
     lens = _resolve_lens(opts.lens, opts.focus_at, registered, filled)
     image, coc = render_stages(frame.color, filled, lens, frame.rig.color.fx, trace, method=opts.method,
-                               max_range_m=frame.rig.max_range_m, linear=opts.linear, quality=opts.quality)
+                               max_range_m=frame.rig.max_range_m, linear=opts.linear, quality=opts.quality,
+                               highlights=opts.highlights)
     return RenderResult(image, registered, filled, coc, lens, trace)
 
 

@@ -95,3 +95,59 @@ class TestPipelineTakesOptions:
         assert res.lens.aperture_blades == 5 and abs(res.lens.focus_distance_m - 9.0) > 1
         res = run(frame(), RenderOptions(PaperLens(9.0, sigma=0.2), method="paper", focus_at=(20, 15)))
         assert res.lens.sigma == 0.2 and abs(res.lens.focus_distance_m - 9.0) > 1
+
+
+def clipped_frame(seed=0, *, focus_m=1.0):
+    """A dark wall at 3 m with a small clipped lamp on it, in 8-bit sRGB (the lamp's pixels at 255)."""
+    rng = np.random.default_rng(seed)
+    color = rng.integers(20, 60, (48, 64, 3), dtype=np.uint8)
+    color[20:24, 30:34] = 255
+    depth = np.full((48, 64), 3.0, np.float32)
+    return RGBDFrame(color, depth, Rig.registered(INTR))
+
+
+class TestHighlights:
+    @pytest.mark.parametrize("value, expected", [("off", "off"), ("auto", "auto"), ("rim", "rim"), (8, 8.0),
+                                                 ("16", 16.0), (np.float32(2.5), 2.5)])
+    def test_values(self, value, expected):
+        assert RenderOptions(ThinLens(50, 2, 1.0), highlights=value).highlights == expected
+
+    @pytest.mark.parametrize("value", ["bright", 0.5, np.nan, True, None, 1e9])
+    def test_bad_values(self, value):
+        with pytest.raises(InputError, match="highlights"):
+            RenderOptions(ThinLens(50, 2, 1.0), highlights=value)
+
+    def test_off_by_default_and_skipped(self):
+        f, lens = clipped_frame(), ThinLens(50, 1.4, 1.0)
+        res = run(f, lens)
+        assert next(t for t in res.trace if t.name == "highlights").reason == "off"
+
+    def test_gain_brightens_the_bokeh_by_the_lamps_extra_energy(self):
+        from pcdof.color import decode_to_linear
+
+        f, lens = clipped_frame(), ThinLens(200, 1.0, 1.0)  # the lamp spread over an 8 px disc
+        off = decode_to_linear(run(f, lens).image)
+        on_res = run(f, lens, highlights=4.0)
+        on = decode_to_linear(on_res.image)
+        stage = next(t for t in on_res.trace if t.name == "highlights")
+        assert not stage.skipped and stage.detail["clipped_pixels"] == 16
+        # the lamp (16 px of linear 1) now carries 4x its light: about 48 more units spread into its disc,
+        # the part that stays under the 8-bit clip is counted
+        extra = float((on - off).sum() / 3)
+        assert 20.0 < extra <= 48.5, extra
+        assert on_res.image.dtype == np.uint8
+
+    def test_skipped_when_nothing_is_clipped_or_input_is_linear(self):
+        f, lens = frame(), ThinLens(50, 1.4, 1.0)
+        f = RGBDFrame(np.minimum(f.color, 250).astype(np.uint8), f.depth_m, f.rig)
+        a, b = run(f, lens), run(f, lens, highlights="auto")
+        np.testing.assert_array_equal(a.image, b.image)
+        assert next(t for t in b.trace if t.name == "highlights").reason == "nothing clipped"
+        lin = RGBDFrame(f.color.astype(np.float32) / 255 * 3, f.depth_m, f.rig)
+        res = run(lin, lens, linear=True, highlights="auto")
+        assert next(t for t in res.trace if t.name == "highlights").reason == "linear input is not clipped"
+
+    def test_in_focus_frame_is_returned_bit_exact(self):
+        f = clipped_frame()
+        res = run(f, ThinLens(50, 1.4, 3.0), highlights=8)  # the whole wall in focus
+        np.testing.assert_array_equal(res.image, f.color)

@@ -95,7 +95,8 @@ class TestRecording:
 
     def test_batch_gives_the_frame_render_gives(self, tmp_path):
         """The options object reaches the kernels: same flags, same pixels, through both commands."""
-        flags = ["--quality", "exact", "--f-number", "1.4", "--focus-distance", "0.9", "--fill-method", "telea"]
+        flags = ["--quality", "exact", "--f-number", "1.4", "--focus-distance", "0.9", "--fill-method", "telea",
+                 "--highlights", "4"]
         ok(invoke("render", BAG, "-o", tmp_path / "r.png", *flags))
         ok(invoke("batch", BAG, "-o", tmp_path / "b", "--workers", "1", "--no-progress", *flags))
         rendered = io.read_color(str(tmp_path / "r.png"))
@@ -105,6 +106,7 @@ class TestRecording:
         assert not np.array_equal(io.read_color(str(balanced)), rendered)  # the quality flag did reach the kernels
         settings = json.loads((tmp_path / "b" / "report.json").read_text())["settings"]
         assert settings["quality"] == "exact" and settings["fill_method"] == "telea" and settings["linear"] is False
+        assert settings["highlights"] == 4.0
 
     def test_frame_out_of_range_is_one_line(self, tmp_path):
         result = invoke("render", BAG, "--frame", "7", "-o", tmp_path / "r.png")

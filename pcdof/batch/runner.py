@@ -165,24 +165,18 @@ class BatchJob:
     ----------
     rig : Rig, read once from the calibration
     output_dir : str, absolute
-    method : str, a key of :data:`pcdof.renderer.METHODS`
-    fill_method : str, a key of :data:`pcdof.fill.FILL_METHODS`
+    options : RenderOptions, how every frame is rendered (each frame's lens replaces ``options.lens``)
     save_depth : bool, also write the registered, filled depth (16-bit PNG via :func:`pcdof.io.write_depth`)
     threads : int or None, numba / OpenCV threads per task (None = leave the libraries' defaults)
     parent_pid : int or None, the batch's process: local workers exit when it dies
-    quality : str, a key of :data:`pcdof.renderer.QUALITIES`
-    linear : bool, colour holds linear light
     """
 
     rig: Rig
     output_dir: str
-    method: str = "physical"
-    fill_method: str = "joint-bilateral"
+    options: object  # RenderOptions (imported lazily: workers load it with the pipeline)
     save_depth: bool = False
     threads: int | None = None
     parent_pid: int | None = None
-    quality: str = "balanced"
-    linear: bool = False
 
 
 @dataclass(frozen=True)
@@ -291,10 +285,8 @@ def open_recording(path: str, *, calib: str | None = None, max_difference: float
 def _render(frame: RGBDFrame, lens, job: BatchJob):
     """The one call into the renderer: register, fill, circle of confusion, render."""
     from .. import pipeline
-    from ..options import RenderOptions
 
-    return pipeline.run(frame, RenderOptions(lens=lens, method=job.method, quality=job.quality,
-                                             fill_method=job.fill_method, linear=job.linear))
+    return pipeline.run(frame, job.options.replace(lens=lens))
 
 
 def _set_threads(threads: int | None) -> None:
@@ -684,10 +676,11 @@ def _settings(sequence: Sequence, rig: Rig, schedule: LensSchedule, job: BatchJo
         "input": sequence.root,
         "layout": sequence.layout,
         "rig": rig.to_dict(),
-        "method": job.method,
-        "fill_method": job.fill_method,
-        "quality": job.quality,
-        "linear": job.linear,
+        "method": job.options.method,
+        "fill_method": job.options.fill_method,
+        "quality": job.options.quality,
+        "linear": job.options.linear,
+        "highlights": job.options.highlights,
         **schedule.describe(),
         **(extra or {}),
     }
@@ -806,8 +799,9 @@ def check_inputs_kept(sequence: Sequence, output_dir: str, n_frames: int, *, sav
                              f"choose an output folder (-o) and --video outside the input files")
 
 
-def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, method: str = "physical",
-              fill_method: str = "joint-bilateral", quality: str = "balanced", linear: bool = False, save_depth: bool = False, resume: bool = False,
+def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, options=None,
+              method: str = "physical", fill_method: str = "joint-bilateral", quality: str = "balanced",
+              linear: bool = False, save_depth: bool = False, resume: bool = False,
               workers: int = 1, scheduler=None, threads: int | None = None, video: str | None = None,
               fps: float = 30.0, progress: bool = False, settings: dict | None = None) -> dict:
     """Render frames 0..len(schedule)-1 of *sequence* into *output_dir* and write ``report.json``.
@@ -818,6 +812,8 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     rig : Rig, read once; every frame and worker uses this object's calibration
     schedule : LensSchedule, the lens of every frame to render (its length = number of frames)
     output_dir : str, created if missing; frames go to ``frame_NNNNNN.png``, depth to ``depth/frame_NNNNNN.png``
+    options : RenderOptions, how every frame is rendered (its lens is replaced by each frame's from *schedule*);
+        without it, *method*, *fill_method*, *quality* and *linear* make one
     method, fill_method : renderer and hole-filling method
     quality, linear : the physical renderer's quality tier, and whether colour holds linear light
         (see :class:`pcdof.options.RenderOptions`)
@@ -854,7 +850,15 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     from ..options import RenderOptions
 
     # the options every frame shares, checked once (each frame's lens comes from the schedule)
-    RenderOptions(lens=schedule.template, method=method, quality=quality, fill_method=fill_method, linear=linear)
+    if options is None:
+        options = RenderOptions(lens=schedule.template, method=method, quality=quality, fill_method=fill_method,
+                                linear=linear)
+    elif not isinstance(options, RenderOptions):
+        raise InputError(f"options must be a RenderOptions; got {type(options).__name__}")
+    elif options.focus_at is not None:
+        raise InputError("options.focus_at must be None: a batch's focus comes from its schedule "
+                         "(render_sequence(focus_at=...) follows a pixel through the sequence)")
+    options = options.replace(lens=schedule.template)
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise InputError(f"workers must be an integer >= 1; got {workers!r}")
     if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
@@ -876,9 +880,9 @@ def run_batch(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: 
     with folder_lock(output_dir):  # one run at a time writes into a folder
         sweep_temp_files(output_dir, n)  # an earlier run's, left by a kill -9
         try:
-            return _run_locked(sequence, rig, schedule, output_dir, method=method, fill_method=fill_method,
-                               quality=quality, linear=linear, save_depth=save_depth, resume=resume, workers=workers, scheduler=scheduler,
-                               threads=threads, video=video, fps=fps, progress=progress, settings=settings)
+            return _run_locked(sequence, rig, schedule, output_dir, options=options, save_depth=save_depth,
+                               resume=resume, workers=workers, scheduler=scheduler, threads=threads, video=video,
+                               fps=fps, progress=progress, settings=settings)
         finally:
             sweep_temp_files(output_dir, n)
 
@@ -908,8 +912,8 @@ def sweep_temp_files(output_dir: str, n_frames: int) -> int:
     return removed
 
 
-def _run_locked(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, method: str,
-                fill_method: str, quality: str, linear: bool, save_depth: bool, resume: bool, workers: int, scheduler, threads, video, fps: float,
+def _run_locked(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, options,
+                save_depth: bool, resume: bool, workers: int, scheduler, threads, video, fps: float,
                 progress: bool, settings: dict | None) -> dict:
     """:func:`run_batch` once its arguments are checked and it holds the output folder."""
     n = len(schedule)
@@ -922,8 +926,8 @@ def _run_locked(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir
     else:
         backend = {"kind": "serial", "workers": 1}
     backend["threads_per_frame"] = threads
-    job = BatchJob(rig=rig, output_dir=output_dir, method=method, fill_method=fill_method, save_depth=bool(save_depth),
-                   threads=threads, parent_pid=os.getpid(), quality=quality, linear=bool(linear))
+    job = BatchJob(rig=rig, output_dir=output_dir, options=options, save_depth=bool(save_depth), threads=threads,
+                   parent_pid=os.getpid())
     all_settings = _settings(sequence, rig, schedule, job, settings)
     report_path = os.path.join(output_dir, REPORT_NAME)
     done = {}
@@ -1372,6 +1376,6 @@ def _render_planned(sequence: Sequence, rig: Rig, schedule: LensSchedule, output
         "depth_scale": rig.depth_scale,
         "max_difference_s": max_difference if sequence.layout == "tum" else None,
     }
-    return run_batch(sequence, rig, schedule, output_dir, method=options.method, fill_method=options.fill_method,
-                     quality=options.quality, linear=options.linear, save_depth=save_depth, resume=resume, workers=workers, scheduler=scheduler, threads=threads,
-                     video=video, fps=fps, progress=progress, settings=settings)
+    return run_batch(sequence, rig, schedule, output_dir, options=options, save_depth=save_depth, resume=resume,
+                     workers=workers, scheduler=scheduler, threads=threads, video=video, fps=fps, progress=progress,
+                     settings=settings)

@@ -275,6 +275,9 @@ def _render_option_decorators() -> list:
         click.option("--fill-method", type=click.Choice(list(FILL_METHODS)), default="joint-bilateral",
                      show_default=True, help="Depth hole filling method."),
         click.option("--linear", is_flag=True, help="Colour is linear light (float EXR/TIFF/NPY), not sRGB."),
+        click.option("--highlights", type=str, default="off", show_default=True, metavar="auto|off|gain|rim|GAIN",
+                     help="Physical method, 8/16-bit sRGB colour: estimate the radiance of clipped highlights "
+                          "before the blur (a number: every clipped blob gets that many times diffuse white)."),
         click.option("--sigma", "blur_sigma_px", type=float, default=4.0, show_default=True,
                      help="Paper method: Gaussian blur sigma in pixels."),
         click.option("--weight", type=click.Choice(["eq2", "eq1"]), default="eq2", show_default=True,
@@ -289,7 +292,7 @@ def _render_option_decorators() -> list:
 
 #: the keyword names of the flags :func:`render_options` adds
 RENDER_FLAG_NAMES = ("focal_length_mm", "f_number", "focus_distance_m", "focus_at", "aperture_blades",
-                     "aperture_rotation_deg", "method", "quality", "fill_method", "linear", "blur_sigma_px",
+                     "aperture_rotation_deg", "method", "quality", "fill_method", "linear", "highlights", "blur_sigma_px",
                      "weight", "weight_sigma", "eq1_aperture")
 
 
@@ -341,7 +344,7 @@ def build_render_options(flags: dict, *, extra_positive: dict | None = None, thi
                       weight=f["weight"], eq1_aperture=f["eq1_aperture"])
     lens = paper if f["method"] == "paper" and not thin_lens else thin
     return RenderOptions(lens=lens, method=f["method"], quality=f["quality"], fill_method=f["fill_method"],
-                         linear=f["linear"], focus_at=f["focus_at"])
+                         linear=f["linear"], focus_at=f["focus_at"], highlights=f["highlights"])
 
 
 def focus_source(flags: dict) -> str:

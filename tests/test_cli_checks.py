@@ -80,7 +80,16 @@ class TestAllOrNothingOutputs:
                         "--focus-distance", 1.49)
         assert result.exit_code == 0, result.output
         assert sorted(os.listdir(tmp_path / "maps")) == ["coc_px.npy", "coc_px.png", "depth_filled.npy",
-                                                         "depth_filled.png", "depth_registered.png", "trace.json"]
+                                                         "depth_filled.png", "depth_filled_preview.png",
+                                                         "depth_registered.png", "depth_registered_preview.png",
+                                                         "trace.json"]
+        from pcdof import io
+        from pcdof.previews import bar_width_px
+
+        preview = io.read_color(str(tmp_path / "maps" / "depth_filled_preview.png"))
+        raw = io.read_depth(str(tmp_path / "maps" / "depth_filled.npy"))
+        assert preview.shape == (raw.shape[0], raw.shape[1] + bar_width_px(raw.shape[0]), 3)
+        assert preview.dtype == np.uint8 and preview.std() > 20  # a picture, not a black frame
 
     def test_view_html_failure_removes_the_screenshot(self, tmp_path):
         (tmp_path / "blocker").write_bytes(b"not a folder")

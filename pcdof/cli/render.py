@@ -19,8 +19,8 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 #: Everything `pcdof render -o` writes: float (linear) colour needs .tif/.tiff, .exr or .npy.
 RENDER_SUFFIXES = tuple(IMAGE_FORMATS)
 #: The files ``--save-maps`` writes into its folder (``coc_px.*`` only for the physical method).
-MAP_NAMES = ("depth_registered.png", "depth_filled.npy", "depth_filled.png", "coc_px.npy", "coc_px.png",
-             "trace.json")
+MAP_NAMES = ("depth_registered.png", "depth_registered_preview.png", "depth_filled.npy", "depth_filled.png",
+             "depth_filled_preview.png", "coc_px.npy", "coc_px.png", "trace.json")
 
 
 @click.command("render")
@@ -95,17 +95,20 @@ def write_maps(folder: str, result, written: list | None = None) -> None:
         write(path, data)
         written.append(path)
 
+    from ..previews import coc_preview, depth_preview, depth_range_m
+
+    # the raw maps (16-bit millimetres, float metres) and, beside them, previews any image viewer shows:
+    # colour-mapped with a labelled scale bar, the registered and filled depth on one scale
+    near_m, far_m = depth_range_m(result.depth_registered_m) or (None, None)
     put("depth_registered.png", io.write_depth, result.depth_registered_m)
+    put("depth_registered_preview.png", io.write_image,
+        depth_preview(result.depth_registered_m, near_m=near_m, far_m=far_m))
     put("depth_filled.npy", io.write_depth, result.depth_filled_m)
     put("depth_filled.png", io.write_depth, result.depth_filled_m)
+    put("depth_filled_preview.png", io.write_image, depth_preview(result.depth_filled_m, near_m=near_m, far_m=far_m))
     if result.coc_px is not None:
-        import cv2
-
         put("coc_px.npy", io.write_depth, result.coc_px)
-        top = max(float(result.coc_px.max()), 1e-6)
-        grey = np.clip(result.coc_px / top * 255, 0, 255).astype(np.uint8)
-        rgb = cv2.applyColorMap(grey, cv2.COLORMAP_VIRIDIS)[:, :, ::-1]
-        put("coc_px.png", io.write_image, np.ascontiguousarray(rgb))
+        put("coc_px.png", io.write_image, coc_preview(result.coc_px))  # inferno, scale bar in pixels
     put("trace.json", io.write_json,
         {"focus_distance_m": result.lens.focus_distance_m, "trace": [t.to_dict() for t in result.trace]})
 

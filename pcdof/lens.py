@@ -12,6 +12,8 @@ The seed paper's weights (Kinect DoF paper, eqs. 1 and 2) are kept in :class:`Pa
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 from dataclasses import dataclass
 
@@ -159,8 +161,7 @@ class ThinLens:
         return self.focal_length_mm * 1e-3 / self.f_number
 
     def with_focus(self, focus_distance_m: float) -> "ThinLens":
-        return ThinLens(self.focal_length_mm, self.f_number, focus_distance_m, self.aperture_blades,
-                        self.aperture_rotation_deg)
+        return dataclasses.replace(self, focus_distance_m=focus_distance_m)
 
     def signed_coc_px(self, depth_m, fx: float) -> np.ndarray:
         """Signed circle-of-confusion diameter, pixels: A*fx*(1/d_f - 1/z); 0 where depth is unknown.

@@ -8,6 +8,8 @@ desktop window. The geometry and the numbers come from :mod:`pcdof.viewer`.
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 import os
 import secrets
@@ -302,8 +304,7 @@ class FocusViewer(FocusScene):
         n = positive_number("f_number", f_number)
         lens = self.lens
         self._sync_slider(self.f_number_slider, n)
-        self._update(ThinLens(lens.focal_length_mm, n, lens.focus_distance_m, lens.aperture_blades,
-                              lens.aperture_rotation_deg), preview=preview)
+        self._update(dataclasses.replace(lens, f_number=n), preview=preview)
 
     def refresh_preview(self) -> None:
         """Re-render the preview photograph for the current lens (skipped when it is already current)."""

@@ -11,6 +11,8 @@ method itself) and is scored against the ray-traced thin-lens image:
 
 from __future__ import annotations
 
+import dataclasses
+
 import hashlib
 import io
 import json
@@ -50,7 +52,7 @@ def paper_lens_matching(sf, lens: ThinLens) -> PaperLens:
     """The paper method's blur chosen as the paper says: the blur expected for the farthest points
     (a Gaussian of sigma c_max/4, which has the variance of a disc of diameter c_max)."""
     cmax = float(lens.coc_px(sf.depth_color_m, sf.rig.color.fx).max())
-    return PaperLens(lens.focus_distance_m, blur_sigma_px=max(cmax / 4, 0.3))
+    return PaperLens(focus_distance_m=lens.focus_distance_m, blur_sigma_px=max(cmax / 4, 0.3))
 
 
 def _paper(sf, lens):
@@ -130,8 +132,7 @@ def run_dof_bench(*, scenes=None, size=(320, 240), depth_size=(256, 212), settin
         sf = generate_scene(name, color_size=tuple(size), depth_size=tuple(depth_size), seed=seed)
         base = sf.default_lens
         for setting, mult in settings.items():
-            lens = ThinLens(base.focal_length_mm, base.f_number * mult, base.focus_distance_m,
-                            base.aperture_blades, base.aperture_rotation_deg)
+            lens = dataclasses.replace(base, f_number=base.f_number * mult)
             bar.set_postfix_str(f"{name}/{setting}: ground truth")
             gt_lin = ground_truth(sf, lens, samples=samples, seed=seed, cache_dir=cache_dir, name=name, size=size,
                                   depth_size=depth_size)

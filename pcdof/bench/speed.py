@@ -45,7 +45,7 @@ def pipeline_vs_paper(*, sizes=((640, 480), (1920, 1080)), depth_size=(512, 424)
         sf = generate_scene(scene, color_size=tuple(size), depth_size=tuple(depth_size), seed=0)
         lens = sf.default_lens
         cmax = float(lens.coc_px(sf.depth_color_m, sf.rig.color.fx).max())
-        paper = PaperLens(lens.focus_distance_m, blur_sigma_px=max(cmax / 4, 0.3))
+        paper = PaperLens(focus_distance_m=lens.focus_distance_m, blur_sigma_px=max(cmax / 4, 0.3))
         methods = {"pcdof": lambda: run(sf.frame, lens), "paper": lambda: run(sf.frame, paper, method="paper")}
         samples = {name: [] for name in methods}
         for fn in methods.values():
@@ -88,7 +88,7 @@ def lens_for_share(depth_m, fx, share: float, *, focal_length_mm=50.0, focus_bey
         # c falls with z: the nearest share of the pixels, up to this depth, get c >= 1 px
         z_edge, c_edge = z[min(len(z) - 1, int(math.ceil(share * len(z))) - 1)], 1.0
     aperture_m = c_edge / (fx * (1.0 / z_edge - 1.0 / focus))
-    return ThinLens(focal_length_mm, focal_length_mm * 1e-3 / aperture_m, focus)
+    return ThinLens(focal_length_mm=focal_length_mm, f_number=focal_length_mm * 1e-3 / aperture_m, focus_distance_m=focus)
 
 
 def cost_follows_work(*, size=(640, 480), depth_size=(512, 424), scene="slanted_plane",

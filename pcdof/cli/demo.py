@@ -171,7 +171,7 @@ def choose_lens(depth_m, fx: float, focus_m: float, *, target_px: float = BACKGR
         raise InputError(f"the frame's depth has no range around the focus ({focus_m:.2f} m); nothing to blur")
     needed_mm = target_px / reach * F_NUMBER * 1e3
     focal_mm = next((f for f in FOCAL_LENGTHS_MM if f >= needed_mm), 10 * math.ceil(needed_mm / 10))
-    lens = ThinLens(float(focal_mm), F_NUMBER, focus_m)
+    lens = ThinLens(focal_length_mm=float(focal_mm), f_number=F_NUMBER, focus_distance_m=focus_m)
     return lens, z_bg, lens.aperture_m * reach
 
 
@@ -235,7 +235,7 @@ def show_frame(name: str, frame, output: str) -> dict:
     physical, _ = pipeline.render_from_depth(frame.color, filled, lens, fx, max_range_m=frame.rig.max_range_m)
     # the paper's method with its eq. 2 weight (sigma 0.3) and a Gaussian of the background disc's
     # standard deviation (a disc of diameter c has sigma c / 4 along each axis)
-    paper_lens = PaperLens(focus_m, blur_sigma_px=max(bg_blur / 4, 0.5))
+    paper_lens = PaperLens(focus_distance_m=focus_m, blur_sigma_px=max(bg_blur / 4, 0.5))
     paper, _ = pipeline.render_from_depth(frame.color, filled, paper_lens, fx, method="paper",
                                           max_range_m=frame.rig.max_range_m)
     max_blur = float(lens.coc_px(filled, fx).max())
@@ -271,8 +271,8 @@ def check_against_ground_truth(sample: str, output: str) -> None:
 
     with open(os.path.join(sample, "lens.json")) as f:
         spec = json.load(f)
-    lens = ThinLens(spec["focal_length_mm"], spec["f_number"], spec["focus_distance_m"],
-                    spec.get("aperture_blades", 0))
+    lens = ThinLens(focal_length_mm=spec["focal_length_mm"], f_number=spec["f_number"],
+                    focus_distance_m=spec["focus_distance_m"], aperture_blades=spec.get("aperture_blades", 0))
     frame = io.load_frame(*(os.path.join(sample, n) for n in ("color.png", "depth.png", "calib.json")))
     gt = to_float(io.read_color(os.path.join(sample, "dof_gt.png")))
     make_output_folder(output, "output")
@@ -309,7 +309,8 @@ def command(output, data_dir, frames):
     _echo("compiling the renderer's kernels (the first run only; about a minute) ...")
     t0 = time.perf_counter()
     first = next(iter(loaded.values()))
-    for method, lens in (("physical", ThinLens(50, 1.4, 1.0)), ("paper", ThinLens(50, 1.4, 1.0))):
+    warm_lens = ThinLens(focal_length_mm=50.0, f_number=1.4, focus_distance_m=1.0)
+    for method, lens in (("physical", warm_lens), ("paper", warm_lens)):
         pipeline.run(first, lens, method=method)
     _echo(f"kernels ready in {time.perf_counter() - t0:.0f} s")
     summary = {name: show_frame(name, frame, output) for name, frame in loaded.items()}

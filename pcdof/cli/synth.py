@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import sys
 
 import click
@@ -75,13 +77,9 @@ def command(name, output, size, depth_size, seed, focal_length_mm, f_number, foc
                           "--focus-distance": focus_distance_m}, LensError)
     sf = generate_scene(name, color_size=size, depth_size=depth_size, seed=seed)
     base = sf.default_lens
-    lens = ThinLens(
-        base.focal_length_mm if focal_length_mm is None else focal_length_mm,
-        base.f_number if f_number is None else f_number,
-        base.focus_distance_m if focus_distance_m is None else focus_distance_m,
-        base.aperture_blades if aperture_blades is None else aperture_blades,
-        base.aperture_rotation_deg if aperture_rotation_deg is None else aperture_rotation_deg,
-    )
+    given = {"focal_length_mm": focal_length_mm, "f_number": f_number, "focus_distance_m": focus_distance_m,
+             "aperture_blades": aperture_blades, "aperture_rotation_deg": aperture_rotation_deg}
+    lens = dataclasses.replace(base, **{k: v for k, v in given.items() if v is not None})
     info = write_scene(sf, output, lens=lens, ground_truth=ground_truth, gt_samples=samples, linear=linear,
                        progress=sys.stderr.isatty())
     click.echo(f"{name} (seed {seed}): {sf.description}")

@@ -153,7 +153,7 @@ def portrait(rng: np.random.Generator) -> SceneSpec:
     objs.append((sphere((-0.35, 0.15, 0.9), 0.05), Material("checker", (0.9, 0.2, 0.1), (0.95, 0.9, 0.8),
                                                             scale_m=0.025), True))
     focus = zs - 0.105
-    return SceneSpec(Scene(objs), ThinLens(85.0, 1.8, round(focus, 3)),
+    return SceneSpec(Scene(objs), ThinLens(focal_length_mm=85.0, f_number=1.8, focus_distance_m=round(focus, 3)),
                      "a person 1.4-1.6 m away in front of a wall ~3 m away, a table edge 0.6 m away",
                      {"subject_distance_m": float(focus), "wall_z_m": float(wall_z), "table_front_z_m": float(table_z)})
 
@@ -190,7 +190,7 @@ def fence(rng: np.random.Generator) -> SceneSpec:
         b = a + rng.uniform(0.25, 0.5) * np.array([math.cos(ang), 0.6 * math.sin(ang), rng.uniform(-0.1, 0.1)])
         objs.append((cylinder(a, b, rng.uniform(0.003, 0.007), sections=12), bark, False))
     focus = zs - 0.22
-    return SceneSpec(Scene(objs), ThinLens(50.0, 1.4, round(focus, 3)),
+    return SceneSpec(Scene(objs), ThinLens(focal_length_mm=50.0, f_number=1.4, focus_distance_m=round(focus, 3)),
                      "a subject ~2.5 m away seen through a picket fence at ~1 m and thin branches at ~0.75 m",
                      {"subject_distance_m": float(focus), "fence_z_m": float(zf)})
 
@@ -217,7 +217,7 @@ def highlights(rng: np.random.Generator) -> SceneSpec:
         y = min(rng.uniform(-0.47, 0.4) * z, floor_y - 0.05)
         objs.append((sphere((x, y, z), rng.uniform(0.012, 0.025), subdivisions=2), _emitter(rng, 5, 20), True))
     focus = zs - 0.14
-    return SceneSpec(Scene(objs), ThinLens(85.0, 1.4, round(focus, 3)),
+    return SceneSpec(Scene(objs), ThinLens(focal_length_mm=85.0, f_number=1.4, focus_distance_m=round(focus, 3)),
                      "a subject at ~1.1 m, 40 small lights (radiance 5-20) 2.6-4.1 m away that become bokeh discs",
                      {"subject_distance_m": float(focus)})
 
@@ -231,7 +231,7 @@ def slanted_plane(rng: np.random.Generator) -> SceneSpec:
     corners = [(x, y, z0 + b * x + a * y) for x, y in ((-ext, -ext), (ext, -ext), (ext, ext), (-ext, ext))]
     objs = [(quad(corners, facing=(0, 0, 0)),
              Material("checker", (0.85, 0.8, 0.65), (0.06, 0.09, 0.16), scale_m=0.1), False)]
-    return SceneSpec(Scene(objs, light_dir=(-0.3, -0.6, -0.75)), ThinLens(85.0, 1.4, z0),
+    return SceneSpec(Scene(objs, light_dir=(-0.3, -0.6, -0.75)), ThinLens(focal_length_mm=85.0, f_number=1.4, focus_distance_m=z0),
                      "a slanted textured plane: z = z0 + b x + a y, depth ~1-3.6 m in the colour view",
                      {"plane": {"z0_m": z0, "a": float(a), "b": float(b),
                                 "formula": "z = z0 / (1 - b*u - a*v), u = (x - cx)/fx, v = (y - cy)/fy"}})
@@ -256,7 +256,7 @@ def near_object(rng: np.random.Generator) -> SceneSpec:
     objs.append((sphere((0.8, floor_y - 0.3, 3.0), 0.3), Material("noise", (0.3, 0.5, 0.9), (0.02, 0.05, 0.2),
                                                                  scale_m=0.08, seed=13), True))
     focus = float(c[2] - r)
-    return SceneSpec(Scene(objs), ThinLens(50.0, 2.8, round(focus, 3)),
+    return SceneSpec(Scene(objs), ThinLens(focal_length_mm=50.0, f_number=2.8, focus_distance_m=round(focus, 3)),
                      "a 10 cm ball 0.5 m away on a thin stem, floor and wall up to 4.2 m behind",
                      {"object_center_m": c.tolist(), "object_radius_m": r, "subject_distance_m": focus})
 
@@ -309,7 +309,7 @@ def clutter(rng: np.random.Generator) -> SceneSpec:
         objs.append((sphere((rng.uniform(-1.5, 1.5), rng.uniform(-0.9, -0.4), wall_z - 0.05), 0.02, subdivisions=2),
                      _emitter(rng, 5, 10), True))
     focus = float(min(on_table))
-    return SceneSpec(Scene(objs), ThinLens(50.0, 1.8, round(focus, 3), aperture_blades=6, aperture_rotation_deg=15.0),
+    return SceneSpec(Scene(objs), ThinLens(focal_length_mm=50.0, f_number=1.8, focus_distance_m=round(focus, 3), aperture_blades=6, aperture_rotation_deg=15.0),
                      "18 assorted objects on a table (0.7-1.6 m) and a wall shelf (~3.1 m), hexagonal aperture",
                      {"subject_distance_m": focus})
 

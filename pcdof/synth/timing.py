@@ -8,6 +8,8 @@ down 2.5x (the two settings of ``pcdof bench``).
 
 from __future__ import annotations
 
+import dataclasses
+
 import argparse
 import time
 
@@ -32,8 +34,7 @@ def time_ground_truth(*, sizes=((320, 240),), depth_size=DEPTH_SIZE, scenes=None
             gen_s = time.perf_counter() - t0
             base = sf.default_lens
             for setting, mult in (settings or SETTINGS).items():
-                lens = ThinLens(base.focal_length_mm, base.f_number * mult, base.focus_distance_m,
-                                base.aperture_blades, base.aperture_rotation_deg)
+                lens = dataclasses.replace(base, f_number=base.f_number * mult)
                 gt = render_ground_truth(sf, lens, seed=seed)
                 rows.append({"size": f"{size[0]}x{size[1]}", "scene": name, "setting": setting,
                              "f_number": lens.f_number, "max_coc_px": max_coc_px(sf, lens),

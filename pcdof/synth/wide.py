@@ -208,7 +208,7 @@ def lens_for_blur(depth_m: np.ndarray, fx: float, focus_m: float, max_coc_px: fl
         raise InputError(f"focus_m and max_coc_px must be finite numbers > 0; got {focus_m!r}, {max_coc_px!r}")
     spread = max(abs(1 / focus_m - 1 / z.min()), abs(1 / focus_m - 1 / z.max()))
     aperture_m = max_coc_px / (fx * max(spread, 1e-9))
-    return ThinLens(focal_length_mm, focal_length_mm * 1e-3 / aperture_m, focus_m)
+    return ThinLens(focal_length_mm=focal_length_mm, f_number=focal_length_mm * 1e-3 / aperture_m, focus_distance_m=focus_m)
 
 
 def generate_wide(kind: str, *, seed: int, color_size=(320, 240), depth_size=(256, 212), pixel_samples: int = 2):
@@ -227,7 +227,7 @@ def generate_wide(kind: str, *, seed: int, color_size=(320, 240), depth_size=(25
     seed = check_seed(seed)
     rig = kinect_rig(parse_size(color_size, "color_size"), parse_size(depth_size, "depth_size"))
     spec = WIDE_SCENES[kind](np.random.default_rng([seed, 7]))
-    sf = make_frame(spec.scene, rig, default_lens=ThinLens(50.0, 2.0, spec.focus_m["mid"]), seed=seed,
+    sf = make_frame(spec.scene, rig, default_lens=ThinLens(focal_length_mm=50.0, f_number=2.0, focus_distance_m=spec.focus_m["mid"]), seed=seed,
                     name=f"{kind}", description=spec.description, metadata=spec.metadata,
                     pixel_samples=pixel_samples)
     return sf, spec

@@ -32,6 +32,7 @@ SUBCOMMANDS = {
     "synth": ("pcdof.cli.synth", "Generate a synthetic RGB-D scene with ray-traced ground truth."),
     "info": ("pcdof.cli.info", "Describe a recording (.mkv / .bag): streams, frames, calibration."),
     "export": ("pcdof.cli.export", "Write a recording's frames as colour/depth PNGs and calib.json."),
+    "warmup": ("pcdof.cli.warmup", "Compile every stage's kernels now (once after install), with progress."),
 }
 
 VERBOSE_HELP = "More log output (-vv for debug, with tracebacks); also after the subcommand."

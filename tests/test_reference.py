@@ -236,24 +236,130 @@ def test_fill_matches_reference_on_random_frames(seed, use_color, path):
     _assert_fill_matches(FILL_PATHS[path](depth, color, use_color), _ref_fill(depth, color, use_color, path))
 
 
-@pytest.mark.parametrize("path", list(FILL_PATHS))
-@pytest.mark.parametrize("use_color", [True, False], ids=["joint-bilateral", "nearest-background"])
-@pytest.mark.parametrize("case", ["lone-known-pixel", "known-border-only", "checkerboard", "one-row"])
-def test_fill_adversarial_frames_match_reference(case, use_color, path):
-    rng = np.random.default_rng(5)
-    h, w = (1, 40) if case == "one-row" else (24, 30)
+def _slanted_wall(h, w, rng):
+    """A slanted plane (every known pixel a different depth, so a wrong choice of pixel shows) and noise colour."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    depth = (rng.uniform(1.5, 2.5) + rng.uniform(0.02, 0.05) * xx + rng.uniform(0.02, 0.05) * yy).astype(np.float32)
+    return depth, rng.uniform(0, 1, (h, w, 3))
+
+
+def _border_band(side):
+    def build(rng, h=24, w=30):
+        """A wall with a nearer box, sparse dropouts, and a band cut off one side (outside the view)."""
+        depth, color = _slanted_wall(h, w, rng)
+        depth[8:16, 10:20] = 0.8
+        depth[rng.random((h, w)) < 0.05] = 0.0
+        band = {"top": (slice(0, 5), slice(None)), "bottom": (slice(h - 5, h), slice(None)),
+                "left": (slice(None), slice(0, 5)), "right": (slice(None), slice(w - 5, w))}[side]
+        depth[band] = 0.0
+        return depth, color
+    return build
+
+
+def _corner(rng, h=24, w=30):
+    """Known depth only in a diamond in the middle: the four corners have no known pixel on their row or
+    column (the nearest-filled fallback), and its tied choices (a row's pixel or a column's) differ in depth."""
+    depth, color = _slanted_wall(h, w, rng)
+    yy, xx = np.mgrid[0:h, 0:w]
+    depth[np.abs(yy - 12) + np.abs(xx - 15) > 6] = 0.0
+    return depth, color
+
+
+def _narrow_gap(rng, h=24, w=48):
+    """Two near bars a pixel apart on a far wall, the gap's colour halfway between theirs: the bars' nearer
+    support beats background_bias times the wall's but not background_bias**2 times. (48 px across: the
+    gap limit, 48 px at 640 across, is 3.6 px, so the diagonal pairs, 2.8 px apart, count.)"""
+    depth = np.full((h, w), 3.0, np.float32)
+    color = np.empty((h, w, 3))
+    color[...] = 0.56
+    depth[4:20, 8:14] = depth[4:20, 15:21] = 1.0
+    color[4:20, 8:14] = color[4:20, 15:21] = 0.5
+    depth[6:18, 14] = 0.0
+    color[6:18, 14] = 0.53 + rng.normal(0, 0.002, (12, 3))
+    return depth, color
+
+
+def _speckle(rng, h=24, w=30):
+    """A disocclusion band between a near and a far surface in the far one's colour, but for one pixel in the
+    near one's colour: that pixel alone takes the near depth (a speckle) until the despeckle pass."""
+    depth = np.where(np.arange(w) < 12, 1.0, 3.0)[None, :].repeat(h, 0).astype(np.float32)
+    color = np.where(np.arange(w)[None, :, None] < 12, 0.2, 0.8).repeat(h, 0).repeat(3, 2)
+    color = color + rng.normal(0, 0.01, color.shape)
+    depth[:, 12:17] = 0.0
+    color[:, 12:17] = color[0, 20]
+    color[12, 14] = color[0, 5]
+    return depth, color
+
+
+def _known_border_only(rng, h=24, w=30):
+    depth = np.zeros((h, w), np.float32)
+    depth[0, :], depth[-1, :], depth[:, 0], depth[:, -1] = 1.0, 3.0, 2.0, 0.7
+    return depth, rng.uniform(0, 1, (h, w, 3))
+
+
+def _lone_known_pixel(rng, h=24, w=30):
+    """Most holes see the pixel on no line: the nearest-filled fallback."""
+    depth = np.zeros((h, w), np.float32)
+    depth[7, 11] = 2.0
+    return depth, rng.uniform(0, 1, (h, w, 3))
+
+
+def _checkerboard(rng, h=24, w=30):
+    yy, xx = np.mgrid[0:h, 0:w]
+    depth = np.where((yy + xx) % 2 == 0, 1.0 + 0.5 * (xx > w // 2), 0.0).astype(np.float32)
+    return depth, rng.uniform(0, 1, (h, w, 3))
+
+
+def _one_row(rng, h=1, w=40):
     depth = np.zeros((h, w), np.float32)
     color = rng.uniform(0, 1, (h, w, 3))
-    if case == "lone-known-pixel":  # most holes see it on no line: the nearest-known fallback
-        depth[7, 11] = 2.0
-    elif case == "known-border-only":
-        depth[0, :], depth[-1, :], depth[:, 0], depth[:, -1] = 1.0, 3.0, 2.0, 0.7
-    elif case == "checkerboard":
-        yy, xx = np.mgrid[0:h, 0:w]
-        depth = np.where((yy + xx) % 2 == 0, 1.0 + 0.5 * (xx > w // 2), 0.0).astype(np.float32)
-    else:
-        depth[0, ::7] = rng.uniform(0.5, 4.0, depth[0, ::7].shape)
+    depth[0, ::7] = rng.uniform(0.5, 4.0, depth[0, ::7].shape)
+    return depth, color
+
+
+#: adversarial fill frames by name, and the kinds of hole (pcdof.fill's classification, with colour) each must have
+FILL_CASES = {
+    "lone-known-pixel": (_lone_known_pixel, {fast_fill.BORDER, fast_fill.LOST}),
+    "known-border-only": (_known_border_only, {fast_fill.SURFACE}),
+    "checkerboard": (_checkerboard, {fast_fill.SURFACE}),
+    "one-row": (_one_row, {fast_fill.SURFACE, fast_fill.BORDER}),
+    **{f"border-{side}": (_border_band(side), {fast_fill.BORDER, fast_fill.SURFACE})
+       for side in ("top", "bottom", "left", "right")},
+    "corner": (_corner, {fast_fill.BORDER, fast_fill.LOST}),
+    "narrow-gap": (_narrow_gap, {fast_fill.GAP}),
+    "speckle": (_speckle, {fast_fill.SURFACE}),
+}
+
+
+@pytest.mark.parametrize("path", list(FILL_PATHS))
+@pytest.mark.parametrize("use_color", [True, False], ids=["joint-bilateral", "nearest-background"])
+@pytest.mark.parametrize("case", list(FILL_CASES))
+def test_fill_adversarial_frames_match_reference(case, use_color, path):
+    build, kinds = FILL_CASES[case]
+    depth, color = build(np.random.default_rng(5))
+    _, kind = fast_fill._fill_directional(depth, color, use_color=True, edge_ratio=fast_fill.DEFAULT_EDGE_RATIO,
+                                          sigma_color=fast_fill.DEFAULT_SIGMA_COLOR,
+                                          background_bias=fast_fill.DEFAULT_BACKGROUND_BIAS, with_kinds=True)
+    assert kinds <= set(kind.tolist()), f"the {case} frame no longer has the holes it is named for"
     _assert_fill_matches(FILL_PATHS[path](depth, color, use_color), _ref_fill(depth, color, use_color, path))
+
+
+def test_reference_fill_rules_decide_the_adversarial_frames(monkeypatch):
+    """The rules the adversarial frames are built for change their answer (so matching there tests those rules)."""
+    depth, color = _narrow_gap(np.random.default_rng(5))
+    out = ref_fill.fill_directional(depth, color)
+    assert np.allclose(out[6:18, 14], 3.0), out[6:18, 14]  # the wall: the bars' support is below bias**2 times
+    with monkeypatch.context() as m:
+        m.setattr(ref_fill, "_GAP_MIN_PAIRS", 9)  # never a gap: bias alone, and the bars win inside the gap
+        assert np.allclose(ref_fill.fill_directional(depth, color)[7:17, 14], 1.0)
+    depth, color = _speckle(np.random.default_rng(5))
+    out = ref_fill.fill_directional(depth, color)
+    assert out[12, 14] == pytest.approx(3.0) and np.allclose(out[:, 12:17], 3.0)
+    depth, _ = _corner(np.random.default_rng(5))
+    out = ref_fill.fill_directional(depth, None, use_color=False)
+    # corner pixel (5, 8): down, (6, 8), held from row 6's known pixel (6, 15), and right, (5, 9), held from
+    # column 9's known pixel (12, 9), are the nearest filled pixels, both 1 away: down comes before right
+    assert out[5, 8] == out[6, 8] != out[5, 9]
 
 
 # ---------------------------------------------------------------------------------------------

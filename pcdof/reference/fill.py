@@ -1,7 +1,8 @@
 """Reference hole filling: the directional fill of :mod:`pcdof.fill`, one hole pixel at a time.
 
 Rules stated here (``"joint-bilateral"`` and, without colour, ``"nearest-background"``); spatial
-constants scale with the image as in :mod:`pcdof.fill` (step = max(1, round(size / 640))):
+constants scale with the image as in :mod:`pcdof.fill` (scale = size / 640, size the longest side;
+step = max(1, round(scale))):
 
 1. Candidates: along each of the 16 directions (8 king, 8 knight moves) walk from the hole; for a
    knight move, the half step is tried before each full step. The first known pixel met is the
@@ -10,17 +11,36 @@ constants scale with the image as in :mod:`pcdof.fill` (step = max(1, round(size
    of its (2 * 5 step + 1)^2 window (every step-th pixel) with depth within ``edge_ratio`` of its own;
    with fewer than 6 of them or a near-singular fit, the flat mean. The candidate's 1/z at the hole is
    the plane extrapolated by at most 64 px (x max(1, scale)), clamped to the known 1/z range.
-3. If the candidate depths span at most ``edge_ratio`` of the farthest: inverse-distance weights 1/r
+3. Outside the view (border): the candidates along the row (directions (1, 0), (-1, 0)) and the
+   column ((0, 1), (0, -1)). If neither line has a candidate on both sides but one has a candidate
+   on one side, the hole is outside the view: it takes the plane's own 1/z (a, not extrapolated),
+   clamped to the known 1/z range, of the nearer of those one-sided candidates (ties: the row's),
+   and skips rules 4, 5 and 7. If neither line has any candidate (a corner) it is *lost* (rule 6).
+4. If the candidate depths span at most ``edge_ratio`` of the farthest: inverse-distance weights 1/r
    on 1/z over all of them. Otherwise sort them far to near (stable), split where neighbours differ
    by more than ``edge_ratio`` (relative to the farther) and score each surface by its colour support
    sum exp(-|c - c_p|^2 / 2 sigma^2) / (r + 20 px x scale) (best colour among 11 known pixels walked
    from the candidate, one step apart, onward in its direction), nearer surfaces' scores divided by
    ``background_bias``; the first best-scoring surface (ties: the farther) gives the IDW depth.
    Without colour, the farthest surface.
-4. Clamp to [min known, max known]; a hole with no candidate takes its nearest known pixel.
-5. Holes farther than 3 steps from their nearest candidate: twice (Jacobi), the median of their
+5. Narrow gap (with colour, several surfaces): of the 8 opposite pairs of directions (the 4 king
+   pairs (k, k + 4), the 4 knight pairs (2, 1)/(-2, -1), (1, 2)/(-1, -2), (-1, 2)/(1, -2), (-2, 1)/(2, -1)),
+   count those whose two candidates both exist, are at most 48 px x scale apart (r_a + r_b), and
+   both lie strictly nearer than the farthest surface (depth below its nearest member). With at least
+   4 such pairs, nearer surfaces' scores are divided by ``background_bias ** 2`` instead.
+6. Clamp to [min known, max known]. A lost hole (no known pixel on its row nor on its column; a hole
+   with no candidate on any of the 16 lines is one of these) takes the value, after rules 3-5, of the
+   nearest pixel that is not lost. The pixels that are not lost are whole rows and whole columns, so
+   the nearest lies straight up, left, down or right; among equally near ones the first in that
+   order (the order of OpenCV's two-pass distance transform, which :mod:`pcdof.fill` uses: its
+   forward pass, up then left, keeps its answer on a tie with the backward pass, down then right).
+7. Holes farther than 3 steps from their nearest candidate: twice (Jacobi), the median of their
    5 x 5 neighbourhood (taps one step apart, clamped at the border) when its range exceeds
-   ``edge_ratio`` relative; otherwise unchanged.
+   ``edge_ratio`` relative; otherwise unchanged. Border and lost holes are never "far".
+8. Speckles, after rule 7, over every hole (border and lost ones too), one Jacobi pass: a hole whose
+   depth differs from each of its neighbours inside the image (8, fewer at the frame border) by more
+   than ``edge_ratio`` (max > (1 + edge_ratio) min) takes their lower median (the ((n - 1) // 2)-th
+   smallest of n).
 """
 
 from __future__ import annotations
@@ -33,6 +53,11 @@ from ..fill import DEFAULT_BACKGROUND_BIAS, DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_CO
 
 _DIRS = [(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1),
          (2, 1), (1, 2), (-1, 2), (-2, 1), (-2, -1), (-1, -2), (1, -2), (2, -1)]
+#: Opposite pairs of directions (as indices into _DIRS) that rule 5 counts.
+_PAIRS = [(0, 4), (1, 5), (2, 6), (3, 7), (8, 12), (9, 13), (10, 14), (11, 15)]
+_GAP_MIN_PAIRS = 4
+#: Rule 6's order among equally near pixels: (dy, dx) signs of up, left, down, right.
+_LOST_TIE_ORDER = [(-1, 0), (0, -1), (1, 0), (0, 1)]
 
 
 def _sign(v: int) -> int:
@@ -64,7 +89,8 @@ def candidate(known: np.ndarray, y: int, x: int, dx: int, dy: int) -> tuple[int,
             return y, x
 
 
-def fit_plane(depth: np.ndarray, y: int, x: int, radius: int, step: int, edge_ratio: float) -> tuple[float, float, float]:
+def fit_plane(depth: np.ndarray, y: int, x: int, radius: int, step: int,
+              edge_ratio: float) -> tuple[float, float, float]:
     """(1/z, d(1/z)/dx, d(1/z)/dy) at known pixel (y, x): least squares over its surface's window (rule 2)."""
     H, W = depth.shape
     zc = depth[y, x]
@@ -98,12 +124,9 @@ def _idw(cands) -> float:
     return sum(c["iv"] / c["r"] for c in cands) / sum(1.0 / c["r"] for c in cands)
 
 
-def _choose(cands, color, known, y, x, use_color, edge_ratio, sigma, bias, support_px, step) -> float:
-    """1/z of hole (y, x) from its candidates (rule 3)."""
-    z = [1.0 / c["iv"] for c in cands]
-    if max(z) - min(z) <= edge_ratio * max(z):
-        return _idw(cands)
-    ordered = sorted(cands, key=lambda c: -1.0 / c["iv"])  # far to near, stable
+def _surfaces(cands, edge_ratio):
+    """Rule 4's surfaces: the candidates sorted far to near (stable), split at relative gaps over edge_ratio."""
+    ordered = sorted(cands, key=lambda c: -1.0 / c["iv"])
     groups, cur = [], [ordered[0]]
     for prev, c in zip(ordered, ordered[1:]):
         zp, zc = 1.0 / prev["iv"], 1.0 / c["iv"]
@@ -113,13 +136,38 @@ def _choose(cands, color, known, y, x, use_color, edge_ratio, sigma, bias, suppo
             groups.append(cur)
             cur = [c]
     groups.append(cur)
+    return groups
+
+
+def in_narrow_gap(cands, far_min_z: float, gap_px: float) -> bool:
+    """Rule 5: at least 4 opposite pairs of candidates, both nearer than *far_min_z*, at most *gap_px* apart."""
+    by_dir = {c["k"]: c for c in cands}
+    n = 0
+    for ka, kb in _PAIRS:
+        a, b = by_dir.get(ka), by_dir.get(kb)
+        if a is None or b is None or a["r"] + b["r"] > gap_px:
+            continue
+        if 1.0 / a["iv"] < far_min_z and 1.0 / b["iv"] < far_min_z:
+            n += 1
+    return n >= _GAP_MIN_PAIRS
+
+
+def _choose(cands, color, known, y, x, use_color, edge_ratio, sigma, bias, support_px, gap_px, step) -> float:
+    """1/z of hole (y, x) from its candidates (rules 4 and 5)."""
+    z = [1.0 / c["iv"] for c in cands]
+    if max(z) - min(z) <= edge_ratio * max(z):
+        return _idw(cands)
+    groups = _surfaces(cands, edge_ratio)
     if not use_color:
         return _idw(groups[0])
+    far_min_z = min(1.0 / c["iv"] for c in groups[0])
+    if in_narrow_gap(cands, far_min_z, gap_px):
+        bias = bias * bias
     best, best_iv = -1.0, 0.0
     for g, group in enumerate(groups):
         score = 0.0
         for c in group:
-            dx, dy = c["dir"]
+            dx, dy = _DIRS[c["k"]]
             sim = color_support(color, known, color[y, x], c["q"][0], c["q"][1], step * _sign(dy), step * _sign(dx),
                                 11, sigma)
             score += sim / (c["r"] + support_px)
@@ -130,8 +178,39 @@ def _choose(cands, color, known, y, x, use_color, edge_ratio, sigma, bias, suppo
     return best_iv
 
 
+def border_inv(known, planes, y, x, inv_lo, inv_hi):
+    """Rule 3: ("inside", None), ("border", 1/z) or ("lost", None) for hole (y, x).
+
+    *planes* maps a known pixel (row, col) to its plane (rule 2).
+    """
+    best = None
+    for axis in ((1, 0), (0, 1)):  # the row, then the column
+        qa = candidate(known, y, x, axis[0], axis[1])
+        qb = candidate(known, y, x, -axis[0], -axis[1])
+        if qa is not None and qb is not None:
+            return "inside", None
+        q = qa if qa is not None else qb
+        if q is not None:
+            r = abs(q[0] - y) + abs(q[1] - x)
+            if best is None or r < best[0]:
+                best = (r, q)
+    if best is None:
+        return "lost", None
+    return "border", min(max(planes[best[1]][0], inv_lo), inv_hi)
+
+
+def nearest_not_lost(out, lost, y, x) -> float:
+    """Rule 6: the value of the nearest pixel that is not lost (ties: up, left, down, right)."""
+    ny, nx = np.nonzero(~lost)
+    d2 = (ny - y) ** 2 + (nx - x) ** 2
+    tied = np.flatnonzero(d2 == d2.min())
+    order = [_LOST_TIE_ORDER.index((_sign(int(ny[i] - y)), _sign(int(nx[i] - x)))) for i in tied]
+    i = tied[int(np.argmin(order))]
+    return float(out[ny[i], nx[i]])
+
+
 def _median_far(out, holes, r_near, min_r, step, edge_ratio) -> None:
-    """Rule 5, in place."""
+    """Rule 7, in place."""
     H, W = out.shape
     far = [(y, x) for (y, x), r in zip(holes, r_near) if r > min_r]
     for _ in range(2):
@@ -142,6 +221,42 @@ def _median_far(out, holes, r_near, min_r, step, edge_ratio) -> None:
             new.append(out[y, x] if win.max() <= win.min() * (1.0 + edge_ratio) else np.sort(win)[12])
         for (y, x), v in zip(far, new):
             out[y, x] = v
+
+
+def despeckle(out, holes, edge_ratio) -> None:
+    """Rule 8, in place."""
+    H, W = out.shape
+    new = []
+    for y, x in holes:
+        v = float(out[y, x])
+        nb = sorted(float(out[y + dy, x + dx]) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+                    if (dy or dx) and 0 <= y + dy < H and 0 <= x + dx < W)
+        alike = any(max(u, v) <= (1.0 + edge_ratio) * min(u, v) for u in nb)
+        new.append(v if alike or not nb else nb[(len(nb) - 1) // 2])
+    for (y, x), v in zip(holes, new):
+        out[y, x] = v
+
+
+def _hole_inv(depth, known, color, planes, y, x, rules):
+    """(1/z or None for a lost hole, distance to the nearest candidate, 0 for border and lost) of hole (y, x)."""
+    kind, inv = border_inv(known, planes, y, x, rules["inv_lo"], rules["inv_hi"])
+    if kind != "inside":
+        return inv, 0.0
+    cands = []
+    for k, (dx, dy) in enumerate(_DIRS):
+        q = candidate(known, y, x, dx, dy)
+        if q is None:
+            continue
+        a, gx, gy = planes[q]
+        ddx, ddy = float(x - q[1]), float(y - q[0])
+        r = math.hypot(ddx, ddy)
+        f = 1.0 if r <= rules["extrapolate_px"] else rules["extrapolate_px"] / r
+        iv = min(max(a + f * (gx * ddx + gy * ddy), rules["inv_lo"]), rules["inv_hi"])
+        cands.append({"iv": iv, "r": r, "k": k, "q": q})
+    # a hole inside (a known pixel on both sides of its row or column) always has candidates
+    inv = _choose(cands, color, known, y, x, rules["use_color"], rules["edge_ratio"], rules["sigma"], rules["bias"],
+                  rules["support_px"], rules["gap_px"], rules["step"])
+    return inv, min(c["r"] for c in cands)
 
 
 def fill_directional(depth_m, color=None, *, use_color: bool = True, edge_ratio: float = DEFAULT_EDGE_RATIO,
@@ -168,35 +283,26 @@ def fill_directional(depth_m, color=None, *, use_color: bool = True, edge_ratio:
     scale = max(H, W) / 640.0
     step = max(1, int(round(scale)))
     zmin, zmax = float(depth[known].min()), float(depth[known].max())
-    extrapolate_px, support_px = 64.0 * max(scale, 1.0), 20.0 * scale
-    planes = {}
+    rules = {"use_color": use_color, "edge_ratio": edge_ratio, "sigma": sigma_color, "bias": background_bias,
+             "extrapolate_px": 64.0 * max(scale, 1.0), "support_px": 20.0 * scale, "gap_px": 48.0 * scale,
+             "step": step, "inv_lo": 1.0 / zmax, "inv_hi": 1.0 / zmin}
+    planes = {(y, x): fit_plane(depth, y, x, 5 * step, step, edge_ratio) for y, x in zip(*np.nonzero(known))}
     out = depth.copy()
-    holes = list(zip(*np.nonzero(~known)))
+    holes = [(int(y), int(x)) for y, x in zip(*np.nonzero(~known))]
+    lost = np.zeros((H, W), bool)
     r_near = []
     for y, x in holes:
-        cands = []
-        for dx, dy in _DIRS:
-            q = candidate(known, y, x, dx, dy)
-            if q is None:
-                continue
-            if q not in planes:
-                planes[q] = fit_plane(depth, q[0], q[1], 5 * step, step, edge_ratio)
-            a, gx, gy = planes[q]
-            ddx, ddy = float(x - q[1]), float(y - q[0])
-            r = math.hypot(ddx, ddy)
-            f = 1.0 if r <= extrapolate_px else extrapolate_px / r
-            iv = min(max(a + f * (gx * ddx + gy * ddy), 1.0 / zmax), 1.0 / zmin)
-            cands.append({"iv": iv, "r": r, "dir": (dx, dy), "q": q})
-        if not cands:
-            ky, kx = np.nonzero(known)
-            k = int(np.argmin((ky - y) ** 2 + (kx - x) ** 2))
-            out[y, x] = depth[ky[k], kx[k]]
-            r_near.append(0.0)
-            continue
-        r_near.append(min(c["r"] for c in cands))
-        iv = _choose(cands, color, known, y, x, use_color, edge_ratio, sigma_color, background_bias, support_px, step)
-        out[y, x] = np.float32(min(max(1.0 / iv, zmin), zmax))
+        inv, r = _hole_inv(depth, known, color, planes, y, x, rules)
+        r_near.append(r)
+        if inv is None:
+            lost[y, x] = True
+        else:
+            out[y, x] = np.float32(min(max(1.0 / inv, zmin), zmax))
+    lost_values = [(y, x, nearest_not_lost(out, lost, y, x)) for y, x in zip(*np.nonzero(lost))]
+    for y, x, v in lost_values:
+        out[y, x] = v
     _median_far(out, holes, r_near, 3.0 * step, step, edge_ratio)
+    despeckle(out, holes, edge_ratio)
     return out
 
 

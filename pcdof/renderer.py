@@ -798,9 +798,38 @@ def _layer_window(frame: _Frame, li: int, r_max: float, r_front: float, bbox):
     return box, frame.layer[box] == li, ext_reach, extend
 
 
-def _hidden(frame: _Frame, canvas: _Canvas, li: int, box):
-    """Pixels of nearer layers that are not yet opaque (this layer may show through there), or None."""
+def _owned(layer: np.ndarray, li: int, box, reach_px: float) -> np.ndarray:
+    """The pixels of *box* whose nearest pixel of layer *li* or a farther layer (Euclidean) is one of
+    layer *li*'s, and no farther from it than the layer reaches beside the occluder: the distance from
+    that pixel to the nearest pixel of a farther layer (unlimited where there is none).
+
+    A hidden pixel is continued by one layer only, the one seen next to it: a small layer (a lamp, a
+    glint, a thin rod) is not copied across the whole width a blurred foreground hides, on top of the
+    background that is seen all around it.
+    """
+    h, w = layer.shape
+    pad = 2 * int(math.ceil(reach_px)) + 2  # every pixel that can compete for the box lies in here
+    y0, x0 = max(0, box[0].start - pad), max(0, box[1].start - pad)
+    big = layer[y0:min(h, box[0].stop + pad), x0:min(w, box[1].stop + pad)]
+    behind = big >= li
+    dist, labels = cv2.distanceTransformWithLabels((~behind).astype(np.uint8), cv2.DIST_L2, 5,
+                                                   labelType=cv2.DIST_LABEL_PIXEL)
+    nearest = np.flatnonzero(behind.ravel())[labels.ravel() - 1]
+    farther = big > li
+    if farther.any():
+        width = cv2.distanceTransform((~farther).astype(np.uint8), cv2.DIST_L2, 5).ravel()[nearest]
+    else:
+        width = np.full(nearest.shape, np.inf, np.float32)
+    own = (big.ravel()[nearest] == li) & (dist.ravel() <= np.maximum(width, 1.0))
+    own = own.reshape(big.shape)
+    return own[box[0].start - y0:box[0].stop - y0, box[1].start - x0:box[1].stop - x0]
+
+
+def _hidden(frame: _Frame, canvas: _Canvas, li: int, box, reach_px: float):
+    """Pixels of nearer layers that are not yet opaque and that this layer continues (:func:`_owned`), or None."""
     hidden = (frame.layer[box] < li) & (canvas.trans[box] > 0)
+    if hidden.any():
+        hidden &= _owned(frame.layer, li, box, reach_px)
     return hidden if hidden.any() else None
 
 
@@ -809,7 +838,7 @@ def _sharp_layer(frame: _Frame, canvas: _Canvas, li: int, n_members: int, r_max:
     """Composite the in-focus layer: an opaque copy, no blur (extended behind nearer layers)."""
     box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
     src, src_r = frame.lin[box], frame.radius[box]
-    hidden = _hidden(frame, canvas, li, box) if extend else None
+    hidden = _hidden(frame, canvas, li, box, ext_reach) if extend else None
     if hidden is not None:
         src, src_r, m = _extend_behind(src, src_r, m, hidden, ext_reach)
     _composite_sharp(np.ascontiguousarray(src), np.ascontiguousarray(m), box[0].start, box[1].start,
@@ -821,7 +850,7 @@ def _blur_layer(frame: _Frame, canvas: _Canvas, li: int, key: int, n_members: in
                 bbox) -> dict:
     """Scatter one blur layer (at the plan's resolution, uniform tiles convolved) and composite it behind."""
     box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
-    hidden = _hidden(frame, canvas, li, box) if extend else None
+    hidden = _hidden(frame, canvas, li, box, ext_reach) if extend else None
     lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
     plan = frame.plan
     s = plan.scale(lo)

@@ -15,7 +15,11 @@ Physical renderer, the rules stated here (those of :func:`pcdof.renderer.render_
    occlusion): a hidden pixel within r_front + r_max + 1 pixels (Euclidean) of the layer takes the
    colour and radius of its nearest layer pixel (ties: first in raster order). r_front is the largest
    radius of the blurred layers composited so far; nothing is extended in front of the first layer
-   or while r_front is 0.
+   or while r_front is 0. A hidden pixel is continued by one layer only (:func:`owned`): the layer of
+   its nearest pixel among this and the farther layers, and only as far from that pixel as the pixel
+   is from the nearest farther layer (at least 1 px): a small layer seen beside a blurred foreground
+   (a lamp, a glint, a rod) reaches behind it no farther than its own width, instead of being copied
+   over everything the foreground hides.
 5. Compositing front to back: a blurred layer with coverage a at a pixel of transmittance t adds
    t * alpha / a times its premultiplied colour, alpha = min(1, a) (1 from a >= 1 - 1e-4; nothing below
    a = 1e-6); the in-focus layer is an opaque copy. The output is the accumulated colour over the
@@ -171,6 +175,33 @@ def extend_behind(lin, radius, member, hidden, reach_px):
     return lin, radius, member
 
 
+def owned(rank: np.ndarray, li: int) -> np.ndarray:
+    """The pixels that layer *li* continues when hidden: their nearest pixel of layer *li* or a farther
+    layer (Euclidean; ties: the first in raster order) is one of layer *li*'s, and they are no farther
+    from it than it is from the nearest pixel of a farther layer (at least 1 px; unlimited where no
+    farther layer exists). (H, W) bool.
+    """
+    behind = np.flatnonzero(rank.ravel() >= li)
+    farther = np.flatnonzero(rank.ravel() > li)
+    h, w = rank.shape
+    by, bx = np.divmod(behind, w)
+    fy, fx = np.divmod(farther, w)
+    out = np.zeros(h * w, bool)
+    for part in np.array_split(np.arange(h * w), max(1, h * w // 256)):
+        ty, tx = np.divmod(part, w)
+        d2 = (ty[:, None] - by[None, :]) ** 2 + (tx[:, None] - bx[None, :]) ** 2
+        best = np.argmin(d2, axis=1)  # the first of equal minima: raster order
+        src = behind[best]
+        mine = rank.ravel()[src] == li
+        if farther.size:
+            sy, sx = np.divmod(src, w)
+            width2 = ((sy[:, None] - fy[None, :]) ** 2 + (sx[:, None] - fx[None, :]) ** 2).min(axis=1)
+        else:
+            width2 = np.full(part.size, np.inf)
+        out[part] = mine & (d2[np.arange(part.size), best] <= np.maximum(width2, 1.0))
+    return out.reshape(h, w)
+
+
 def _composite_layer(buf, acc, acc_a, trans) -> None:
     """Front-to-back "over" of a scattered layer (premultiplied colour, coverage) behind acc."""
     cover = buf[:, :, -1]
@@ -214,6 +245,7 @@ def render_layers_linear(lin, signed_coc, *, blades: int = 0, rotation_deg: floa
         src, src_r = lin, radius
         hidden = (rank < li) & (trans > 0)
         if extend_behind_layers and li > 0 and r_front > 0 and hidden.any():
+            hidden &= owned(rank, li)
             src, src_r, member = extend_behind(lin, radius, member, hidden, math.ceil(r_front + r_max + 1))
         if key == 0:  # in focus: an opaque copy
             sel = member & (trans > 0)

@@ -996,9 +996,10 @@ def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=Fals
         raise InputError(f"plan must be None for the paper method (it has no schedule); got {type(plan).__name__}")
     plens = paper_lens_for(lens)
     src = to_float(_as_channels(color))
-    # the kernel reaches 3 sigma; OpenCV normalises it to sum 1 (no luminosity constant needed)
-    ksize = 2 * int(math.ceil(3 * plens.blur_sigma_px)) + 1
-    blurred = cv2.GaussianBlur(src, (ksize, ksize), plens.blur_sigma_px, borderType=cv2.BORDER_REFLECT)
+    # the kernel reaches 3 sigma, each axis's sigma limited to what the image can show (PaperLens.blur_kernel);
+    # OpenCV normalises it to sum 1 (no luminosity constant needed)
+    (kx, ky), sigma_x, sigma_y = plens.blur_kernel(*src.shape[:2])
+    blurred = cv2.GaussianBlur(src, (kx, ky), sigmaX=sigma_x, sigmaY=sigma_y, borderType=cv2.BORDER_REFLECT)
     blurred = blurred.reshape(src.shape)
     alpha = plens.alpha(depth_m, max_range_m)[:, :, None]
     # eq. 3, out = B*alpha + O*(1 - alpha), evaluated in place as O + alpha*(B - O)

@@ -575,7 +575,6 @@ class TestPaperBlurKernel:
         far = cv2.GaussianBlur(img, (2 * 2400 + 1, 2 * 1800 + 1), sigmaX=800, sigmaY=600, borderType=cv2.BORDER_REFLECT)
         assert float(np.abs(limited - far).max()) < 2e-5 * float(img.max() - img.min())
 
-    @pytest.mark.xfail(strict=True, reason="pcdof.renderer.render_paper does not yet call PaperLens.blur_kernel")
     def test_huge_sigma_renders(self):
         from pcdof.renderer import render_paper
         from pcdof.lens import PaperLens

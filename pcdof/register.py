@@ -217,41 +217,34 @@ def _code_row(top, bottom, ratio, codes_row):
 @njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _prepare(counter, n_tasks, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo,
              row_hi, codes):
-    """Pass 1: :func:`_prepare_chunk` for the chunks claimed from *counter*, until all *n_tasks* are taken."""
-    chunk = -(-depth.shape[0] // n_tasks)
+    """Pass 1, one chunk of depth rows per task: project the rows, then code the quads below them.
+
+    Tasks are claimed from *counter* until *n_tasks* are taken, so any number of threads can run
+    this at once. ``codes`` is (h + 1, w + 1) with a zero border: quad (i, j) is ``codes[i + 1, j + 1]``,
+    so the four quads around pixel (i, j) are ``codes[i:i + 2, j:j + 2]``. The quads below a
+    chunk's last row need the next chunk's first row: it is projected again into scratch rows.
+    """
+    h, w = depth.shape
+    chunk = -(-h // n_tasks)
+    su = np.empty(w, np.float32)
+    sv = np.empty(w, np.float32)
+    siz = np.empty(w, np.float32)
     while True:
         k = _claim(counter)
         if k >= n_tasks:
             break
-        _prepare_chunk(k, chunk, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo,
-                       row_hi, codes)
-
-
-@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _prepare_chunk(k, chunk, depth, rays, t, cam, d, tilt, has_dist, r2_max, foot_v, ratio, U, V, IZ, row_lo, row_hi,
-                   codes):
-    """Pass 1 for depth rows k * chunk .. (k + 1) * chunk - 1: project the rows, then code the quads below them.
-
-    ``codes`` is (h + 1, w + 1) with a zero border: quad (i, j) is ``codes[i + 1, j + 1]``, so the
-    four quads around pixel (i, j) are ``codes[i:i + 2, j:j + 2]``. The quads below a chunk's last
-    row need the next chunk's first row: it is projected again into scratch rows.
-    """
-    h, w = depth.shape
-    su = np.empty(w, np.float32)
-    sv = np.empty(w, np.float32)
-    siz = np.empty(w, np.float32)
-    r0 = k * chunk
-    r1 = min(h, r0 + chunk)
-    for i in range(r0, r1):
-        lo, hi = _project_row(depth[i], rays[0, i], rays[1, i], rays[2, i], t, cam, d, tilt, has_dist, r2_max,
-                              foot_v, U[i], V[i], IZ[i])
-        row_lo[i] = lo
-        row_hi[i] = hi
-    if r1 < h:
-        _project_row(depth[r1], rays[0, r1], rays[1, r1], rays[2, r1], t, cam, d, tilt, has_dist, r2_max, foot_v,
-                     su, sv, siz)
-    for i in range(r0, min(r1, h - 1)):
-        _code_row(IZ[i], IZ[i + 1] if i + 1 < r1 else siz, ratio, codes[i + 1, 1:])
+        r0 = k * chunk
+        r1 = min(h, r0 + chunk)
+        for i in range(r0, r1):
+            lo, hi = _project_row(depth[i], rays[0, i], rays[1, i], rays[2, i], t, cam, d, tilt, has_dist, r2_max,
+                                  foot_v, U[i], V[i], IZ[i])
+            row_lo[i] = lo
+            row_hi[i] = hi
+        if r1 < h:
+            _project_row(depth[r1], rays[0, r1], rays[1, r1], rays[2, r1], t, cam, d, tilt, has_dist, r2_max, foot_v,
+                         su, sv, siz)
+        for i in range(r0, min(r1, h - 1)):
+            _code_row(IZ[i], IZ[i + 1] if i + 1 < r1 else siz, ratio, codes[i + 1, 1:])
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
@@ -511,85 +504,80 @@ def _reach(IZ, i, j, wij, ratio, unknown):
 
 @njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _rasterise(counter, n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out):
-    """Pass 2: :func:`_draw_band` for the bands claimed from *counter*, until all *n_bands* are taken."""
-    band_h = -(-out.shape[0] // n_bands)
+    """Pass 2, one band of colour rows per task: draw kept triangles, then the footprints of the mesh's edge pixels.
+
+    Tasks are claimed from *counter* until *n_bands* are taken. Drawing keeps 1/z in *out* (0 =
+    empty, largest = nearest, no division per pixel); each band clears its rows first and turns
+    them into z at the end. Bands own disjoint rows of *out*, so tasks never write the same pixel
+    (no races, no merge); a depth row is visited by every band its projection can touch. Quads of
+    at most 4x4 colour pixels take the block kernel when *use_block*.
+    """
+    h, w = IZ.shape
+    H, W = out.shape
+    band_h = -(-H // n_bands)
+    block = np.empty(16, np.float32)  # scratch of _quad_block
     while True:
         b = _claim(counter)
         if b >= n_bands:
             break
-        _draw_band(b, band_h, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out)
-
-
-@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _draw_band(b, band_h, use_block, depth, U, V, IZ, codes, row_lo, row_hi, foot, ratio, unknown, out):
-    """Pass 2 for colour rows b * band_h .. (b + 1) * band_h - 1: draw kept triangles, then the
-    footprints of the mesh's edge pixels.
-
-    Drawing keeps 1/z in *out* (0 = empty, largest = nearest, no division per pixel); each band
-    clears its rows first and turns them into z at the end. Bands own disjoint rows of *out*, so
-    tasks never write the same pixel (no races, no merge); a depth row is visited by every band
-    its projection can touch.
-    """
-    h, w = IZ.shape
-    H, W = out.shape
-    block = np.empty(16, np.float32)  # scratch of _quad_block
-    y0 = b * band_h
-    y1 = min(H, y0 + band_h)
-    for y in range(y0, y1):
-        for x in range(W):
-            out[y, x] = 0.0
-    for i in range(h - 1):
-        if max(row_hi[i], row_hi[i + 1]) < y0 - 1 or min(row_lo[i], row_lo[i + 1]) > y1 + 1:
-            continue
-        for j in range(w - 1):
-            code = codes[i + 1, j + 1]
-            if code == 0:
+        y0 = b * band_h
+        y1 = min(H, y0 + band_h)
+        for y in range(y0, y1):
+            for x in range(W):
+                out[y, x] = 0.0
+        for i in range(h - 1):
+            if max(row_hi[i], row_hi[i + 1]) < y0 - 1 or min(row_lo[i], row_lo[i + 1]) > y1 + 1:
                 continue
-            ua = np.float64(U[i, j])
-            va = np.float64(V[i, j])
-            wa = np.float64(IZ[i, j])
-            ub = np.float64(U[i, j + 1])
-            vb = np.float64(V[i, j + 1])
-            wb = np.float64(IZ[i, j + 1])
-            uc = np.float64(U[i + 1, j])
-            vc = np.float64(V[i + 1, j])
-            wc = np.float64(IZ[i + 1, j])
-            ud = np.float64(U[i + 1, j + 1])
-            vd = np.float64(V[i + 1, j + 1])
-            wd = np.float64(IZ[i + 1, j + 1])
-            if code & _WHOLE:
-                _quad(out, block, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, (code & 1) != 0, use_block)
-            elif code == 1:
-                _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, ud, vd, wd)
-            elif code == 2:
-                _triangle(out, y0, y1, ua, va, wa, ud, vd, wd, uc, vc, wc)
-            elif code == 4:
-                _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc)
-            else:
-                _triangle(out, y0, y1, ub, vb, wb, ud, vd, wd, uc, vc, wc)
-    for i in range(h):
-        if row_hi[i] < y0 - 1 or row_lo[i] > y1 + 1:
-            continue
-        for j in range(w):
-            # interior pixels (all four quads around them whole) are covered by the mesh
-            if codes[i, j] & codes[i, j + 1] & codes[i + 1, j] & codes[i + 1, j + 1] & _WHOLE:
+            for j in range(w - 1):
+                code = codes[i + 1, j + 1]
+                if code == 0:
+                    continue
+                ua = np.float64(U[i, j])
+                va = np.float64(V[i, j])
+                wa = np.float64(IZ[i, j])
+                ub = np.float64(U[i, j + 1])
+                vb = np.float64(V[i, j + 1])
+                wb = np.float64(IZ[i, j + 1])
+                uc = np.float64(U[i + 1, j])
+                vc = np.float64(V[i + 1, j])
+                wc = np.float64(IZ[i + 1, j])
+                ud = np.float64(U[i + 1, j + 1])
+                vd = np.float64(V[i + 1, j + 1])
+                wd = np.float64(IZ[i + 1, j + 1])
+                if code & _WHOLE:
+                    _quad(out, block, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, (code & 1) != 0,
+                          use_block)
+                elif code == 1:
+                    _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, ud, vd, wd)
+                elif code == 2:
+                    _triangle(out, y0, y1, ua, va, wa, ud, vd, wd, uc, vc, wc)
+                elif code == 4:
+                    _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc)
+                else:
+                    _triangle(out, y0, y1, ub, vb, wb, ud, vd, wd, uc, vc, wc)
+        for i in range(h):
+            if row_hi[i] < y0 - 1 or row_lo[i] > y1 + 1:
                 continue
-            wij = np.float64(IZ[i, j])
-            if not (wij > 0.0):
-                continue
-            s = depth[i, j] * wij  # depth-camera z / colour-camera z
-            hu = foot[0] * s
-            hv = foot[1] * s
-            _footprint(out, y0, y1, np.float64(U[i, j]), np.float64(V[i, j]), wij,
-                       hu * _reach(IZ, i, j - 1, wij, ratio, unknown),
-                       hu * _reach(IZ, i, j + 1, wij, ratio, unknown),
-                       hv * _reach(IZ, i - 1, j, wij, ratio, unknown),
-                       hv * _reach(IZ, i + 1, j, wij, ratio, unknown),
-                       ratio)
-    for y in range(y0, y1):
-        for x in range(W):
-            iz = out[y, x]
-            out[y, x] = np.float32(1.0) / iz if iz > 0.0 else np.float32(0.0)
+            for j in range(w):
+                # interior pixels (all four quads around them whole) are covered by the mesh
+                if codes[i, j] & codes[i, j + 1] & codes[i + 1, j] & codes[i + 1, j + 1] & _WHOLE:
+                    continue
+                wij = np.float64(IZ[i, j])
+                if not (wij > 0.0):
+                    continue
+                s = depth[i, j] * wij  # depth-camera z / colour-camera z
+                hu = foot[0] * s
+                hv = foot[1] * s
+                _footprint(out, y0, y1, np.float64(U[i, j]), np.float64(V[i, j]), wij,
+                           hu * _reach(IZ, i, j - 1, wij, ratio, unknown),
+                           hu * _reach(IZ, i, j + 1, wij, ratio, unknown),
+                           hv * _reach(IZ, i - 1, j, wij, ratio, unknown),
+                           hv * _reach(IZ, i + 1, j, wij, ratio, unknown),
+                           ratio)
+        for y in range(y0, y1):
+            for x in range(W):
+                iz = out[y, x]
+                out[y, x] = np.float32(1.0) / iz if iz > 0.0 else np.float32(0.0)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -94,6 +94,8 @@ _EXPORTS = {
     "ThinLens": "lens", "PaperLens": "lens", "focus_depth_at": "lens",
     "register_depth": "register", "fill_depth": "fill",
     "RenderResult": "pipeline", "StageTrace": "pipeline", "render": "pipeline", "run": "pipeline",
+    "RenderOptions": "options",
+    "open_source": "sources", "FrameSource": "sources", "SOURCES": "sources",
 }
 
 __all__ = list(_EXPORTS)

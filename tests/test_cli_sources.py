@@ -179,3 +179,23 @@ class TestReportLine:
         assert len(failed) == 1 and failed[0].startswith("pcdof: frame 1: ImageReadError: "), failed
         assert str(missing) in failed[0] and failed[0].index(str(missing)) < failed[0].index("(input ")
         assert "focus" not in result.stderr
+
+
+class TestFloatColour:
+    """Float colour without --linear is read as sRGB, and render says so (it usually holds linear light)."""
+
+    def _frame(self, tmp_path):
+        color = io.read_color(f"{S}/color.png").astype(np.float32) / 255
+        np.save(tmp_path / "c.npy", color)
+        return [tmp_path / "c.npy", f"{S}/depth.png", "--calib", f"{S}/calib.json"]
+
+    def test_warns_without_linear(self, tmp_path):
+        result = invoke("render", *self._frame(tmp_path), "-o", tmp_path / "r.exr")
+        assert result.exit_code == 0, result.output
+        assert "pcdof: warning: the colour image holds floats and is read as sRGB" in result.stderr
+        assert "--linear" in result.stderr
+
+    def test_quiet_with_linear(self, tmp_path):
+        result = invoke("render", *self._frame(tmp_path), "--linear", "-o", tmp_path / "r.exr")
+        assert result.exit_code == 0, result.output
+        assert "warning" not in result.stderr

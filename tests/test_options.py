@@ -151,3 +151,14 @@ class TestHighlights:
         f = clipped_frame()
         res = run(f, ThinLens(50, 1.4, 3.0), highlights=8)  # the whole wall in focus
         np.testing.assert_array_equal(res.image, f.color)
+
+
+def test_public_names():
+    import pcdof
+    import pcdof.sources
+
+    assert pcdof.RenderOptions is RenderOptions
+    assert pcdof.open_source is pcdof.sources.open_source and pcdof.SOURCES is pcdof.sources.SOURCES
+    assert set(pcdof.__all__) <= set(dir(pcdof))
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        pcdof.nope

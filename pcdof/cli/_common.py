@@ -347,6 +347,13 @@ def build_render_options(flags: dict, *, extra_positive: dict | None = None, thi
                          linear=f["linear"], focus_at=f["focus_at"], highlights=f["highlights"])
 
 
+def warn_float_colour(color, options) -> None:
+    """Warn when float colour is read as sRGB: float files usually hold linear light (EXR, HDR TIFF)."""
+    if getattr(color, "dtype", None) is not None and color.dtype.kind == "f" and not options.linear:
+        warnings.warn("the colour image holds floats and is read as sRGB in [0, 1]; "
+                      "pass --linear if it holds linear light (EXR, float TIFF/NPY from a renderer or raw converter)")
+
+
 def focus_source(flags: dict) -> str:
     """How the focus was chosen, for the command's report line."""
     if flags["focus_distance_m"] is not None:

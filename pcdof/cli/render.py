@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.writers import IMAGE_FORMATS
 from ._common import build_render_options, check_output_file, check_positive_flags, check_output_folder, focus_on_centre, focus_source, \
-    handle_errors, load_source_frame, make_output_folder, render_options, source_arguments
+    handle_errors, load_source_frame, make_output_folder, render_options, source_arguments, warn_float_colour
 from ._report import report_decision
 
 #: 8/16-bit image files (screenshots, and renders of 8/16-bit colour).
@@ -49,6 +49,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     options = build_render_options(render_flags)
     frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"-o": output, **maps}, folders={"--save-maps": save_maps})
+    warn_float_colour(frame.color, options)
     out_dtype = "float32" if frame.color.dtype.kind == "f" else frame.color.dtype.name
     if out_dtype not in IMAGE_FORMATS[suffix]:  # the render keeps the colour's dtype: refuse before the work
         fits = [ext for ext, dtypes in IMAGE_FORMATS.items() if out_dtype in dtypes]

@@ -10,7 +10,7 @@ import click
 
 from ..errors import InputError
 from ._common import build_render_options, check_output_file, check_output_folder, focus_on_centre, focus_source, \
-    handle_errors, load_source_frame, render_options, source_arguments
+    handle_errors, load_source_frame, render_options, source_arguments, warn_float_colour
 from ._report import report_decision
 from .render import IMAGE_SUFFIXES
 
@@ -103,6 +103,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
     frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"--screenshot": screenshot, "--html": html_path},
                                      folders={"--output-dir": output_dir})
+    warn_float_colour(frame.color, options)
     options = focus_on_centre(options, render_flags, frame.rig)
     if serve:
         serve_frame(frame, options.lens, fill_method=options.fill_method, focus_at=options.focus_at,

@@ -217,8 +217,11 @@ def render(frame: RGBDFrame, lens, **options) -> np.ndarray:
 
 
 def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "physical",
-                      max_range_m: float = 10.0, linear: bool = False, quality: str = "balanced"):
-    """Render from an already registered, hole-free depth (previews, sliders). Returns (image, trace)."""
+                      max_range_m: float = 10.0, linear: bool = False, quality: str = "balanced",
+                      highlights="off"):
+    """Render from an already registered, hole-free depth (previews, sliders). Returns (image, trace).
+
+    The options are those of :class:`~pcdof.options.RenderOptions`."""
     check_method(method)
     color = check_color(color)
     depth = np.asarray(_depth_array(depth_filled_m, "depth_filled_m"), np.float32)
@@ -226,5 +229,5 @@ def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "
         raise InputError(f"depth_filled_m must be (H, W) = {color.shape[:2]}; got {depth.shape}")
     trace: list[StageTrace] = []
     image, _ = render_stages(color, depth, lens, fx, trace, method=method, max_range_m=max_range_m, linear=linear,
-                             quality=quality)
+                             quality=quality, highlights=highlights)
     return image, trace

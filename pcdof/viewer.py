@@ -302,7 +302,8 @@ def downscale_for_preview(color, depth_m, fx: float, *, max_side: int = PREVIEW_
     return small_color, small_depth, float(fx) * scale
 
 
-def render_preview(color, depth_m, lens: ThinLens, fx: float, *, method: str = "physical") -> np.ndarray:
+def render_preview(color, depth_m, lens: ThinLens, fx: float, *, method: str = "physical",
+                   options=None) -> np.ndarray:
     """The depth-of-field photograph for the live preview (the pipeline's cached-depth renderer).
 
     Parameters
@@ -311,6 +312,9 @@ def render_preview(color, depth_m, lens: ThinLens, fx: float, *, method: str = "
     depth_m : (h, w) float32 ndarray, metres, registered and hole-free
     lens : ThinLens
     fx : float, focal length of *color* in pixels
+    method : a key of :data:`pcdof.renderer.METHODS` (used when *options* is None)
+    options : optional RenderOptions: its method, quality, linear and highlights (its lens and focus
+        are ignored: *lens* is the viewer's current one)
 
     Returns
     -------
@@ -318,8 +322,16 @@ def render_preview(color, depth_m, lens: ThinLens, fx: float, *, method: str = "
     """
     from .pipeline import render_from_depth
 
-    image, _trace = render_from_depth(color, depth_m, lens, fx, method=method)
-    return _to_uint8_rgb(np.asarray(image))
+    settings = {"method": method} if options is None else {
+        "method": options.method, "quality": options.quality, "linear": options.linear,
+        "highlights": options.highlights}
+    image, _trace = render_from_depth(color, depth_m, lens, fx, **settings)
+    image = np.asarray(image)
+    if settings.get("linear") and image.dtype.kind == "f":  # linear light out: encode for the screen
+        from .color import encode_from_linear
+
+        return _to_uint8_rgb(encode_from_linear(image, np.uint8))
+    return _to_uint8_rgb(image)
 
 # --------------------------------------------------------------------------------------------------
 # Scene extent, framing and the numbers shown next to the scene

@@ -251,15 +251,16 @@ class FocusViewer(FocusScene):
     """
 
     def __init__(self, plotter, color, depth_filled_m, intrinsics, lens, *, coc_limit_px, stride, color_by,
-                 preview_max_side, preview_method, widgets):
+                 preview_max_side, preview_method, widgets, preview_options=None):
         plotter.subplot(0, 0)
         super().__init__(plotter, color, depth_filled_m, intrinsics, lens, coc_limit_px=coc_limit_px,
                          stride=stride, color_by=color_by)
         self.preview_method = preview_method
+        self.preview_options = preview_options
         self._preview_inputs = downscale_for_preview(color, np.asarray(depth_filled_m, np.float32), intrinsics.fx,
                                                      max_side=preview_max_side)
         self.preview_image = render_preview(*self._preview_inputs[:2], lens, self._preview_inputs[2],
-                                            method=preview_method)
+                                            method=preview_method, options=preview_options)
         self._preview_lens = lens
         self.focus_slider = self.f_number_slider = self.coc_checkbox = None
         self.frame_camera()
@@ -312,7 +313,7 @@ class FocusViewer(FocusScene):
             return
         small_color, small_depth, small_fx = self._preview_inputs
         self.preview_image = render_preview(small_color, small_depth, self.lens, small_fx,
-                                            method=self.preview_method)
+                                            method=self.preview_method, options=self.preview_options)
         self._preview_lens = self.lens
         self.preview_mesh.cell_data["rgb"] = self._preview_cells()
         self.plotter.render()
@@ -533,7 +534,7 @@ def check_scene_inputs(color, depth_filled_m, intrinsics, lens, *, coc_limit_px,
 def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *, coc_limit_px: float = 1.0,
                 stride: int = 2, color_by: str = "rgb", off_screen: bool = False,
                 window_size: tuple[int, int] = (1500, 750), preview_max_side: int = PREVIEW_MAX_SIDE,
-                preview_method: str = "physical", widgets: bool = True) -> FocusViewer:
+                preview_method: str = "physical", widgets: bool = True, preview_options=None) -> FocusViewer:
     """Build the focal-plane inspection window.
 
     Parameters
@@ -552,6 +553,8 @@ def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *
         all (:func:`pcdof.viewer.check_window_size`)
     preview_max_side : int, largest side of the downscaled preview, pixels
     preview_method : a key of :data:`pcdof.renderer.METHODS` for the preview
+    preview_options : optional RenderOptions whose method, quality, linear and highlights the preview
+        uses (instead of *preview_method*)
     widgets : bool, add the sliders, the checkbox, the key binding and point picking
 
     Returns
@@ -577,7 +580,8 @@ def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *
                          border=False)
     plotter.set_background("white")
     return FocusViewer(plotter, color, depth, intr, lens, coc_limit_px=coc_limit, stride=stride, color_by=color_by,
-                       preview_max_side=int(preview_max_side), preview_method=preview_method, widgets=widgets)
+                       preview_max_side=int(preview_max_side), preview_method=preview_method, widgets=widgets,
+                       preview_options=preview_options)
 
 
 def scene_from_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral", focus_at=None,

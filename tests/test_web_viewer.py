@@ -357,3 +357,24 @@ def test_missing_web_extra_is_one_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "trame_vuetify", None)  # an import of it now fails
     with pytest.raises(PcdofError, match=r"web extra \(trame_vuetify is missing\).*pcdof\[web\]"):
         WebViewer(session())
+
+
+def test_session_renders_with_the_commands_options():
+    """view's --quality/--linear/--highlights reach the browser viewer's renders (one RenderOptions)."""
+    from pcdof.options import RenderOptions
+    from pcdof.viewer import render_preview
+
+    color, depth = two_plane_frame()
+    color = color.copy()
+    color[10:14, 10:14] = 255  # a clipped highlight on the far plane
+    lens = ThinLens(50, 1.4, 1.0)
+    plain = ViewSession(color, depth, depth, INTR, lens)
+    bright = ViewSession(color, depth, depth, INTR, lens, options=RenderOptions(lens=lens, highlights=8))
+    a, b = plain.render(draft=False), bright.render(draft=False)
+    assert b.astype(int).sum() > a.astype(int).sum()  # the highlight's extra light spread into its disc
+    exact = render_preview(color, depth, lens, INTR.fx, options=RenderOptions(lens=lens, quality="exact"))
+    np.testing.assert_array_equal(exact, render_preview(color, depth, lens, INTR.fx,
+                                                        options=RenderOptions(lens=lens, quality="exact")))
+    linear = (color.astype(np.float32) / 255) ** 2.2
+    shown = render_preview(linear, depth, lens, INTR.fx, options=RenderOptions(lens=lens, linear=True))
+    assert shown.dtype == np.uint8 and abs(float(shown.mean()) - float(a.mean())) < 12  # encoded for the screen

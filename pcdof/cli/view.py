@@ -106,13 +106,12 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
     warn_float_colour(frame.color, options)
     options = focus_on_centre(options, render_flags, frame.rig)
     if serve:
-        serve_frame(frame, options.lens, fill_method=options.fill_method, focus_at=options.focus_at,
-                    coc_limit_px=coc_limit_px, stride=stride, color_by=color_by, source_name=os.path.basename(color),
-                    host=host, port=port, output_dir=output_dir)
+        serve_frame(frame, options, coc_limit_px=coc_limit_px, stride=stride, color_by=color_by,
+                    source_name=os.path.basename(color), host=host, port=port, output_dir=output_dir)
         return
     viewer = scene_from_frame(frame, options.lens, fill_method=options.fill_method, focus_at=options.focus_at,
                               coc_limit_px=coc_limit_px, stride=stride, color_by=color_by, off_screen=off_screen,
-                              window_size=window_size, preview_method=options.method)
+                              window_size=window_size, preview_method=options.method, preview_options=options)
     try:
         # the screenshot first: rendering after the HTML export starts the exporter's network tasks
         if screenshot:
@@ -136,15 +135,16 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
         viewer.close()
 
 
-def serve_frame(frame, lens, *, fill_method, focus_at, coc_limit_px, stride, color_by, source_name, host, port,
-                output_dir) -> None:
-    """Register and fill *frame* once, then serve the browser viewer until interrupted."""
+def serve_frame(frame, options, *, coc_limit_px, stride, color_by, source_name, host, port, output_dir) -> None:
+    """Register and fill *frame* once (as *options* say), then serve the browser viewer until interrupted."""
     from ..viewer import prepare_frame
     from ..web.app import WebViewer
     from ..web.session import ViewSession
 
-    registered, filled, lens = prepare_frame(frame, lens, fill_method=fill_method, focus_at=focus_at)
-    session = ViewSession(frame.color, registered, filled, frame.rig.color, lens, coc_limit_px=coc_limit_px)
+    registered, filled, lens = prepare_frame(frame, options.lens, fill_method=options.fill_method,
+                                             focus_at=options.focus_at)
+    session = ViewSession(frame.color, registered, filled, frame.rig.color, lens, coc_limit_px=coc_limit_px,
+                          method=options.method, options=options)
     app = WebViewer(session, stride=stride, color_by=color_by, source_name=source_name, output_dir=output_dir)
     shown = f"[{host}]" if ":" in host else host
     app.ctrl.on_server_ready.add(

@@ -35,6 +35,8 @@ class ViewSession:
     coc_limit_px : float, acceptable circle of confusion, pixels
     method : a key of :data:`pcdof.renderer.METHODS`
     draft_max_side : int, largest side of the draft preview, pixels
+    options : optional RenderOptions whose method, quality, linear and highlights the renders use
+        (instead of *method*; its lens is replaced by the session's current one)
 
     Attributes
     ----------
@@ -43,7 +45,8 @@ class ViewSession:
     """
 
     def __init__(self, color, registered_m, filled_m, intrinsics: Intrinsics, lens: ThinLens, *,
-                 coc_limit_px: float = 1.0, method: str = "physical", draft_max_side: int = DRAFT_MAX_SIDE):
+                 coc_limit_px: float = 1.0, method: str = "physical", draft_max_side: int = DRAFT_MAX_SIDE,
+                 options=None):
         if not isinstance(intrinsics, Intrinsics):
             raise InputError(f"intrinsics must be an Intrinsics; got {type(intrinsics).__name__}")
         if not isinstance(lens, ThinLens):
@@ -62,6 +65,7 @@ class ViewSession:
         self.lens = lens
         self.coc_limit_px = positive_number("coc_limit_px", coc_limit_px)
         self.method = method
+        self.options = options
         self._draft_inputs = downscale_for_preview(self.color, self.filled_m, intrinsics.fx, max_side=draft_max_side)
         self._full = None  # (lens, image) of the last full-resolution render
         self.counts = {"draft": 0, "full": 0}
@@ -90,10 +94,11 @@ class ViewSession:
         if draft:
             small_color, small_depth, small_fx = self._draft_inputs
             self.counts["draft"] += 1
-            return render_preview(small_color, small_depth, self.lens, small_fx, method=self.method)
+            return render_preview(small_color, small_depth, self.lens, small_fx, method=self.method,
+                                  options=self.options)
         if self._full is None or self._full[0] != self.lens:
             self._full = (self.lens, render_preview(self.color, self.filled_m, self.lens, self.intrinsics.fx,
-                                                    method=self.method))
+                                                    method=self.method, options=self.options))
             self.counts["full"] += 1
         return self._full[1]
 

@@ -54,6 +54,17 @@ def cold_stages() -> list[str]:
             if any(not any(_in_cache(d) for d in _cached_dispatchers(m)) for m in modules)]
 
 
+def check_stages(stages) -> list[str]:
+    """*stages* as a list if every one is a key of :data:`STAGES`; else an InputError naming the unknown ones."""
+    stages = list(stages)
+    bad = [s for s in stages if s not in STAGES]
+    if bad:
+        from .errors import InputError
+
+        raise InputError(f"stages must be among {list(STAGES)}; got {bad}")
+    return stages
+
+
 def _warm_stage(stage: str) -> float:
     """Run *stage*'s warm-up here; returns its seconds."""
     global _checked
@@ -90,16 +101,13 @@ def warmup(stages=tuple(STAGES), *, progress=None, processes: bool = False) -> d
     """Compile (or load from numba's cache) the kernels of *stages*; returns seconds per stage.
 
     *progress*, if given, is called with one line of text as each stage starts and ends.
-    *processes*: compile the stages side by side in worker processes first (one per core, for a
-    cold cache: numba compiles serially within a process), then load them here.
+    *processes*: compile the stages that are not in numba's cache (:func:`cold_stages`) side by side
+    in fresh interpreters first (numba compiles one function at a time per process), then load them here.
     """
-    bad = [s for s in stages if s not in STAGES]
-    if bad:
-        from .errors import InputError
-
-        raise InputError(f"stages must be among {list(STAGES)}; got {bad}")
+    stages = check_stages(stages)
     say = progress or (lambda line: None)
-    apart = _compile_apart(stages, say) if processes and len(stages) > 1 and (os.cpu_count() or 1) > 1 else {}
+    cold = [s for s in cold_stages() if s in stages] if processes and (os.cpu_count() or 1) > 1 else []
+    apart = _compile_apart(cold, say) if len(cold) > 1 else {}
     seconds = {}
     for i, stage in enumerate(stages, 1):
         if stage not in apart:

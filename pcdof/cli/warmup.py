@@ -18,9 +18,9 @@ def command(stages):
     The first run after an install or upgrade compiles them (about half a minute); later runs
     only load them from the cache and report how long that took.
     """
-    from ..kernels import cold_stages, warmup
+    from ..kernels import check_stages, cold_stages, warmup
 
-    names = [s.strip() for s in stages.split(",") if s.strip()]
+    names = check_stages(s.strip() for s in stages.split(",") if s.strip())
     cold = set(cold_stages())
     click.echo("compiling kernels, once after install" if cold & set(names) else "kernels already compiled; loading",
                err=True)

@@ -94,12 +94,17 @@ def main(argv=None) -> int:
     quads = int(np.count_nonzero(codes[1:, 1:]))
     covered = int(np.count_nonzero(out))
     print(f"\n{w}x{h} depth -> {cw}x{ch} colour: {quads} quads drawn, {covered} colour pixels covered\n")
+    _print_table(times, quads, covered)
+    return 0
+
+
+def _print_table(times: dict, quads: int, covered: int) -> None:
+    """Median ms per step, and per drawn quad and covered colour pixel, as a Markdown table."""
     print("| step | median ms | ns per quad | ns per covered pixel |")
     print("|---|---|---|---|")
-    for name, _, _ in methods:
-        ms = statistics.median(times[name])
+    for name, samples in times.items():
+        ms = statistics.median(samples)
         print(f"| {name} | {ms:.2f} | {ms * 1e6 / quads:.1f} | {ms * 1e6 / covered:.2f} |")
-    return 0
 
 
 if __name__ == "__main__":

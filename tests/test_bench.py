@@ -119,6 +119,8 @@ def test_bad_options_fail_before_any_work(tmp_path, monkeypatch, args, flag):
     (["--only", "dof,bogus"], "--only", "wide"),
     (["--only", "foo"], "--only", "registration"),
     (["--seeds", "0"], "--seeds", None),
+    (["--only", "wide", "--wide-blurs", "16,-1"], "--wide-blurs", None),
+    (["--only", "wide", "--wide-blurs", "a"], "--wide-blurs", None),
 ])
 def test_invalid_choices_are_usage_errors_listing_the_choices(tmp_path, args, flag, valid):
     out = tmp_path / "b"
@@ -187,6 +189,63 @@ def test_wide_rows_cover_every_focus_and_the_budget(quick_report):
         assert all(seed >= 100 for seed in [r["seed"]])  # reported seeds never overlap the tuning seeds
     pixels = sum(n for k, (_, n) in rows[0]["sse"].items() if k.endswith("|all"))
     assert pixels == 64 * 48  # every pixel falls in exactly one blur bucket
+    assert {r["blur_px"] for r in rows} == {12.0}  # --quick: 120 px at 640 px wide, scaled to 64 px
+    tiers = {(c["tier"], c["bucket"]) for c in report["wide_tiers"]}
+    assert {("pcdof-balanced", "all"), ("pcdof-fast", "all")} <= tiers
+
+
+def test_wide_blurs_scale_with_the_width():
+    from pcdof.bench.wide import BLURS_PX, REFERENCE_WIDTH_PX, scaled_blurs
+    from pcdof.errors import InputError
+
+    assert scaled_blurs(BLURS_PX, REFERENCE_WIDTH_PX) == (16.0, 64.0)
+    assert scaled_blurs((16, 64), 256) == (6.4, 25.6)  # 2.5 % and 10 % of the width
+    assert scaled_blurs((16, 64), 1280) == (32.0, 128.0)
+    assert scaled_blurs((16, 64), 256, reference_width_px=None) == (16.0, 64.0)  # absolute pixels
+    with pytest.raises(InputError, match="reference_width_px"):
+        scaled_blurs((16,), 256, reference_width_px=0)
+
+
+def _fake_rows(method_psnr: dict, cases=(("room", 100, "far", 8.0), ("thin", 100, "near", 8.0))):
+    """Rows of made-up errors: per case, every method's squared-error sums in two buckets."""
+    from pcdof.bench.wide import BUCKETS
+
+    rows = []
+    for i, case in enumerate(cases):
+        for m, db in method_psnr.items():
+            mse = 10 ** (-(db + i) / 10)
+            rows.append({"scene": case[0], "seed": case[1], "focus": case[2], "blur_px": case[3], "blur_share": 0.1,
+                         "method": m, "psnr": db + i, "psnr_edge": db + i - 1,
+                         "sse": {**{f"{b}|{p}": (0.0, 0) for _, _, b in BUCKETS
+                                    for p in ("all", "edge")},
+                                 "<2|all": (mse * 1000, 1000), "8-16|all": (mse * 500, 500)}})
+    return rows
+
+
+def test_tier_curve_and_compare_measure_the_change_from_exact():
+    from pcdof.bench import wide
+
+    rows = _fake_rows({"pcdof-exact": 30.0, "pcdof-balanced": 29.95, "pcdof-fast": 29.0})
+    curve = {(c["tier"], c["bucket"]): c for c in wide.tier_curve(rows, tiers=("pcdof-balanced", "pcdof-fast"))}
+    for bucket in ("<2", "8-16", "all"):
+        assert curve[("pcdof-balanced", bucket)]["mean_db"] == pytest.approx(-0.05, abs=1e-9)
+        assert curve[("pcdof-fast", bucket)]["worst_db"] == pytest.approx(-1.0, abs=1e-9)
+    assert ("pcdof-fast", "16-32") not in curve  # no pixels there: no point on the curve
+    c = wide.compare(rows, "pcdof-exact", "pcdof-fast", tolerance_db=0.5)
+    assert c["cases"] == 2 and len(c["losses"]) == 2 and c["mean_db"] == pytest.approx(-1.0)
+    assert wide.compare(rows, "pcdof-exact", "pcdof-balanced", tolerance_db=0.1)["losses"] == []
+    table = wide.tier_table(rows)
+    assert "pcdof-fast: 2 of 2 cases lose more than 0.5 dB" in table
+    assert "pcdof-balanced: 0 of 2 cases lose more than 0.1 dB" in table
+
+
+def test_losses_table_lists_exactly_the_cases_lost():
+    from pcdof.bench import wide
+
+    rows = _fake_rows({"pcdof-balanced": 30.0, "paper": 29.0, "baseline": 30.5})
+    table = wide.losses_table(rows)
+    assert table.count("baseline | -0.50 (-0.50) |") == 2 and "2 of 2 cases lose" in table
+    assert "0 of 2 cases lose" in wide.losses_table(_fake_rows({"pcdof-balanced": 30.0, "paper": 29.0}))
 
 
 def test_lens_for_blur_gives_the_requested_largest_blur():

@@ -1,17 +1,21 @@
-"""The wide benchmark: procedural scenes, blur up to 64 px, three focus positions, clipped 8-bit input.
+"""The wide benchmark: procedural scenes, large blur, three focus positions, clipped 8-bit input.
 
 Every frame of :data:`pcdof.synth.wide.WIDE_SCENES` (one per scene type and seed) is shot at each
 focus position of :data:`~pcdof.synth.wide.FOCUS_POSITIONS` and each largest blur of *blurs*
-(the aperture is chosen to give that blur, :func:`~pcdof.synth.wide.lens_for_blur`). The methods
-get what a Kinect-like rig gives: 8-bit sRGB colour whose emitters and glints clip (radiance drawn
-log-uniform over 2-200 x diffuse white) and noisy sensor depth with holes from a separate camera.
-The ground truth is ray traced from the unclipped linear radiance (:mod:`pcdof.synth.emitters`).
+(the aperture is chosen to give that blur, :func:`~pcdof.synth.wide.lens_for_blur`). The blurs are
+given at a frame :data:`REFERENCE_WIDTH_PX` wide (16 and 64 px: 2.5 % and 10 % of the width) and
+scale with the run's width, so a small run shoots the same pictures as a large one (absolute
+pixels on request). The methods get what a Kinect-like rig gives: 8-bit sRGB colour whose emitters
+and glints clip (radiance drawn log-uniform over 2-200 x diffuse white) and noisy sensor depth with
+holes from a separate camera. The ground truth is ray traced from the unclipped linear radiance
+(:mod:`pcdof.synth.emitters`).
 
 Scores: PSNR of the sRGB-encoded result (clipped at 1, as shown), overall and in the depth-edge
 band, per case; pooled per blur-size bucket (each pixel by its own true CoC) and per focus
 position. The error budget renders the same frames with pcdof ``exact`` from (a) the measured
 input, (b) the true depth, (c) the true depth and unclipped linear colour, and with highlight
-reconstruction on (a) and (b), so each stage's cost in dB shows.
+reconstruction on (a) and (b), so each stage's cost in dB shows. The quality tiers' error-vs-blur
+curve (:func:`tier_curve`) compares ``high``, ``balanced`` and ``fast`` with ``exact`` per bucket.
 
 Seeds: highlight settings are chosen on :data:`TUNING_SEEDS` only; reports use :data:`REPORT_SEEDS`.
 """
@@ -22,6 +26,7 @@ import hashlib
 import io
 import json
 import os
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -29,18 +34,63 @@ from ..color import decode_to_linear, linear_to_srgb, to_float
 from ..errors import InputError
 from ..metrics import depth_edge_band
 
-#: largest blur of each lens setting, pixels
+#: frame width (px) at which :data:`BLURS_PX` are given; a run at another width scales them with it
+REFERENCE_WIDTH_PX = 640
+#: largest blur of each lens setting, px at a frame :data:`REFERENCE_WIDTH_PX` wide (2.5 % and 10 % of the width)
 BLURS_PX = (16, 64)
-#: blur-size buckets (each pixel by its true CoC diameter, px): lower edges
-BUCKETS = ((0, 4, "<4"), (4, 12, "4-12"), (12, 32, "12-32"), (32, np.inf, "32+"))
+#: blur-size buckets (each pixel by its true CoC diameter, px at the run's size): (lower, upper, label)
+BUCKETS = ((0, 2, "<2"), (2, 4, "2-4"), (4, 8, "4-8"), (8, 16, "8-16"), (16, 32, "16-32"), (32, np.inf, "32+"))
 #: seeds that choose highlight settings, and seeds that are reported (never the same)
 TUNING_SEEDS = (0, 1, 2, 3, 4)
 REPORT_SEEDS = tuple(range(100, 110))
+#: the highlight setting of the "+hl" rows (a ``RenderOptions.highlights`` value)
+HIGHLIGHTS = "auto"
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One way pcdof renders a wide case.
+
+    true_depth : the exact depth registered to the colour camera instead of the sensor's
+    colour : "8bit" (the clipped sRGB input) or "linear" (the unclipped linear radiance)
+    highlights : a ``RenderOptions.highlights`` value, or a dict of
+        :func:`pcdof.highlights.reconstruct_highlights` options (any method and gain, for tuning)
+    quality : a key of :data:`pcdof.plans.QUALITIES`
+    """
+
+    true_depth: bool = False
+    colour: str = "8bit"
+    highlights: object = "off"
+    quality: str = "balanced"
+
+
+#: pcdof rows of the main table (measured input); "paper" and "baseline" come from :mod:`pcdof.bench.dof`
+PCDOF_METHODS = {f"pcdof-{q}": Variant(quality=q) for q in ("exact", "high", "balanced", "fast")}
+PCDOF_METHODS["pcdof-balanced+hl"] = Variant(highlights=HIGHLIGHTS)
 #: methods of the main table
-WIDE_METHODS = ("pcdof-exact", "pcdof-balanced", "pcdof-fast", "pcdof-balanced+hl", "paper", "baseline")
-#: error-budget variants (pcdof exact): name -> (true depth, colour: "8bit" | "8bit+hl" | "linear")
-BUDGET = {"measured": (False, "8bit"), "measured+hl": (False, "8bit+hl"), "true depth": (True, "8bit"),
-          "true depth+hl": (True, "8bit+hl"), "true depth+linear": (True, "linear")}
+WIDE_METHODS = (*PCDOF_METHODS, "paper", "baseline")
+#: error-budget variants (pcdof exact); "+hl": with highlight reconstruction (run_wide's *highlights*)
+BUDGET = {"measured": Variant(quality="exact"), "measured+hl": Variant(highlights=HIGHLIGHTS, quality="exact"),
+          "true depth": Variant(True, quality="exact"),
+          "true depth+hl": Variant(True, highlights=HIGHLIGHTS, quality="exact"),
+          "true depth+linear": Variant(True, "linear", quality="exact")}
+
+
+def scaled_blurs(blurs, width_px: int, *, reference_width_px=REFERENCE_WIDTH_PX) -> tuple[float, ...]:
+    """Largest blurs *blurs* (px at *reference_width_px*) in pixels of a frame *width_px* wide.
+
+    *reference_width_px* None: *blurs* are absolute pixels, returned as they are.
+
+    >>> scaled_blurs((16, 64), 256)
+    (6.4, 25.6)
+    """
+    blurs = tuple(float(b) for b in blurs)
+    if reference_width_px is None:
+        return blurs
+    if isinstance(reference_width_px, bool) or not isinstance(reference_width_px, (int, float)) \
+            or not reference_width_px > 0 or not np.isfinite(reference_width_px):
+        raise InputError(f"reference_width_px must be a number > 0 or None; got {reference_width_px!r}")
+    return tuple(round(b * int(width_px) / reference_width_px, 3) for b in blurs)
 
 
 def _encode(image) -> np.ndarray:
@@ -75,31 +125,40 @@ def _true_frame(sf, color):
     return RGBDFrame(color, sf.depth_color_m, Rig.registered(sf.rig.color, max_range_m=sf.rig.max_range_m))
 
 
-def render_method(name: str, sf, lens, *, highlights: dict) -> np.ndarray:
-    """One method of :data:`WIDE_METHODS` on the measured 8-bit frame (image, uint8 or linear float)."""
-    from ..pipeline import run
+def render_method(name: str, sf, lens, *, highlights=HIGHLIGHTS) -> np.ndarray:
+    """One method of :data:`WIDE_METHODS` on the measured 8-bit frame (image, uint8 or linear float).
+
+    *highlights* replaces the setting of the "+hl" method.
+    """
     from .dof import METHODS
 
-    if name == "pcdof-balanced+hl":
-        return render_variant("measured+hl", sf, lens, highlights=highlights, quality="balanced")
+    if name in PCDOF_METHODS:
+        v = PCDOF_METHODS[name]
+        return render_variant(replace(v, highlights=highlights) if v.highlights != "off" else v, sf, lens)
     return METHODS[name].run(sf, lens)[0]
 
 
-def render_variant(variant: str, sf, lens, *, highlights: dict, quality: str = "exact") -> np.ndarray:
-    """One error-budget variant of :data:`BUDGET` rendered by pcdof at *quality*."""
+def render_variant(variant, sf, lens) -> np.ndarray:
+    """pcdof's render of one :class:`Variant` (or the name of a :data:`BUDGET` variant) of a case.
+
+    Highlights given as a pipeline value run through the pipeline's highlights stage (the render
+    comes back in the input's dtype); a dict of reconstruction options is applied here and the
+    linear result rendered (a linear float image).
+    """
     from ..camera import RGBDFrame
     from ..highlights import reconstruct_highlights
     from ..pipeline import run
 
-    true_depth, colour = BUDGET[variant]
-    if colour == "linear":
-        color, linear = sf.color_linear, True
-    elif colour == "8bit+hl":
-        color, linear = reconstruct_highlights(decode_to_linear(sf.color), **highlights), True
+    v = BUDGET[variant] if isinstance(variant, str) else variant
+    hl = v.highlights
+    if v.colour == "linear":
+        color, linear, hl = sf.color_linear, True, "off"
+    elif isinstance(hl, dict):
+        color, linear, hl = reconstruct_highlights(decode_to_linear(sf.color), **hl), True, "off"
     else:
         color, linear = sf.color, False
-    frame = _true_frame(sf, color) if true_depth else RGBDFrame(color, sf.depth_m, sf.rig)
-    return run(frame, lens, quality=quality, linear=linear).image
+    frame = _true_frame(sf, color) if v.true_depth else RGBDFrame(color, sf.depth_m, sf.rig)
+    return run(frame, lens, quality=v.quality, linear=linear, highlights=hl).image
 
 
 def _bucket_sums(err, coc, band) -> dict:
@@ -142,36 +201,57 @@ def _check(kinds, seeds, blurs):
     return kinds, seeds, blurs
 
 
-def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, size=(256, 192), depth_size=(256, 212),
-             methods=WIDE_METHODS, budget=tuple(BUDGET), highlights=None, cache_dir=None,
-             progress: bool = True) -> list[dict]:
+def _renderers(methods, budget, highlights, variants) -> dict:
+    """Row name -> function(sf, lens) -> image, for the methods, budget variants and extra variants."""
+    for name, pool in (("methods", WIDE_METHODS), ("budget", BUDGET)):
+        chosen = methods if name == "methods" else budget
+        bad = [m for m in chosen if m not in pool]
+        if bad:
+            raise InputError(f"{name} must be names of {', '.join(pool)}; got {bad!r}")
+    out = {m: (lambda sf, lens, m=m: render_method(m, sf, lens, highlights=highlights)) for m in methods}
+    for b in budget:
+        v = BUDGET[b]
+        v = replace(v, highlights=highlights) if v.highlights != "off" else v
+        out[f"budget:{b}"] = lambda sf, lens, v=v: render_variant(v, sf, lens)
+    for name, v in (variants or {}).items():
+        out[name] = lambda sf, lens, v=v: render_variant(v, sf, lens)
+    return out
+
+
+def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, reference_width_px=REFERENCE_WIDTH_PX,
+             size=(256, 192), depth_size=(256, 212), methods=WIDE_METHODS, budget=tuple(BUDGET),
+             highlights=HIGHLIGHTS, variants=None, cache_dir=None, progress: bool = True) -> list[dict]:
     """Score *methods* and the error-budget variants on every wide case. One row per case and method.
 
     Parameters
     ----------
     kinds : names of :data:`pcdof.synth.wide.WIDE_SCENES` (None = all)
     seeds : scene seeds (report on :data:`REPORT_SEEDS`, tune on :data:`TUNING_SEEDS`)
-    blurs : largest blur of each lens setting, px
+    blurs : largest blur of each lens setting, px at a frame *reference_width_px* wide (scaled to
+        *size*'s width, :func:`scaled_blurs`); *reference_width_px* None: absolute pixels
     size, depth_size : (W, H) of the colour and depth cameras
     methods : names of :data:`WIDE_METHODS`; budget : names of :data:`BUDGET` (method "budget:<name>")
-    highlights : keyword options of :func:`pcdof.highlights.reconstruct_highlights` (None = its defaults)
+    highlights : the ``RenderOptions.highlights`` value of the "+hl" rows
+    variants : {row name: :class:`Variant`} rendered as well (the highlight tuning's candidates)
     cache_dir : folder for the ray-traced ground truths (None = no cache)
 
     Returns
     -------
-    list of dict: scene, seed, focus, blur_px, f_number, focus_distance_m, method, psnr, psnr_edge,
-    and "sse" {bucket|part: (sum of squared error, pixels)}
+    list of dict: scene, seed, focus, blur_px (at *size*), blur_share (of the width), f_number,
+    focus_distance_m, method, psnr, psnr_edge, and "sse" {bucket|part: (sum of squared error, pixels)}
     """
     from tqdm.auto import tqdm
 
+    from ..highlights import parse_highlights
     from ..synth.wide import generate_wide, lens_for_blur
 
-    kinds, seeds, blurs = _check(kinds, seeds, blurs)
-    highlights = dict(highlights or {})
-    names = list(methods) + [f"budget:{b}" for b in budget]
+    parse_highlights(highlights)
+    px = scaled_blurs(_check(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
+    kinds, seeds, blurs = _check(kinds, seeds, px)
+    renderers = _renderers(methods, budget, highlights, variants)
     rows, frames = [], {}
     cases = wide_cases(kinds, seeds, blurs)
-    bar = tqdm(total=len(cases) * (len(names) + 1), desc="wide bench", unit="run", disable=not progress)
+    bar = tqdm(total=len(cases) * (len(renderers) + 1), desc="wide bench", unit="run", disable=not progress)
     for kind, seed, focus, blur in cases:
         if (kind, seed) not in frames:
             frames = {(kind, seed): generate_wide(kind, seed=seed, color_size=size, depth_size=depth_size)}
@@ -184,18 +264,15 @@ def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, size=(256, 192),
         gt = linear_to_srgb(np.clip(gt_lin, 0, 1))
         coc = lens.coc_px(sf.depth_color_m, sf.rig.color.fx)
         band = depth_edge_band(sf.depth_color_m, max(3, int(round(blur / 2))))
-        for name in names:
+        for name, render in renderers.items():
             bar.set_postfix_str(f"{kind}/{seed}/{focus}/{blur:g}px: {name}")
-            if name.startswith("budget:"):
-                image = render_variant(name[7:], sf, lens, highlights=highlights)
-            else:
-                image = render_method(name, sf, lens, highlights=highlights)
-            err = np.mean((_encode(image) - gt) ** 2, axis=2)
-            sse = _bucket_sums(err, coc, band)
-            rows.append({"scene": kind, "seed": seed, "focus": focus, "blur_px": blur, "f_number": lens.f_number,
+            err = np.mean((_encode(render(sf, lens)) - gt) ** 2, axis=2)
+            rows.append({"scene": kind, "seed": seed, "focus": focus, "blur_px": blur,
+                         "blur_share": blur / size[0], "f_number": lens.f_number,
                          "focus_distance_m": lens.focus_distance_m, "method": name,
                          "psnr": _psnr(float(err.sum()), err.size),
-                         "psnr_edge": _psnr(float(err[band].sum()), int(band.sum())), "sse": sse})
+                         "psnr_edge": _psnr(float(err[band].sum()), int(band.sum())),
+                         "sse": _bucket_sums(err, coc, band)})
             bar.update()
     bar.close()
     return rows
@@ -206,14 +283,34 @@ def _pooled(rows, method, key) -> float:
     return _psnr(sum(s for s, _ in sse), sum(n for _, n in sse))
 
 
+def _methods(rows) -> list[str]:
+    return list(dict.fromkeys(r["method"] for r in rows))
+
+
+def _case(r) -> tuple:
+    return r["scene"], r["seed"], r["focus"], r["blur_px"]
+
+
+def _by_case(rows) -> dict:
+    """{case: {method: row}}."""
+    out: dict = {}
+    for r in rows:
+        out.setdefault(_case(r), {})[r["method"]] = r
+    return out
+
+
+def _blur_label(blur_px, share) -> str:
+    return f"{100 * share:.3g} % ({blur_px:g} px)"
+
+
 def bucket_table(rows: list[dict]) -> str:
     """PSNR overall / edge band per blur bucket (pixels pooled by their true CoC), one line per method."""
-    methods = [m for m in dict.fromkeys(r["method"] for r in rows)]
-    head = "| method | " + " | ".join(f"CoC {label} px" for _, _, label in BUCKETS) + " |"
-    lines = [head, "|---|" + "---|" * len(BUCKETS)]
-    for m in methods:
+    used = [b for b in BUCKETS if any(r["sse"][f"{b[2]}|all"][1] for r in rows)]
+    lines = ["| method | " + " | ".join(f"CoC {label} px" for _, _, label in used) + " |",
+             "|---|" + "---|" * len(used)]
+    for m in _methods(rows):
         cells = []
-        for _, _, label in BUCKETS:
+        for _, _, label in used:
             a, e = _pooled(rows, m, f"{label}|all"), _pooled(rows, m, f"{label}|edge")
             cells.append("-" if np.isnan(a) else f"{a:.2f} / {e:.2f}" if not np.isnan(e) else f"{a:.2f} / -")
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
@@ -224,22 +321,22 @@ def focus_table(rows: list[dict]) -> str:
     """Mean PSNR overall / edge band per focus position and largest blur, one line per method."""
     from ..synth.wide import FOCUS_POSITIONS
 
-    groups = list(dict.fromkeys((r["focus"], r["blur_px"]) for r in rows))
+    groups = list(dict.fromkeys((r["focus"], r["blur_px"], r["blur_share"]) for r in rows))
     groups.sort(key=lambda g: (FOCUS_POSITIONS.index(g[0]), g[1]))
-    head = "| method | " + " | ".join(f"{f}, {b:g} px" for f, b in groups) + " | all |"
+    head = "| method | " + " | ".join(f"{f}, {_blur_label(b, s)}" for f, b, s in groups) + " | all |"
     lines = [head, "|---|" + "---|" * (len(groups) + 1)]
-    for m in dict.fromkeys(r["method"] for r in rows):
+    for m in _methods(rows):
         mine = [r for r in rows if r["method"] == m]
         cells = []
         for g in groups + [None]:
-            sel = [r for r in mine if g is None or (r["focus"], r["blur_px"]) == g]
+            sel = [r for r in mine if g is None or (r["focus"], r["blur_px"]) == g[:2]]
             cells.append(f"{np.mean([r['psnr'] for r in sel]):.2f} / {np.mean([r['psnr_edge'] for r in sel]):.2f}")
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 def budget_summary(rows: list[dict]) -> list[dict]:
-    """Mean PSNR of each error-budget variant, and the step from the one before it (dB)."""
+    """Mean PSNR of each error-budget variant over its cases."""
     out = []
     for b in BUDGET:
         sel = [r for r in rows if r["method"] == f"budget:{b}"]
@@ -249,20 +346,22 @@ def budget_summary(rows: list[dict]) -> list[dict]:
     return out
 
 
-def budget_table(rows: list[dict]) -> str:
-    """The error budget: what each input error costs pcdof exact, in dB."""
+def budget_table(rows: list[dict], highlights=HIGHLIGHTS) -> str:
+    """The error budget: what each input error costs pcdof exact, in dB ("+hl": highlights *highlights*)."""
     s = {b["variant"]: b for b in budget_summary(rows)}
     lines = ["| pcdof exact given | mean PSNR dB | edge band dB |", "|---|---|---|"]
-    lines += [f"| {v} | {b['psnr']:.2f} | {b['psnr_edge']:.2f} |" for v, b in s.items()]
+    lines += [f"| {v.replace('+hl', f' + highlights {highlights}').replace('+linear', ' + unclipped linear colour')}"
+              f" | {b['psnr']:.2f} | {b['psnr_edge']:.2f} |" for v, b in s.items()]
 
     def step(a, b):
         return f"{s[b]['psnr'] - s[a]['psnr']:+.2f}" if a in s and b in s else "-"
 
-    lines += ["", "| stage | cost dB |", "|---|---|",
-              f"| depth errors (measured -> true depth) | {step('measured', 'true depth')} |",
-              f"| clipping (true depth -> unclipped linear colour) | {step('true depth', 'true depth+linear')} |",
-              f"| clipping left after highlight reconstruction | {step('true depth+hl', 'true depth+linear')} |",
-              f"| highlight reconstruction on measured input | {step('measured', 'measured+hl')} |"]
+    lines += ["", "| stage | cost dB (negative: what it costs; positive: what it gains) |", "|---|---|",
+              f"| depth errors (true depth -> measured) | {step('true depth', 'measured')} |",
+              f"| clipping (unclipped linear colour -> 8-bit, true depth) | {step('true depth+linear', 'true depth')} |",
+              f"| clipping left after highlights {highlights} (true depth) | "
+              f"{step('true depth+linear', 'true depth+hl')} |",
+              f"| highlights {highlights} on measured input | {step('measured', 'measured+hl')} |"]
     if "true depth+linear" in s:
         lines.append(f"| renderer's own error (true depth + linear colour) | PSNR {s['true depth+linear']['psnr']:.2f} |")
     return "\n".join(lines)
@@ -272,9 +371,8 @@ def losses_table(rows: list[dict], ours: str = "pcdof-balanced", others=("paper"
     """Every case where *ours* scores below one of *others* (overall or edge band), with the margin."""
     lines = [f"| scene | seed | focus | blur px | {ours} dB (edge) | best other dB (edge) | margin dB (edge) |",
              "|---|---|---|---|---|---|---|"]
-    cases = dict.fromkeys((r["scene"], r["seed"], r["focus"], r["blur_px"]) for r in rows)
-    for case in cases:
-        by = {r["method"]: r for r in rows if (r["scene"], r["seed"], r["focus"], r["blur_px"]) == case}
+    cases = _by_case(rows)
+    for case, by in cases.items():
         if ours not in by or not any(o in by for o in others):
             continue
         best = max((by[o] for o in others if o in by), key=lambda r: r["psnr"])
@@ -287,30 +385,133 @@ def losses_table(rows: list[dict], ours: str = "pcdof-balanced", others=("paper"
     return "\n".join(lines) + f"\n\n{len(lines) - 2} of {len(cases)} cases lose to {' or '.join(others)}."
 
 
+def compare(rows: list[dict], a: str, b: str, *, tolerance_db: float = 0.0) -> dict:
+    """Per-case PSNR of method *b* minus method *a*: mean, worst, and cases *b* loses by more than *tolerance_db*."""
+    d = [(case, by[b]["psnr"] - by[a]["psnr"], by[b]["psnr_edge"] - by[a]["psnr_edge"])
+         for case, by in _by_case(rows).items() if a in by and b in by]
+    if not d:
+        return {"cases": 0}
+    return {"cases": len(d), "mean_db": float(np.mean([x[1] for x in d])),
+            "mean_edge_db": float(np.mean([x[2] for x in d])),
+            "worst_db": float(min(x[1] for x in d)), "worst_edge_db": float(min(x[2] for x in d)),
+            "wins": sum(x[1] > tolerance_db for x in d),
+            "losses": [(c, round(x, 3), round(e, 3)) for c, x, e in d if x < -tolerance_db or e < -tolerance_db]}
+
+
+def compare_table(rows: list[dict], a: str, b: str, *, tolerance_db: float = 0.0) -> str:
+    """:func:`compare` as Markdown: the summary line and every case *b* loses."""
+    c = compare(rows, a, b, tolerance_db=tolerance_db)
+    if not c["cases"]:
+        return f"no case has both {a} and {b}"
+    head = (f"{b} - {a} over {c['cases']} cases: mean {c['mean_db']:+.2f} dB (edge {c['mean_edge_db']:+.2f}), "
+            f"worst {c['worst_db']:+.2f} (edge {c['worst_edge_db']:+.2f}); {c['wins']} cases gain more than "
+            f"{tolerance_db:g} dB, {len(c['losses'])} lose more than {tolerance_db:g} dB (overall or edge band)")
+    lines = [head, "", "| scene | seed | focus | blur px | change dB | edge band dB |", "|---|---|---|---|---|---|"]
+    lines += [f"| {s} | {sd} | {f} | {bl:g} | {x:+.2f} | {e:+.2f} |" for (s, sd, f, bl), x, e in c["losses"]]
+    return "\n".join(lines if c["losses"] else lines[:1])
+
+
+#: quality tiers against exact, and the loss each may have (issue's done-when: balanced 0.1, fast 0.5 dB)
+TIER_TOLERANCE_DB = {"pcdof-high": 0.1, "pcdof-balanced": 0.1, "pcdof-fast": 0.5}
+#: fewest pixels of a case in a bucket for its per-case PSNR there to count towards the worst case
+MIN_BUCKET_PIXELS = 200
+
+
+def tier_curve(rows: list[dict], ref: str = "pcdof-exact", tiers=tuple(TIER_TOLERANCE_DB)) -> list[dict]:
+    """Error-vs-blur curve of the quality tiers: per tier and blur bucket, the PSNR change from *ref*
+    (pixels pooled over all cases: "mean_db"; the worst single case with at least
+    :data:`MIN_BUCKET_PIXELS` pixels there: "worst_db"), and over whole frames ("all")."""
+    cases = _by_case(rows)
+    out = []
+    for t in tiers:
+        pairs = [(by[ref], by[t]) for by in cases.values() if ref in by and t in by]
+        if not pairs:
+            continue
+        for _, _, label in BUCKETS + ((None, None, "all"),):
+            if label == "all":
+                diffs = [b["psnr"] - a["psnr"] for a, b in pairs]
+                mean = float(np.mean(diffs))
+            else:
+                key = f"{label}|all"
+                n = [a["sse"][key][1] for a, _ in pairs]
+                if not sum(n):
+                    continue
+                mean = _pooled([b for _, b in pairs], t, key) - _pooled([a for a, _ in pairs], ref, key)
+                diffs = [_psnr(*b["sse"][key]) - _psnr(*a["sse"][key]) for (a, b), k in zip(pairs, n)
+                         if k >= MIN_BUCKET_PIXELS]
+            out.append({"tier": t, "bucket": label, "mean_db": mean,
+                        "worst_db": float(min(diffs)) if diffs else float("nan"), "cases": len(diffs)})
+    return out
+
+
+def tier_table(rows: list[dict], ref: str = "pcdof-exact") -> str:
+    """:func:`tier_curve` as Markdown (mean / worst case change from *ref*, dB), and each tier's verdict."""
+    curve = tier_curve(rows, ref)
+    labels = [lab for lab in dict.fromkeys(c["bucket"] for c in curve)]
+    lines = [f"| tier - {ref}, dB (pooled / worst case) | " + " | ".join(
+        "whole frame" if lab == "all" else f"CoC {lab} px" for lab in labels) + " |", "|---|" + "---|" * len(labels)]
+    verdicts = []
+    for t in dict.fromkeys(c["tier"] for c in curve):
+        mine = {c["bucket"]: c for c in curve if c["tier"] == t}
+        lines.append(f"| {t} | " + " | ".join(f"{mine[lab]['mean_db']:+.2f} / {mine[lab]['worst_db']:+.2f}"
+                                               if lab in mine else "-" for lab in labels) + " |")
+        tol = TIER_TOLERANCE_DB.get(t)
+        if tol is not None and "all" in mine:
+            c = compare(rows, ref, t, tolerance_db=tol)
+            verdicts.append(f"{t}: {len(c['losses'])} of {c['cases']} cases lose more than {tol:g} dB to {ref} "
+                            f"(worst {c['worst_db']:+.2f} dB, edge band {c['worst_edge_db']:+.2f} dB)")
+    return "\n".join(lines) + "\n\n" + "\n".join(f"* {v}" for v in verdicts)
+
+
 #: highlight settings compared on the tuning seeds
 HIGHLIGHT_CANDIDATES = ({"method": "off"}, *({"method": "gain", "gain": g} for g in (2.0, 4.0, 8.0, 16.0, 32.0)),
-                        {"method": "rim"}, {"method": "auto"})
+                        {"method": "rim"}, *({"method": "auto", "gain": g} for g in (4.0, 8.0, 16.0)))
 
 
-def tune_highlights(*, kinds=None, seeds=TUNING_SEEDS, blurs=BLURS_PX, size=(256, 192), depth_size=(256, 212),
-                    candidates=HIGHLIGHT_CANDIDATES, cache_dir=None, progress: bool = True) -> list[dict]:
-    """Mean PSNR of pcdof exact (true depth, so only the colour differs) for each highlight setting
-    on the tuning seeds. Returns one dict per candidate: settings, psnr, psnr_edge."""
+def _label(cand: dict) -> str:
+    return cand["method"] + (f" {cand['gain']:g}" if "gain" in cand else "")
+
+
+def tune_highlights(*, kinds=None, seeds=TUNING_SEEDS, blurs=BLURS_PX, reference_width_px=REFERENCE_WIDTH_PX,
+                    size=(256, 192), depth_size=(256, 212), candidates=HIGHLIGHT_CANDIDATES, cache_dir=None,
+                    progress: bool = True) -> list[dict]:
+    """Each highlight setting on the tuning seeds: pcdof exact given the true depth (only the colour
+    differs) and pcdof balanced on the measured input (what a user gets), against ``off``.
+
+    Returns
+    -------
+    list of dict per candidate: highlights, psnr / psnr_edge (true depth, exact), psnr_measured /
+    psnr_measured_edge (measured, balanced), and per-case change from off on measured input:
+    gain_db (mean), worst_db, losses (cases losing more than 0.1 dB), cases
+    """
+    variants = {}
+    for cand in candidates:
+        variants[f"tune:{_label(cand)}|true"] = Variant(True, highlights=dict(cand), quality="exact")
+        variants[f"tune:{_label(cand)}|measured"] = Variant(highlights=dict(cand), quality="balanced")
+    rows = run_wide(kinds=kinds, seeds=seeds, blurs=blurs, reference_width_px=reference_width_px, size=size,
+                    depth_size=depth_size, methods=(), budget=(), variants=variants, cache_dir=cache_dir,
+                    progress=progress)
     out = []
     for cand in candidates:
-        rows = run_wide(kinds=kinds, seeds=seeds, blurs=blurs, size=size, depth_size=depth_size, methods=(),
-                        budget=("true depth+hl",), highlights=cand, cache_dir=cache_dir, progress=progress)
-        out.append({"highlights": dict(cand), "psnr": float(np.mean([r["psnr"] for r in rows])),
-                    "psnr_edge": float(np.mean([r["psnr_edge"] for r in rows]))})
+        t, m = (f"tune:{_label(cand)}|{k}" for k in ("true", "measured"))
+        mean = {k: float(np.mean([r[k] for r in rows if r["method"] == name]))
+                for name, k in ((t, "psnr"), (t, "psnr_edge"))}
+        c = compare(rows, f"tune:{_label({'method': 'off'})}|measured", m, tolerance_db=0.1)
+        out.append({"highlights": dict(cand), **mean,
+                    "psnr_measured": float(np.mean([r["psnr"] for r in rows if r["method"] == m])),
+                    "psnr_measured_edge": float(np.mean([r["psnr_edge"] for r in rows if r["method"] == m])),
+                    "gain_db": c.get("mean_db", float("nan")), "worst_db": c.get("worst_db", float("nan")),
+                    "losses": len(c.get("losses", [])), "cases": c["cases"]})
     return out
 
 
 def tuning_table(tuned: list[dict]) -> str:
-    lines = ["| highlights | mean PSNR dB | edge band dB |", "|---|---|---|"]
+    lines = ["| highlights | exact, true depth: PSNR / edge dB | balanced, measured: PSNR / edge dB | "
+             "change from off per case (measured): mean / worst dB | cases losing > 0.1 dB |", "|---|---|---|---|---|"]
     for t in tuned:
-        h = t["highlights"]
-        label = h["method"] + (f" {h['gain']:g}" if "gain" in h else "")
-        lines.append(f"| {label} | {t['psnr']:.2f} | {t['psnr_edge']:.2f} |")
+        lines.append(f"| {_label(t['highlights'])} | {t['psnr']:.2f} / {t['psnr_edge']:.2f} | "
+                     f"{t['psnr_measured']:.2f} / {t['psnr_measured_edge']:.2f} | {t['gain_db']:+.2f} / "
+                     f"{t['worst_db']:+.2f} | {t['losses']} of {t['cases']} |")
     return "\n".join(lines)
 
 
@@ -336,6 +537,37 @@ def budget_plot(rows: list[dict], path: str) -> None:
     ax.set_xlim(max(0, lo - 3), max(max(b["psnr"], b["psnr_edge"]) for b in s) + 3 if s else 1)
     ax.set_xlabel("mean PSNR vs ray-traced ground truth, dB")
     ax.set_title("error budget on the wide benchmark")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    fig.tight_layout()
+    try:
+        save_figure(fig, path)
+    finally:
+        plt.close(fig)
+
+
+def tier_plot(rows: list[dict], path: str, ref: str = "pcdof-exact") -> None:
+    """The quality tiers' error-vs-blur curve (:func:`tier_curve`: pooled and worst case), as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from . import save_figure
+
+    curve = [c for c in tier_curve(rows, ref) if c["bucket"] != "all"]
+    labels = list(dict.fromkeys(c["bucket"] for c in curve))
+    fig, ax = plt.subplots(figsize=(7, 3.6), dpi=110)
+    for t, colour in zip(dict.fromkeys(c["tier"] for c in curve), ("#228833", "#4477aa", "#ee6677", "#aa3377")):
+        mine = {c["bucket"]: c for c in curve if c["tier"] == t}
+        x = [i for i, lab in enumerate(labels) if lab in mine]
+        ax.plot(x, [mine[labels[i]]["mean_db"] for i in x], "-o", color=colour, label=f"{t}, pooled")
+        ax.plot(x, [mine[labels[i]]["worst_db"] for i in x], "--x", color=colour, label=f"{t}, worst case")
+    for tol in sorted(set(TIER_TOLERANCE_DB.values())):
+        ax.axhline(-tol, color="grey", lw=0.8, ls=":")
+    ax.set_xticks(range(len(labels)), [f"{lab} px" for lab in labels])
+    ax.set_xlabel("true CoC diameter of the pixels")
+    ax.set_ylabel(f"PSNR change from {ref}, dB")
+    ax.set_title("quality tiers against exact, per blur size (wide benchmark)")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     fig.tight_layout()
     try:

@@ -79,7 +79,7 @@ def _output_files(parts) -> list[str]:
     if "dof" in parts:
         files += ["dof.csv", "pareto.png"]
     if "wide" in parts:
-        files += ["wide.csv", "budget.png"]
+        files += ["wide.csv", "budget.png", "wide_tiers.png"]
     if "speed" in parts:
         files += ["cost.png"]
     return files
@@ -101,14 +101,19 @@ def _output_files(parts) -> list[str]:
               help="Seeds per scene type of the wide part (reported seeds 100, 101, ...; tuning seeds 0, 1, ...).")
 @click.option("--wide-size", default="256x192", show_default=True,
               help="Colour size of the wide part (its depth camera: --depth-size).")
+@click.option("--wide-blurs", default="16,64", show_default=True, callback=lambda ctx, param, v: _blurs(v),
+              help="Largest blurs of the wide part's lens settings, px at a 640 px wide frame (scaled to "
+                   "--wide-size's width), comma-separated.")
+@click.option("--absolute-blurs", is_flag=True, help="--wide-blurs are pixels at --wide-size, not scaled.")
 @handle_errors
-def command(output, quick, only, size, depth_size, repeats, samples, scenes, seeds, wide_size):
+def command(output, quick, only, size, depth_size, repeats, samples, scenes, seeds, wide_size, wide_blurs,
+            absolute_blurs):
     """Run the benchmarks and write JSON, CSV, Markdown tables and plots into OUTPUT.
 
     Every option is checked before any work (--scenes applies to the dof part; --quick overrides
     --size, --depth-size and --repeats, which are checked all the same).
     """
-    from ..bench import check_repeats, check_scenes
+    from ..bench import check_repeats, check_scenes, wide
     from ..synth.rig import parse_size
 
     parts = only
@@ -123,11 +128,13 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes, see
         check_output_file(os.path.join(output, name), "output")
     if "dof" in parts or "wide" in parts or "wide-tune" in parts:
         check_output_folder(os.path.join(output, "cache"), "output")
-    wide_kw = {"kinds": None, "blurs": None, "size": wide_size, "depth_size": depth_size}
+    wide_kw = {"kinds": None, "blurs": wide_blurs, "size": wide_size, "depth_size": depth_size,
+               "reference_width_px": None if absolute_blurs else wide.REFERENCE_WIDTH_PX}
     if quick:
         size, depth_size, repeats = (96, 72), (80, 66), 1
         scene_list = scene_list or ["portrait", "slanted_plane"]
-        wide_kw = {"kinds": ["room"], "blurs": (12.0,), "size": (64, 48), "depth_size": (64, 53)}
+        wide_kw = {"kinds": ["room"], "blurs": (120.0,), "size": (64, 48), "depth_size": (64, 53),
+                   "reference_width_px": wide.REFERENCE_WIDTH_PX}
         seeds = 1
     make_output_folder(output, "output")
     report = {"versions": versions(), "quick": quick}
@@ -203,25 +210,48 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes, see
     click.echo(f"wrote {output}/report.md and report.json", err=True)
 
 
+def _blurs(text: str) -> tuple[float, ...]:
+    """--wide-blurs as numbers > 0, or a usage error."""
+    try:
+        blurs = tuple(float(b) for b in _split(text))
+    except ValueError:
+        blurs = ()
+    if not blurs or any(not (b > 0 and b < float("inf")) for b in blurs):
+        raise click.BadParameter(f"expected comma-separated numbers > 0; got {text!r}", param_hint="--wide-blurs")
+    return blurs
+
+
 def _wide_part(report, md, output, seeds, kw) -> None:
     from ..bench import wide
 
     seed_list = wide.REPORT_SEEDS[:seeds] if seeds <= len(wide.REPORT_SEEDS) else tuple(range(100, 100 + seeds))
-    rows = wide.run_wide(kinds=kw["kinds"], seeds=seed_list, blurs=kw["blurs"] or wide.BLURS_PX, size=kw["size"],
-                         depth_size=kw["depth_size"], cache_dir=os.path.join(output, "cache"))
+    rows = wide.run_wide(seeds=seed_list, cache_dir=os.path.join(output, "cache"), **kw)
     report["wide"] = rows
     report["wide_budget"] = wide.budget_summary(rows)
+    report["wide_tiers"] = wide.tier_curve(rows)
+    report["wide_highlights"] = {k: v for k, v in wide.compare(rows, "pcdof-balanced", "pcdof-balanced+hl",
+                                                               tolerance_db=0.1).items()}
     _write_csv(os.path.join(output, "wide.csv"), [{k: v for k, v in r.items() if k != "sse"} for r in rows])
     wide.budget_plot(rows, os.path.join(output, "budget.png"))
-    seeds_note = (f"Reported seeds {', '.join(map(str, seed_list))} (highlight settings were chosen on the "
+    wide.tier_plot(rows, os.path.join(output, "wide_tiers.png"))
+    blurs = ", ".join(f"{b:g}" for b in kw["blurs"])
+    size = f"{kw['size'][0]}x{kw['size'][1]}"
+    scale = (f"largest blurs {blurs} px at a {kw['reference_width_px']:g} px wide frame, scaled to {size}"
+             if kw["reference_width_px"] else f"largest blurs {blurs} px at {size}")
+    seeds_note = (f"Reported seeds {', '.join(map(str, seed_list))}, {scale} (highlight settings were chosen on the "
                   f"separate tuning seeds {', '.join(map(str, wide.TUNING_SEEDS))}; `--only wide-tune` reruns that).")
     tables = ["### PSNR per blur bucket (overall / depth-edge band, dB; pixels pooled by their true CoC)\n",
               wide.bucket_table(rows), "", "### PSNR per focus position and largest blur (overall / edge band, dB)\n",
               wide.focus_table(rows), "", "### Error budget (pcdof exact)\n", wide.budget_table(rows), "",
+              "### Quality tiers against exact (PSNR change, dB: pixels pooled / worst case)\n",
+              wide.tier_table(rows), "",
+              f"### Highlights {wide.HIGHLIGHTS} on pcdof-balanced (measured input)\n",
+              wide.compare_table(rows, "pcdof-balanced", "pcdof-balanced+hl", tolerance_db=0.1), "",
               "### Cases where pcdof-balanced loses to the paper method or the gather baseline\n",
-              wide.losses_table(rows), ""]
-    md += ["## Wide benchmark: blur to 64 px, focus near / mid / far, clipped 8-bit input\n", seeds_note, "",
-           *tables]
+              wide.losses_table(rows), "",
+              f"### Cases where pcdof-balanced+hl (highlights {wide.HIGHLIGHTS}) loses to the paper method or the "
+              "gather baseline\n", wide.losses_table(rows, "pcdof-balanced+hl"), ""]
+    md += ["## Wide benchmark: large blur, focus near / mid / far, clipped 8-bit input\n", seeds_note, "", *tables]
     click.echo(seeds_note)
     click.echo("\n".join(tables))
 
@@ -229,10 +259,10 @@ def _wide_part(report, md, output, seeds, kw) -> None:
 def _wide_tune_part(report, md, output, seeds, kw) -> None:
     from ..bench import wide
 
-    tuned = wide.tune_highlights(kinds=kw["kinds"], seeds=wide.TUNING_SEEDS[:seeds], blurs=kw["blurs"] or wide.BLURS_PX,
-                                 size=kw["size"], depth_size=kw["depth_size"], cache_dir=os.path.join(output, "cache"))
+    seed_list = wide.TUNING_SEEDS[:seeds]
+    tuned = wide.tune_highlights(seeds=seed_list, cache_dir=os.path.join(output, "cache"), **kw)
     report["wide_tune"] = tuned
     table = wide.tuning_table(tuned)
-    md += ["## Highlight settings on the tuning seeds (pcdof exact, true depth)\n",
-           f"Tuning seeds {', '.join(map(str, wide.TUNING_SEEDS[:seeds]))}, never reported elsewhere.\n", table, ""]
+    md += ["## Highlight settings on the tuning seeds\n",
+           f"Tuning seeds {', '.join(map(str, seed_list))}, never reported elsewhere.\n", table, ""]
     click.echo(table)

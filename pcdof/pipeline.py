@@ -86,16 +86,17 @@ class _Timer:
 
 def register_stage(frame: RGBDFrame, trace: list) -> np.ndarray:
     """Registered depth (colour grid); skipped for a rig whose cameras coincide."""
-    from .register import needs_registration, register_depth
+    from .register import needs_registration, plan_for, plan_info, register_depth
 
     with _Timer(trace, "register") as rec:
         needed, reason = needs_registration(frame.rig)
         if not needed:
             rec.skipped, rec.reason = True, reason
             return frame.depth_m.copy()
-        depth = register_depth(frame)
+        plan = plan_for(frame.rig)
+        depth = register_depth(frame, plan=plan)
         rec.reason = reason
-        rec.detail = {"coverage": float(np.count_nonzero(depth) / depth.size)}
+        rec.detail = {"coverage": float(np.count_nonzero(depth) / depth.size), "plan": plan_info(frame.rig, plan)}
         return depth
 
 
@@ -198,6 +199,9 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
     # every option is checked here, not when its stage runs: a stage with nothing to do must not hide a bad value
     opts = as_options(lens, **options)
+    from .kernels import ensure_warm
+
+    ensure_warm()  # the first run after an install compiles every stage's kernels, and says so
     trace: list[StageTrace] = []
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=opts.fill_method)

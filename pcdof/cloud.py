@@ -24,13 +24,9 @@ def _color_to_unit(color: np.ndarray) -> np.ndarray:
 
 def _color_to_uint8(cols: np.ndarray) -> np.ndarray:
     """PLY colours: floats in [0, 1] (clipped) or integers scaled by their dtype's maximum -> uint8 0..255."""
-    if cols.dtype == np.uint8:
-        return cols.copy()
-    if cols.dtype.kind in "iu":
-        unit = np.clip(cols.astype(np.float64) / np.iinfo(cols.dtype).max, 0.0, 1.0)  # negative ints -> 0
-    else:
-        unit = np.clip(cols.astype(np.float64), 0.0, 1.0)
-    return np.rint(unit * 255).astype(np.uint8)
+    from .color import to_uint8
+
+    return to_uint8(cols)
 
 
 def check_stride(stride) -> int:

@@ -126,3 +126,33 @@ def encode_from_linear(linear: np.ndarray, dtype: np.dtype) -> np.ndarray:
     if np.dtype(dtype).kind != "f":
         enc = np.minimum(enc, 1.0)
     return from_float(enc, dtype)
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """Image of any supported dtype -> 8-bit, the one rule for every 8-bit output (video, viewer, PLY colours).
+
+    uint8 is returned as is (not copied). Other unsigned integers scale by their dtype's maximum and
+    round to nearest: ``rint(v * 255 / max)`` (uint16: ``rint(v / 257)``; no value lies half-way, as
+    257 is odd). Signed integers do the same with negatives as 0. Floats are sRGB-encoded values in
+    [0, 1]: ``rint(v * 255)`` after clipping to [0, 1] (NaN -> 0). Rounding is to nearest, so
+    ``to_uint8(from_float(x, uint16))`` and ``to_uint8(x)`` differ by at most 1.
+
+    Parameters
+    ----------
+    image : ndarray of any shape, integer or floating dtype
+
+    Returns
+    -------
+    uint8 ndarray of the same shape
+    """
+    image = np.asarray(image)
+    if image.dtype == np.uint8:
+        return image
+    if image.dtype.kind in "iu":
+        top = float(np.iinfo(image.dtype).max)
+        unit = np.clip(image.astype(np.float64) / top, 0.0, 1.0)  # negative integers -> 0
+    elif image.dtype.kind == "f":
+        unit = np.clip(np.nan_to_num(image.astype(np.float64), nan=0.0), 0.0, 1.0)
+    else:
+        raise InputError(f"image dtype must be an integer or floating dtype; got {image.dtype}")
+    return np.rint(unit * 255.0).astype(np.uint8)

@@ -261,9 +261,9 @@ def strided_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -
 
 def _to_uint8_rgb(color: np.ndarray) -> np.ndarray:
     rgb = color if color.ndim == 3 else np.repeat(color[:, :, None], 3, axis=2)
-    if rgb.dtype == np.uint8:
-        return rgb
-    return np.clip(np.rint(to_float(rgb) * 255), 0, 255).astype(np.uint8)
+    from .color import to_uint8
+
+    return to_uint8(rgb)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -772,9 +772,9 @@ class TestRunBatch:
 
     def test_unreachable_scheduler_is_named_in_the_report(self, tmp_path, monkeypatch):
         pytest.importorskip("distributed")
-        from pcdof.batch import runner
+        from pcdof.batch import dask as batch_dask
 
-        monkeypatch.setattr(runner, "DASK_CONNECT_TIMEOUT_S", 1, raising=False)
+        monkeypatch.setattr(batch_dask, "DASK_CONNECT_TIMEOUT_S", 1)
         root = write_tum(tmp_path / "seq", 2)
         with pytest.raises(InputError, match="Dask scheduler"):
             render_sequence(root, str(tmp_path / "out"), lens=lens(), scheduler="tcp://127.0.0.1:1")

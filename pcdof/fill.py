@@ -545,6 +545,17 @@ def _combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
                 out[py, px] = np.float32(min(max(1.0 / inv, rules.zmin), rules.zmax))
 
 
+@njit(cache=True, inline="always")
+def _insert_sorted(win, m, value):
+    """Insert *value* into the ascending ``win[:m]`` (one step of insertion sort); returns m + 1."""
+    i = m
+    while i > 0 and win[i - 1] > value:
+        win[i] = win[i - 1]
+        i -= 1
+    win[i] = value
+    return m + 1
+
+
 @njit(cache=True, parallel=True)
 def _despeckle(out, hole_y, hole_x, edge_ratio):
     """Replace each hole whose depth differs from all of its 8 neighbours by more than *edge_ratio*
@@ -568,12 +579,7 @@ def _despeckle(out, hole_y, hole_x, edge_ratio):
                         continue
                     u = float(out[yy, xx])
                     alike = alike or max(u, v) <= (1.0 + edge_ratio) * min(u, v)
-                    i = m
-                    while i > 0 and win[i - 1] > u:
-                        win[i] = win[i - 1]
-                        i -= 1
-                    win[i] = u
-                    m += 1
+                    m = _insert_sorted(win, m, u)
             if m > 0 and not alike:
                 new[h] = win[(m - 1) // 2]
     for h in range(n):
@@ -617,13 +623,7 @@ def _median_far(out, hole_y, hole_x, r_near, min_r, step, edge_ratio, iterations
                     v = min(max(y + dy * step, 0), H - 1)
                     for dx in range(-2, 3):
                         u = min(max(x + dx * step, 0), W - 1)
-                        val = float(out[v, u])
-                        i = m
-                        while i > 0 and win[i - 1] > val:
-                            win[i] = win[i - 1]
-                            i -= 1
-                        win[i] = val
-                        m += 1
+                        m = _insert_sorted(win, m, float(out[v, u]))
                 new[t] = win[12]
         for t in range(n):
             out[hole_y[far[t]], hole_x[far[t]]] = new[t]

@@ -117,7 +117,7 @@ def coc_preview(coc_px, *, max_px: float | None = None) -> np.ndarray:
 
     Returns
     -------
-    (H, W + bar_width_px(H), 3) uint8 RGB ndarray
+    (H, W + bar_width_px(H), 3) uint8 RGB ndarray, the map with the scale bar on its right
 
     Raises
     ------

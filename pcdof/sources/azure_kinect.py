@@ -25,6 +25,7 @@ multiplies it by 1000 to work in millimetres; pcdof works in metres), so
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -193,11 +194,10 @@ class AzureKinectSource(RecordingSource):
             self._container = av.open(path)
         except (av.FFmpegError, OSError) as err:
             raise ImageReadError(f"cannot read recording {path}: {err}") from None
-        try:
+        with contextlib.ExitStack() as on_error:
+            on_error.callback(self._container.close)
             self._setup(path, rig, calib_path, max_difference_s)
-        except BaseException:
-            self._container.close()
-            raise
+            on_error.pop_all()  # set up: the container stays open until close()
 
     def _setup(self, path, override, calib_path, max_difference_s) -> None:
         av = _av()

@@ -2,8 +2,12 @@
 
 :mod:`~pcdof.batch.inputs` finds colour/depth pairs and reads the rig once;
 :mod:`~pcdof.batch.schedule` decides the lens of every frame (fixed, keyframed, or following a
-pixel's depth with flicker-free smoothing); :mod:`~pcdof.batch.runner` renders the frames
-serially, over local processes or on a Dask cluster, with atomic outputs, resume and a report.
+pixel's depth with flicker-free smoothing), :mod:`~pcdof.batch.focus` runs the focus pass;
+:mod:`~pcdof.batch.runner` renders the frames serially, over local processes
+(:mod:`~pcdof.batch.pool`) or on a Dask cluster (:mod:`~pcdof.batch.dask`), with atomic outputs
+(:mod:`~pcdof.batch.outputs`), resume (:mod:`~pcdof.batch.resume`), a report
+(:mod:`~pcdof.batch.report`), a video (:mod:`~pcdof.batch.video`) and Ctrl-C / SIGTERM handling
+(:mod:`~pcdof.batch.signals`).
 """
 
 from .inputs import FramePair, Sequence, associate, discover, load_rig, read_tum_list

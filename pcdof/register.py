@@ -140,6 +140,17 @@ def _claim(typingctx, counter):
     return types.int64(counter), codegen
 
 
+@njit(cache=True, inline="always")
+def _next_rows(counter, n_tasks, size, total):
+    """Claim the next of *n_tasks* tasks of *size* rows out of *total*: its rows [lo, hi), or (-1, -1) when
+    every task is taken (the one task loop of both passes)."""
+    k = _claim(counter)
+    if k >= n_tasks:
+        return -1, -1
+    lo = k * size
+    return lo, min(total, lo + size)
+
+
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _project_row(depth_row, rx, ry, rz, t, cam, d, tilt, has_dist, r2_max, foot_v, U, V, IZ):
     """Project one row of depth pixels into the colour image.
@@ -230,11 +241,9 @@ def _prepare(counter, n_tasks, depth, rays, t, cam, d, tilt, has_dist, r2_max, f
     sv = np.empty(w, np.float32)
     siz = np.empty(w, np.float32)
     while True:
-        k = _claim(counter)
-        if k >= n_tasks:
+        r0, r1 = _next_rows(counter, n_tasks, chunk, h)
+        if r0 < 0:
             break
-        r0 = k * chunk
-        r1 = min(h, r0 + chunk)
         for i in range(r0, r1):
             lo, hi = _project_row(depth[i], rays[0, i], rays[1, i], rays[2, i], t, cam, d, tilt, has_dist, r2_max,
                                   foot_v, U[i], V[i], IZ[i])
@@ -517,11 +526,9 @@ def _rasterise(counter, n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_
     band_h = -(-H // n_bands)
     block = np.empty(16, np.float32)  # scratch of _quad_block
     while True:
-        b = _claim(counter)
-        if b >= n_bands:
+        y0, y1 = _next_rows(counter, n_bands, band_h, H)
+        if y0 < 0:
             break
-        y0 = b * band_h
-        y1 = min(H, y0 + band_h)
         for y in range(y0, y1):
             for x in range(W):
                 out[y, x] = 0.0

@@ -38,7 +38,6 @@ import numpy as np
 
 from .camera import Intrinsics, check_color
 from .cloud import check_stride
-from .color import to_float
 from .errors import ImageWriteError, InputError, LensError
 from .lens import ThinLens, positive_number
 

@@ -105,9 +105,11 @@ def _output_files(parts) -> list[str]:
               help="Largest blurs of the wide part's lens settings, px at a 640 px wide frame (scaled to "
                    "--wide-size's width), comma-separated.")
 @click.option("--absolute-blurs", is_flag=True, help="--wide-blurs are pixels at --wide-size, not scaled.")
+@click.option("--wide-highlights", default="auto", show_default=True, callback=lambda ctx, param, v: _highlights(v),
+              help="--highlights setting of the wide part's '+hl' rows (off, auto, gain, rim or a gain).")
 @handle_errors
 def command(output, quick, only, size, depth_size, repeats, samples, scenes, seeds, wide_size, wide_blurs,
-            absolute_blurs):
+            absolute_blurs, wide_highlights):
     """Run the benchmarks and write JSON, CSV, Markdown tables and plots into OUTPUT.
 
     Every option is checked before any work (--scenes applies to the dof part; --quick overrides
@@ -160,7 +162,7 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes, see
         click.echo(dof.compact_table(rows))
         save()
     if "wide" in parts:
-        _wide_part(report, md, output, seeds, wide_kw)
+        _wide_part(report, md, output, seeds, wide_kw, wide_highlights)
         save()
     if "wide-tune" in parts:
         _wide_tune_part(report, md, output, seeds, wide_kw)
@@ -221,11 +223,22 @@ def _blurs(text: str) -> tuple[float, ...]:
     return blurs
 
 
-def _wide_part(report, md, output, seeds, kw) -> None:
+def _highlights(text: str):
+    """--wide-highlights as a RenderOptions.highlights value, or a usage error."""
+    from ..highlights import parse_highlights
+
+    try:
+        how, gain = parse_highlights(text)
+    except InputError as e:
+        raise click.BadParameter(str(e), param_hint="--wide-highlights") from None
+    return text if text == how else gain
+
+
+def _wide_part(report, md, output, seeds, kw, highlights) -> None:
     from ..bench import wide
 
     seed_list = wide.REPORT_SEEDS[:seeds] if seeds <= len(wide.REPORT_SEEDS) else tuple(range(100, 100 + seeds))
-    rows = wide.run_wide(seeds=seed_list, cache_dir=os.path.join(output, "cache"), **kw)
+    rows = wide.run_wide(seeds=seed_list, highlights=highlights, cache_dir=os.path.join(output, "cache"), **kw)
     report["wide"] = rows
     report["wide_budget"] = wide.budget_summary(rows)
     report["wide_tiers"] = wide.tier_curve(rows)
@@ -242,14 +255,14 @@ def _wide_part(report, md, output, seeds, kw) -> None:
                   f"separate tuning seeds {', '.join(map(str, wide.TUNING_SEEDS))}; `--only wide-tune` reruns that).")
     tables = ["### PSNR per blur bucket (overall / depth-edge band, dB; pixels pooled by their true CoC)\n",
               wide.bucket_table(rows), "", "### PSNR per focus position and largest blur (overall / edge band, dB)\n",
-              wide.focus_table(rows), "", "### Error budget (pcdof exact)\n", wide.budget_table(rows), "",
+              wide.focus_table(rows), "", "### Error budget (pcdof exact)\n", wide.budget_table(rows, highlights), "",
               "### Quality tiers against exact (PSNR change, dB: pixels pooled / worst case)\n",
               wide.tier_table(rows), "",
-              f"### Highlights {wide.HIGHLIGHTS} on pcdof-balanced (measured input)\n",
+              f"### Highlights {highlights} on pcdof-balanced (measured input)\n",
               wide.compare_table(rows, "pcdof-balanced", "pcdof-balanced+hl", tolerance_db=0.1), "",
               "### Cases where pcdof-balanced loses to the paper method or the gather baseline\n",
               wide.losses_table(rows), "",
-              f"### Cases where pcdof-balanced+hl (highlights {wide.HIGHLIGHTS}) loses to the paper method or the "
+              f"### Cases where pcdof-balanced+hl (highlights {highlights}) loses to the paper method or the "
               "gather baseline\n", wide.losses_table(rows, "pcdof-balanced+hl"), ""]
     md += ["## Wide benchmark: large blur, focus near / mid / far, clipped 8-bit input\n", seeds_note, "", *tables]
     click.echo(seeds_note)

@@ -41,8 +41,8 @@ On the reported seeds 100-102 (54 cases, ``pcdof bench --only wide --seeds 3 --w
 but 14 cases lose more than 0.1 dB (worst -1.94 dB); ``rim`` +1.27, 13 cases (worst -1.80); gain 2
 +1.02, 5 cases (only one overall, -0.52 dB; four in the edge band only, by at most 0.18 dB). The
 losses of the larger estimates are focus-far and focus-mid shots, mostly with the small blur, where
-an overestimated blob spreads light the ground truth does not have (not analysed further). Gain 2 is the one setting that gains on average on both seed sets with
-a worst tuning case within 0.11 dB; ``auto`` recovers about 1 dB more on average at the cost of
+an overestimated blob spreads light the ground truth does not have (not analysed further). Gain 2
+is the one setting that gains on average on both seed sets with a worst tuning case within 0.11 dB; ``auto`` recovers about 1 dB more on average at the cost of
 such losses.
 
 The estimate is a guess about light the input never recorded: it raises the mean error where the

@@ -121,6 +121,7 @@ def test_bad_options_fail_before_any_work(tmp_path, monkeypatch, args, flag):
     (["--seeds", "0"], "--seeds", None),
     (["--only", "wide", "--wide-blurs", "16,-1"], "--wide-blurs", None),
     (["--only", "wide", "--wide-blurs", "a"], "--wide-blurs", None),
+    (["--only", "wide", "--wide-highlights", "0.5"], "--wide-highlights", None),
 ])
 def test_invalid_choices_are_usage_errors_listing_the_choices(tmp_path, args, flag, valid):
     out = tmp_path / "b"

@@ -121,7 +121,7 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
     Returns (colour to render, linear flag): linear float32 light when something was reconstructed,
     else *color* and *linear* unchanged (skipped: off, the paper method, linear input, nothing clipped).
     """
-    from .highlights import CLIP_LEVEL, needs_reconstruction, parse_highlights, reconstruct_highlights
+    from .highlights import needs_reconstruction, parse_highlights, reconstruct_highlights
 
     with _Timer(trace, "highlights") as rec:
         how, gain = parse_highlights(highlights)
@@ -130,16 +130,19 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
         if reason:
             rec.skipped, rec.reason = True, reason
             return color, linear
-        from .color import decode_to_linear
+        from .color import decode_to_linear, srgb_to_linear
 
+        # clipped: a channel within half a code of the encoding's top (255 of uint8, 65535 of uint16)
+        top = float(np.iinfo(color.dtype).max)
+        clip_level = float(srgb_to_linear(np.float32((top - 0.5) / top)))
         lin = decode_to_linear(color)
-        clipped = int(np.count_nonzero((lin >= CLIP_LEVEL).any(axis=-1))) if lin.ndim == 3 else 0
+        clipped = int(np.count_nonzero((lin >= clip_level).any(axis=-1))) if lin.ndim == 3 else 0
         if clipped == 0:
             rec.skipped, rec.reason = True, "nothing clipped"
             return color, linear
         rec.reason = f"{how} (gain {gain:g}): {clipped} clipped pixels"
         rec.detail = {"method": how, "gain": gain, "clipped_pixels": clipped}
-        return reconstruct_highlights(lin, method=how, gain=gain), True
+        return reconstruct_highlights(lin, method=how, gain=gain, clip_level=clip_level), True
 
 
 def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False,

@@ -162,3 +162,15 @@ def test_public_names():
     assert set(pcdof.__all__) <= set(dir(pcdof))
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         pcdof.nope
+
+
+def test_highlights_clip_level_follows_the_encoding():
+    """uint16 colour is clipped only at its own top code: 65528 is a measured value, not a clipped one."""
+    f = clipped_frame()
+    c16 = f.color.astype(np.uint16) * 257
+    c16[20:24, 30:34] = 65528  # just below the top of 16 bits: not clipped
+    res = run(RGBDFrame(c16, f.depth_m, f.rig), ThinLens(200, 1.0, 1.0), highlights=4.0)
+    assert next(t for t in res.trace if t.name == "highlights").reason == "nothing clipped"
+    c16[20:24, 30:34] = 65535
+    res = run(RGBDFrame(c16, f.depth_m, f.rig), ThinLens(200, 1.0, 1.0), highlights=4.0)
+    assert next(t for t in res.trace if t.name == "highlights").detail["clipped_pixels"] == 16

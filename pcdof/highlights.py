@@ -140,25 +140,24 @@ def rim_level(block, mask, ring, *, clip_level: float = CLIP_LEVEL, min_edge: in
 def reconstruct_rim(linear_rgb, *, gain: float = DEFAULT_GAIN, clip_level: float = CLIP_LEVEL,
                     min_edge: int = MIN_EDGE) -> np.ndarray:
     """Each clipped blob raised to its :func:`rim_level` estimate (lower bound: *gain*). (H, W, 3) float32."""
-    img = _check(linear_rgb, clip_level, gain)
-    clipped = (img >= clip_level).any(axis=2)
-
-    def level(block, mask, ring):
-        est = rim_level(block, mask, ring, clip_level=clip_level, min_edge=min_edge)
-        return float(gain) if est is None else est
-
-    return _fill(img, clipped, level)
+    return _reconstruct_measured(linear_rgb, gain, clip_level, min_edge, floor_share=0.0)
 
 
 def reconstruct_auto(linear_rgb, *, gain: float = DEFAULT_GAIN, clip_level: float = CLIP_LEVEL,
                      min_edge: int = MIN_EDGE) -> np.ndarray:
     """``rim`` where a blob's edge is measurable and its estimate exceeds *gain*'s share, else *gain*."""
+    return _reconstruct_measured(linear_rgb, gain, clip_level, min_edge, floor_share=0.5)
+
+
+def _reconstruct_measured(linear_rgb, gain, clip_level, min_edge, *, floor_share: float) -> np.ndarray:
+    """Each clipped blob raised to max(its :func:`rim_level` estimate, *floor_share* x *gain*), or to *gain* where
+    it has none."""
     img = _check(linear_rgb, clip_level, gain)
     clipped = (img >= clip_level).any(axis=2)
 
     def level(block, mask, ring):
         est = rim_level(block, mask, ring, clip_level=clip_level, min_edge=min_edge)
-        return float(gain) if est is None else max(est, float(gain) * 0.5)
+        return float(gain) if est is None else max(est, floor_share * float(gain))
 
     return _fill(img, clipped, level)
 

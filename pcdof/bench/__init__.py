@@ -1,11 +1,14 @@
 """Benchmarks: depth of field against a ray-traced ground truth, speed, registration and hole filling.
 
-Shared here: the argument checks of the benchmark functions and an atomic figure writer.
+Shared here: the argument checks of the benchmark functions, the markdown table and the atomic
+figure writer that every benchmark's report uses.
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -34,6 +37,37 @@ def check_scenes(scenes, name: str = "scenes") -> list[str] | None:
     if bad:
         raise InputError(f"{name}: unknown scene(s) {', '.join(map(repr, bad))}; choose from {', '.join(SCENES)}")
     return names
+
+
+def table_lines(columns: Sequence[str], rows: Iterable[Sequence]) -> list[str]:
+    """A markdown table as lines: the header of *columns*, the separator, one line per row of cells.
+
+    >>> table_lines(["a", "b"], [(1, "x")])
+    ['| a | b |', '|---|---|', '| 1 | x |']
+    """
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(map(str, cells)) + " |" for cells in rows]
+    return lines
+
+
+@contextlib.contextmanager
+def plot_to(path: str, *, figsize: tuple[float, float], dpi: int = 110):
+    """A matplotlib (figure, axes) to draw on; on leaving, laid out and written as a PNG to *path*.
+
+    The figure is closed whatever happens; nothing is written when drawing raised.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=figsize, dpi=dpi)
+    try:
+        yield fig, ax
+        fig.tight_layout()
+        save_figure(fig, path)
+    finally:
+        plt.close(fig)
 
 
 def save_figure(fig, path: str) -> None:

@@ -26,7 +26,7 @@ import numpy as np
 from ..color import linear_to_srgb, to_float
 from ..lens import PaperLens, ThinLens
 from ..metrics import depth_edge_band, psnr, ssim_map
-from . import check_repeats, check_scenes, save_figure
+from . import check_repeats, check_scenes, plot_to
 
 #: f-number multipliers of the scene's own lens: the benchmark's lens settings
 SETTINGS = {"wide": 1.0, "stopped-down": 2.5}
@@ -244,32 +244,24 @@ def pareto_plot(rows: list[dict], path: str) -> None:
     Each method has its own colour and marker; the names are in a legend outside the axes, so no
     label covers a point or another label.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
     summary = summarize(rows)
-    fig, ax = plt.subplots(figsize=(8, 4.2), dpi=110)
     handles = []
-    for i, s in enumerate(summary):
-        colour, marker = method_style(s["method"], i)
-        ax.scatter(s["ms"], s["psnr"], s=60, color=colour, marker=marker, zorder=3)
-        if not np.isnan(s["psnr_edge"]):
-            ax.scatter(s["ms"], s["psnr_edge"], s=60, facecolors="none", edgecolors=colour, marker=marker, zorder=3)
-            ax.plot([s["ms"]] * 2, [s["psnr"], s["psnr_edge"]], color=colour, lw=0.8, alpha=0.6, zorder=2)
-        handles.append(Line2D([], [], color=colour, marker=marker, ls="", label=s["method"]))
-    handles += [Line2D([], [], color="k", marker="o", ls="", label="filled: whole frame"),
-                Line2D([], [], color="k", marker="o", ls="", markerfacecolor="none", label="hollow: depth-edge band")]
-    ax.set_xscale("log")
-    ax.set_xlabel("median time per frame, ms (log)")
-    ax.set_ylabel("mean PSNR vs ray-traced ground truth, dB")
-    ax.set_title("time against error (higher and further left is better)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
-    fig.tight_layout()
-    try:
-        save_figure(fig, path)
-    finally:
-        plt.close(fig)
+    with plot_to(path, figsize=(8, 4.2)) as (_, ax):
+        for i, s in enumerate(summary):
+            colour, marker = method_style(s["method"], i)
+            ax.scatter(s["ms"], s["psnr"], s=60, color=colour, marker=marker, zorder=3)
+            if not np.isnan(s["psnr_edge"]):
+                ax.scatter(s["ms"], s["psnr_edge"], s=60, facecolors="none", edgecolors=colour, marker=marker,
+                           zorder=3)
+                ax.plot([s["ms"]] * 2, [s["psnr"], s["psnr_edge"]], color=colour, lw=0.8, alpha=0.6, zorder=2)
+            handles.append(Line2D([], [], color=colour, marker=marker, ls="", label=s["method"]))
+        handles += [Line2D([], [], color="k", marker="o", ls="", label="filled: whole frame"),
+                    Line2D([], [], color="k", marker="o", ls="", markerfacecolor="none", label="hollow: depth-edge band")]
+        ax.set_xscale("log")
+        ax.set_xlabel("median time per frame, ms (log)")
+        ax.set_ylabel("mean PSNR vs ray-traced ground truth, dB")
+        ax.set_title("time against error (higher and further left is better)")
+        ax.grid(True, alpha=0.3)
+        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)

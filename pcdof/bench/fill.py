@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 from ..fill import FILL_METHODS, warmup
+from . import table_lines
 
 #: A filled pixel more than this far off (relative) took the wrong surface.
 WRONG_SURFACE_RATIO = 0.05
@@ -121,14 +122,10 @@ def run_fill_bench(*, scenes=None, size=(640, 480), depth_size=None, seed: int =
 
 def markdown_table(rows: list[dict]) -> str:
     """The rows of :func:`run_fill_bench` as a markdown table."""
-    head = ("| scene | size | holes % | method | MAE mm | disocclusion MAE | sensor-hole MAE | p95 mm | "
-            "wrong surface % | vs Telea | ms |")
-    lines = [head, "|" + "---|" * 11]
-    for r in rows:
-        vs = f"{r['mae_vs_telea']:.3f}" if "mae_vs_telea" in r else "-"
-        lines.append(
-            f"| {r['scene']} | {r['color_size']} | {r['holes_pct']:.1f} | {r['method']} | {r['mae_mm']:.1f} | "
-            f"{r['mae_disocclusion_mm']:.1f} | {r['mae_sensor_mm']:.1f} | {r['p95_mm']:.0f} | "
-            f"{r['wrong_surface_pct']:.2f} | {vs} | {r['time_ms']:.1f} |"
-        )
-    return "\n".join(lines)
+    columns = ("scene", "size", "holes %", "method", "MAE mm", "disocclusion MAE", "sensor-hole MAE", "p95 mm",
+               "wrong surface %", "vs Telea", "ms")
+    return "\n".join(table_lines(columns, (
+        (r["scene"], r["color_size"], f"{r['holes_pct']:.1f}", r["method"], f"{r['mae_mm']:.1f}",
+         f"{r['mae_disocclusion_mm']:.1f}", f"{r['mae_sensor_mm']:.1f}", f"{r['p95_mm']:.0f}",
+         f"{r['wrong_surface_pct']:.2f}", f"{r['mae_vs_telea']:.3f}" if "mae_vs_telea" in r else "-",
+         f"{r['time_ms']:.1f}") for r in rows)))

@@ -37,7 +37,6 @@ and, when :mod:`pcdof.synth` is available, its scenes on its own (distortion-fre
 from __future__ import annotations
 
 import math
-import platform
 import statistics
 import time
 from dataclasses import dataclass
@@ -46,6 +45,8 @@ import cv2
 import numpy as np
 
 from ..camera import Intrinsics, Rig
+from ..versions import library_versions as installed_versions
+from . import table_lines
 
 #: (depth_size, color_size) pairs run by default: Kinect v1 (640x480 both) and Kinect v2.
 DEFAULT_SIZES = (((640, 480), (640, 480)), ((512, 424), (1920, 1080)))
@@ -470,30 +471,22 @@ def run_registration_bench(*, sizes=DEFAULT_SIZES, repeats: int = 10, quick: boo
 
 
 def library_versions() -> dict:
-    """Versions of the libraries in the comparison, for the report."""
+    """Versions of the libraries in the comparison (:func:`pcdof.versions.library_versions`) and numba's threads."""
     import numba
 
-    try:
-        import open3d as o3d
-
-        o3d_version = o3d.__version__
-    except ImportError:  # pragma: no cover - open3d is a dependency
-        o3d_version = "missing"
-    return {"python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
-            "open3d": o3d_version, "numba": numba.__version__, "threads": numba.get_num_threads()}
+    v = installed_versions()
+    return {**{k: v[k] for k in ("python", "numpy", "opencv", "open3d", "numba")}, "threads": numba.get_num_threads()}
 
 
 def format_registration_table(rows: list[dict]) -> str:
     """Markdown table of :func:`run_registration_bench` rows, grouped by case, plus library versions."""
-    head = ("| scene | rig | depth → colour | depth | method | coverage % | MAE mm | p99 err mm | bleed % "
-            "| fatten % | ms | fastest ms | first ms | × vs fastest peer |")
-    lines = [head, "|" + "---|" * 14]
-    for r in rows:
-        speed = f"{r['speedup_vs_fastest_peer']:.1f}" if "speedup_vs_fastest_peer" in r else ""
-        lines.append(
-            f"| {r['scene']} | {r['rig']} | {r['depth_size']} → {r['color_size']} | {r['depth']} | {r['method']} "
-            f"| {r['coverage_pct']:.2f} | {r['mae_mm']:.2f} | {r['p99_err_mm']:.1f} | {r['bleed_pct']:.3f} "
-            f"| {r['fatten_pct']:.3f} | {r['time_ms']:.2f} | {r['min_ms']:.2f} | {r['first_ms']:.1f} | {speed} |")
+    columns = ("scene", "rig", "depth → colour", "depth", "method", "coverage %", "MAE mm", "p99 err mm", "bleed %",
+               "fatten %", "ms", "fastest ms", "first ms", "× vs fastest peer")
+    lines = table_lines(columns, (
+        (r["scene"], r["rig"], f"{r['depth_size']} → {r['color_size']}", r["depth"], r["method"],
+         f"{r['coverage_pct']:.2f}", f"{r['mae_mm']:.2f}", f"{r['p99_err_mm']:.1f}", f"{r['bleed_pct']:.3f}",
+         f"{r['fatten_pct']:.3f}", f"{r['time_ms']:.2f}", f"{r['min_ms']:.2f}", f"{r['first_ms']:.1f}",
+         f"{r['speedup_vs_fastest_peer']:.1f}" if "speedup_vs_fastest_peer" in r else "") for r in rows))
     warm = next((r["warmup_ms"] for r in rows if "warmup_ms" in r), None)
     v = library_versions()
     lines.append("")

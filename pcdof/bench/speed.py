@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from ..lens import PaperLens, ThinLens
-from . import check_repeats, check_scenes, save_figure
+from . import check_repeats, check_scenes, plot_to
 
 
 def _median_ms(fn, repeats):
@@ -123,19 +123,10 @@ def cost_follows_work(*, size=(640, 480), depth_size=(512, 424), scene="slanted_
 
 
 def cost_plot(rows: list[dict], path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5, 3.4), dpi=110)
-    ax.plot([100 * r["share"] for r in rows], [r["render_ms"] for r in rows], "o-")
-    ax.set_xlabel("pixels out of focus (CoC >= 1 px), %")
-    ax.set_ylabel("render time, ms (median)")
-    ax.set_title("cost follows the work")
-    ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    try:
-        save_figure(fig, path)
-    finally:
-        plt.close(fig)
+    """Render time against the share of out-of-focus pixels (:func:`cost_follows_work` rows), as a PNG."""
+    with plot_to(path, figsize=(5, 3.4)) as (_, ax):
+        ax.plot([100 * r["share"] for r in rows], [r["render_ms"] for r in rows], "o-")
+        ax.set_xlabel("pixels out of focus (CoC >= 1 px), %")
+        ax.set_ylabel("render time, ms (median)")
+        ax.set_title("cost follows the work")
+        ax.grid(True, alpha=0.3)

@@ -33,6 +33,7 @@ import numpy as np
 from ..color import decode_to_linear, linear_to_srgb, to_float
 from ..errors import InputError
 from ..metrics import depth_edge_band
+from . import plot_to
 
 #: frame width (px) at which :data:`BLURS_PX` are given; a run at another width scales them with it
 REFERENCE_WIDTH_PX = 640
@@ -517,60 +518,36 @@ def tuning_table(tuned: list[dict]) -> str:
 
 def budget_plot(rows: list[dict], path: str) -> None:
     """Bar chart of the error budget (mean PSNR per variant), as a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from . import save_figure
-
     s = budget_summary(rows)
-    fig, ax = plt.subplots(figsize=(7, 3.6), dpi=110)
-    y = np.arange(len(s))
-    ax.barh(y - 0.2, [b["psnr"] for b in s], 0.4, color="#4477aa", label="whole frame")
-    ax.barh(y + 0.2, [b["psnr_edge"] for b in s], 0.4, color="#ee6677", label="depth-edge band")
-    for i, b in enumerate(s):
-        ax.text(b["psnr"], i - 0.2, f" {b['psnr']:.2f}", va="center", fontsize=8)
-        ax.text(b["psnr_edge"], i + 0.2, f" {b['psnr_edge']:.2f}", va="center", fontsize=8)
-    ax.set_yticks(y, [f"pcdof exact, {b['variant']}" for b in s])
-    lo = min(min(b["psnr"], b["psnr_edge"]) for b in s) if s else 0
-    ax.set_xlim(max(0, lo - 3), max(max(b["psnr"], b["psnr_edge"]) for b in s) + 3 if s else 1)
-    ax.set_xlabel("mean PSNR vs ray-traced ground truth, dB")
-    ax.set_title("error budget on the wide benchmark")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-    fig.tight_layout()
-    try:
-        save_figure(fig, path)
-    finally:
-        plt.close(fig)
+    with plot_to(path, figsize=(7, 3.6)) as (_, ax):
+        y = np.arange(len(s))
+        ax.barh(y - 0.2, [b["psnr"] for b in s], 0.4, color="#4477aa", label="whole frame")
+        ax.barh(y + 0.2, [b["psnr_edge"] for b in s], 0.4, color="#ee6677", label="depth-edge band")
+        for i, b in enumerate(s):
+            ax.text(b["psnr"], i - 0.2, f" {b['psnr']:.2f}", va="center", fontsize=8)
+            ax.text(b["psnr_edge"], i + 0.2, f" {b['psnr_edge']:.2f}", va="center", fontsize=8)
+        ax.set_yticks(y, [f"pcdof exact, {b['variant']}" for b in s])
+        lo = min(min(b["psnr"], b["psnr_edge"]) for b in s) if s else 0
+        ax.set_xlim(max(0, lo - 3), max(max(b["psnr"], b["psnr_edge"]) for b in s) + 3 if s else 1)
+        ax.set_xlabel("mean PSNR vs ray-traced ground truth, dB")
+        ax.set_title("error budget on the wide benchmark")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
 
 
 def tier_plot(rows: list[dict], path: str, ref: str = "pcdof-exact") -> None:
     """The quality tiers' error-vs-blur curve (:func:`tier_curve`: pooled and worst case), as a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from . import save_figure
-
     curve = [c for c in tier_curve(rows, ref) if c["bucket"] != "all"]
     labels = list(dict.fromkeys(c["bucket"] for c in curve))
-    fig, ax = plt.subplots(figsize=(7, 3.6), dpi=110)
-    for t, colour in zip(dict.fromkeys(c["tier"] for c in curve), ("#228833", "#4477aa", "#ee6677", "#aa3377")):
-        mine = {c["bucket"]: c for c in curve if c["tier"] == t}
-        x = [i for i, lab in enumerate(labels) if lab in mine]
-        ax.plot(x, [mine[labels[i]]["mean_db"] for i in x], "-o", color=colour, label=f"{t}, pooled")
-        ax.plot(x, [mine[labels[i]]["worst_db"] for i in x], "--x", color=colour, label=f"{t}, worst case")
-    for tol in sorted(set(TIER_TOLERANCE_DB.values())):
-        ax.axhline(-tol, color="grey", lw=0.8, ls=":")
-    ax.set_xticks(range(len(labels)), [f"{lab} px" for lab in labels])
-    ax.set_xlabel("true CoC diameter of the pixels")
-    ax.set_ylabel(f"PSNR change from {ref}, dB")
-    ax.set_title("quality tiers against exact, per blur size (wide benchmark)")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-    fig.tight_layout()
-    try:
-        save_figure(fig, path)
-    finally:
-        plt.close(fig)
+    with plot_to(path, figsize=(7, 3.6)) as (_, ax):
+        for t, colour in zip(dict.fromkeys(c["tier"] for c in curve), ("#228833", "#4477aa", "#ee6677", "#aa3377")):
+            mine = {c["bucket"]: c for c in curve if c["tier"] == t}
+            x = [i for i, lab in enumerate(labels) if lab in mine]
+            ax.plot(x, [mine[labels[i]]["mean_db"] for i in x], "-o", color=colour, label=f"{t}, pooled")
+            ax.plot(x, [mine[labels[i]]["worst_db"] for i in x], "--x", color=colour, label=f"{t}, worst case")
+        for tol in sorted(set(TIER_TOLERANCE_DB.values())):
+            ax.axhline(-tol, color="grey", lw=0.8, ls=":")
+        ax.set_xticks(range(len(labels)), [f"{lab} px" for lab in labels])
+        ax.set_xlabel("true CoC diameter of the pixels")
+        ax.set_ylabel(f"PSNR change from {ref}, dB")
+        ax.set_title("quality tiers against exact, per blur size (wide benchmark)")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)

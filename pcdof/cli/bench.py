@@ -6,27 +6,16 @@ import csv
 import io as _io
 import json
 import os
-import platform
 
 import click
 
 from ..errors import InputError
+from ..versions import library_versions
 from ._common import check_output_file, check_output_folder, handle_errors, make_output_folder
 
 #: every part; "wide-tune" (choosing the highlight default on the tuning seeds) runs only when named
 PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune")
 DEFAULT_PARTS = ("dof", "wide", "speed", "registration", "fill")
-
-
-def versions() -> dict:
-    import cv2
-    import numba
-    import numpy
-    import open3d
-
-    return {"python": platform.python_version(), "numpy": numpy.__version__, "opencv": cv2.__version__,
-            "open3d": open3d.__version__, "numba": numba.__version__, "machine": platform.machine(),
-            "cpus": os.cpu_count()}
 
 
 def _write_text(path: str, text: str) -> None:
@@ -139,7 +128,7 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes, see
                    "reference_width_px": wide.REFERENCE_WIDTH_PX}
         seeds = 1
     make_output_folder(output, "output")
-    report = {"versions": versions(), "quick": quick}
+    report = {"versions": library_versions(), "quick": quick}
     md = [f"# pcdof benchmark\n\nversions: {json.dumps(report['versions'])}\n"]
 
     def save():

@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import InputError
 from ..lens import ThinLens
 from .scene import Scene
-from .scenes import _color, _textured, box, cylinder, quad, room, sphere
+from .scenes import SceneSpec, _color, _textured, box, cylinder, quad, room, sphere
 from .shading import Material
 
 #: emitter and glint radiance, multiples of diffuse white (drawn log-uniform)
@@ -36,14 +36,15 @@ FOCUS_POSITIONS = ("near", "mid", "far")
 _HUES = ((1.0, 0.78, 0.5), (1.0, 0.55, 0.25), (0.6, 0.75, 1.0), (1.0, 0.5, 0.8), (0.7, 1.0, 0.6), (1.0, 1.0, 1.0))
 
 
-@dataclass(frozen=True, eq=False)
-class WideSpec:
-    """A procedurally built scene with its three focus distances (metres) and facts about it."""
+#: the lens of a wide frame's ``default_lens`` (focused on the subject, ``focus_m["mid"]``)
+DEFAULT_FOCAL_LENGTH_MM, DEFAULT_F_NUMBER = 50.0, 2.0
 
-    scene: Scene
-    focus_m: dict
-    description: str
-    metadata: dict = field(default_factory=dict)
+
+@dataclass(frozen=True, eq=False)
+class WideSpec(SceneSpec):
+    """A :class:`~pcdof.synth.scenes.SceneSpec` with its three focus distances, metres (``near``, ``mid``, ``far``)."""
+
+    focus_m: dict = field(kw_only=True)
 
 
 def _radiance(rng) -> float:
@@ -161,9 +162,10 @@ def _build(rng, *, dark: bool, n_thin: int, n_lights: int, kind: str) -> WideSpe
     light = (rng.uniform(-0.6, 0.6), -rng.uniform(0.4, 0.9), -rng.uniform(0.3, 0.8))
     scene = Scene(objs, light_dir=light, ambient=ambient, diffuse=rng.uniform(0.5, 0.9))
     focus = {"near": round(z_fg, 3), "mid": round(z_subject, 3), "far": round(back_z - 0.05, 3)}
-    return WideSpec(scene, focus, f"{kind}: foreground {z_fg:.2f} m, subject {z_subject:.2f} m, back wall "
+    lens = ThinLens(focal_length_mm=DEFAULT_FOCAL_LENGTH_MM, f_number=DEFAULT_F_NUMBER, focus_distance_m=focus["mid"])
+    return WideSpec(scene, lens, f"{kind}: foreground {z_fg:.2f} m, subject {z_subject:.2f} m, back wall "
                     f"{back_z:.2f} m, {n_thin} thin rods, {len(levels)} emitters/glints",
-                    {"emitter_radiance": levels, "back_z_m": back_z})
+                    {"emitter_radiance": levels, "back_z_m": back_z}, focus_m=focus)
 
 
 def room_scene(rng: np.random.Generator) -> WideSpec:
@@ -227,7 +229,6 @@ def generate_wide(kind: str, *, seed: int, color_size=(320, 240), depth_size=(25
     seed = check_seed(seed)
     rig = kinect_rig(parse_size(color_size, "color_size"), parse_size(depth_size, "depth_size"))
     spec = WIDE_SCENES[kind](np.random.default_rng([seed, 7]))
-    sf = make_frame(spec.scene, rig, default_lens=ThinLens(focal_length_mm=50.0, f_number=2.0, focus_distance_m=spec.focus_m["mid"]), seed=seed,
-                    name=f"{kind}", description=spec.description, metadata=spec.metadata,
-                    pixel_samples=pixel_samples)
+    sf = make_frame(spec.scene, rig, default_lens=spec.default_lens, seed=seed, name=f"{kind}",
+                    description=spec.description, metadata=spec.metadata, pixel_samples=pixel_samples)
     return sf, spec

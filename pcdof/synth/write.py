@@ -60,29 +60,55 @@ def write_scene(synth_frame, outdir, *, lens: ThinLens | None = None, gt_samples
     dict: ``files`` (list of written paths) and ``ground_truth`` (a :class:`GroundTruth` without its
     image, as a dict; None without *lens*)
     """
+    sf, with_gt = synth_frame, lens is not None and ground_truth
+    _check_write_args(sf, lens, gt_samples if with_gt else None, gt_seed if with_gt else None)
+    outdir = _make_folder(outdir)
+    files = []
+
+    def out(name):
+        files.append(os.path.join(outdir, name))
+        return files[-1]
+
+    _write_frame(sf, lens if lens is not None else sf.default_lens, out, linear=linear)
+    scene_info = {"name": sf.name, "seed": sf.seed, "description": sf.description, "metadata": sf.metadata,
+                  "default_lens": lens_to_dict(sf.default_lens)}
+    record = None
+    if with_gt:
+        record = _write_ground_truth(sf, lens, out, linear=linear, samples=gt_samples, seed=gt_seed,
+                                     target_psnr_db=target_psnr_db, progress=progress)
+        scene_info["ground_truth"] = record
+    write_json(out("scene.json"), scene_info)
+    _remove_stale(outdir, files)
+    return {"files": files, "ground_truth": record}
+
+
+def _check_write_args(synth_frame, lens, gt_samples, gt_seed) -> None:
+    """InputError unless *synth_frame* is a SyntheticFrame, *lens* a ThinLens or None and the ground truth's
+    settings (None where no ground truth is rendered) are valid: checked before any file is written."""
     if lens is not None and not isinstance(lens, ThinLens):
         raise InputError(f"lens must be a ThinLens or None; got {type(lens).__name__}")
     from .frame import SyntheticFrame
 
     if not isinstance(synth_frame, SyntheticFrame):
         raise InputError(f"synth_frame must be a SyntheticFrame; got {type(synth_frame).__name__}")
-    if lens is not None and ground_truth:  # the ground truth's settings, before any file is written
-        if gt_samples is not None:
-            _check_samples(gt_samples, "gt_samples")
+    if gt_samples is not None:
+        _check_samples(gt_samples, "gt_samples")
+    if gt_seed is not None:
         _check_seed(gt_seed, "gt_seed")
+
+
+def _make_folder(outdir) -> str:
+    """*outdir* as a str, created if missing (ImageWriteError when it cannot be)."""
     outdir = os.fspath(outdir)
     try:
         os.makedirs(outdir, exist_ok=True)
     except OSError as err:
         raise ImageWriteError(f"cannot create the output folder {outdir}: {err.strerror or err}") from None
-    sf = synth_frame
-    files = []
+    return outdir
 
-    def out(name):
-        p = os.path.join(outdir, name)
-        files.append(p)
-        return p
 
+def _write_frame(sf, lens: ThinLens, out, *, linear: bool) -> None:
+    """The frame's colour, depths, calibration and *lens* (``lens.json``), each to the path ``out(name)``."""
     write_image(out("color.png"), sf.color)
     if linear:
         write_image(out("color_linear.npy"), sf.color_linear.astype(np.float32))
@@ -90,25 +116,20 @@ def write_scene(synth_frame, outdir, *, lens: ThinLens | None = None, gt_samples
     write_depth(out("depth_clean.npy"), sf.depth_clean_m)
     write_depth(out("depth_color_gt.npy"), sf.depth_color_m)
     write_json(out("calib.json"), {**sf.rig.to_dict(), "max_range_m": sf.rig.max_range_m})
-    write_json(out("lens.json"), lens_to_dict(lens if lens is not None else sf.default_lens))
-    info = {"files": files, "ground_truth": None}
-    scene_info = {"name": sf.name, "seed": sf.seed, "description": sf.description, "metadata": sf.metadata,
-                  "default_lens": lens_to_dict(sf.default_lens)}
-    if lens is not None and ground_truth:
-        gt = render_ground_truth(sf, lens, samples=gt_samples, seed=gt_seed, target_psnr_db=target_psnr_db,
-                                 progress=progress)
-        write_image(out("dof_gt.png"), encode_from_linear(gt.image, np.uint8))
-        if linear:
-            write_image(out("dof_gt_linear.npy"), gt.image.astype(np.float32))
-        record = {"lens": lens_to_dict(lens), "samples_per_pixel": round(2 * gt.samples, 1),
-                  "max_samples_per_pixel": 2 * int(gt.counts.max()), "seed": gt_seed,
-                  "half_render_psnr_db": round(gt.psnr_db, 3), "max_coc_px": round(max_coc_px(sf, lens), 3),
-                  "seconds": round(gt.seconds, 3)}
-        info["ground_truth"] = record
-        scene_info["ground_truth"] = record
-    write_json(out("scene.json"), scene_info)
-    _remove_stale(outdir, files)
-    return info
+    write_json(out("lens.json"), lens_to_dict(lens))
+
+
+def _write_ground_truth(sf, lens: ThinLens, out, *, linear: bool, samples, seed: int, target_psnr_db: float,
+                        progress: bool) -> dict:
+    """Render the ray-traced ground truth through *lens*, write it to ``out(name)`` and return its record."""
+    gt = render_ground_truth(sf, lens, samples=samples, seed=seed, target_psnr_db=target_psnr_db, progress=progress)
+    write_image(out("dof_gt.png"), encode_from_linear(gt.image, np.uint8))
+    if linear:
+        write_image(out("dof_gt_linear.npy"), gt.image.astype(np.float32))
+    return {"lens": lens_to_dict(lens), "samples_per_pixel": round(2 * gt.samples, 1),
+            "max_samples_per_pixel": 2 * int(gt.counts.max()), "seed": seed,
+            "half_render_psnr_db": round(gt.psnr_db, 3), "max_coc_px": round(max_coc_px(sf, lens), 3),
+            "seconds": round(gt.seconds, 3)}
 
 
 def _remove_stale(outdir: str, written: list) -> None:

@@ -258,7 +258,8 @@ def pareto_plot(rows: list[dict], path: str) -> None:
                 ax.plot([s["ms"]] * 2, [s["psnr"], s["psnr_edge"]], color=colour, lw=0.8, alpha=0.6, zorder=2)
             handles.append(Line2D([], [], color=colour, marker=marker, ls="", label=s["method"]))
         handles += [Line2D([], [], color="k", marker="o", ls="", label="filled: whole frame"),
-                    Line2D([], [], color="k", marker="o", ls="", markerfacecolor="none", label="hollow: depth-edge band")]
+                    Line2D([], [], color="k", marker="o", ls="", markerfacecolor="none",
+                           label="hollow: depth-edge band")]
         ax.set_xscale("log")
         ax.set_xlabel("median time per frame, ms (log)")
         ax.set_ylabel("mean PSNR vs ray-traced ground truth, dB")

@@ -16,6 +16,10 @@ from ._common import check_output_file, check_output_folder, handle_errors, make
 #: every part; "wide-tune" (choosing the highlight default on the tuning seeds) runs only when named
 PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune")
 DEFAULT_PARTS = ("dof", "wide", "speed", "registration", "fill")
+#: the order the parts run in (the report's sections follow it)
+RUN_ORDER = ("dof", "wide", "wide-tune", "speed", "registration", "fill")
+#: the stages each side of the speed table sums
+PCDOF_STAGES, PAPER_STAGES = ("register", "fill", "coc", "render"), ("register", "fill", "render")
 
 
 def _write_text(path: str, text: str) -> None:
@@ -104,10 +108,34 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes, see
     Every option is checked before any work (--scenes applies to the dof part; --quick overrides
     --size, --depth-size and --repeats, which are checked all the same).
     """
+    run = _settings(output, only, quick, size, depth_size, repeats, samples, scenes, seeds, wide_size, wide_blurs,
+                    absolute_blurs)
+    make_output_folder(output, "output")
+    report = {"versions": library_versions(), "quick": quick}
+    md = [f"# pcdof benchmark\n\nversions: {json.dumps(report['versions'])}\n"]
+    steps = {"dof": lambda: _dof_part(report, md, run),
+             "wide": lambda: _wide_part(report, md, output, run["seeds"], run["wide_kw"], wide_highlights),
+             "wide-tune": lambda: _wide_tune_part(report, md, output, run["seeds"], run["wide_kw"]),
+             "speed": lambda: _speed_part(report, md, run), "registration": lambda: _registration_part(report, md, run),
+             "fill": lambda: _fill_part(report, md, run)}
+    for part in (p for p in RUN_ORDER if p in only):
+        steps[part]()
+        _save(output, report, md)  # after every part, so a long run that stops keeps what it measured
+    _save(output, report, md)
+    click.echo(f"wrote {output}/report.md and report.json", err=True)
+
+
+def _save(output: str, report: dict, md: list[str]) -> None:
+    _write_text(os.path.join(output, "report.json"), json.dumps(report, indent=1, default=float))
+    _write_text(os.path.join(output, "report.md"), "\n".join(md))
+
+
+def _settings(output, parts, quick, size, depth_size, repeats, samples, scenes, seeds, wide_size, wide_blurs,
+              absolute_blurs) -> dict:
+    """The checked options of a run as a dict (``--quick`` applied), or an error before any work."""
     from ..bench import check_repeats, check_scenes, wide
     from ..synth.rig import parse_size
 
-    parts = only
     size, depth_size = parse_size(size, "--size"), parse_size(depth_size, "--depth-size")
     wide_size = parse_size(wide_size, "--wide-size")
     check_repeats(repeats, "--repeats")
@@ -122,83 +150,76 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes, see
     wide_kw = {"kinds": None, "blurs": wide_blurs, "size": wide_size, "depth_size": depth_size,
                "reference_width_px": None if absolute_blurs else wide.REFERENCE_WIDTH_PX}
     if quick:
-        size, depth_size, repeats = (96, 72), (80, 66), 1
+        size, depth_size, repeats, seeds = (96, 72), (80, 66), 1, 1
         scene_list = scene_list or ["portrait", "slanted_plane"]
+        samples = samples or 64
         wide_kw = {"kinds": ["room"], "blurs": (120.0,), "size": (64, 48), "depth_size": (64, 53),
                    "reference_width_px": wide.REFERENCE_WIDTH_PX}
-        seeds = 1
-    make_output_folder(output, "output")
-    report = {"versions": library_versions(), "quick": quick}
-    md = [f"# pcdof benchmark\n\nversions: {json.dumps(report['versions'])}\n"]
+    return {"output": output, "quick": quick, "size": size, "depth_size": depth_size, "repeats": repeats,
+            "samples": samples, "scenes": scene_list, "seeds": seeds, "wide_kw": wide_kw}
 
-    def save():
-        _write_text(os.path.join(output, "report.json"), json.dumps(report, indent=1, default=float))
-        _write_text(os.path.join(output, "report.md"), "\n".join(md))
 
-    if "dof" in parts:
-        from ..bench import dof
+def _dof_part(report, md, run) -> None:
+    from ..bench import dof
 
-        rows = dof.run_dof_bench(scenes=scene_list, size=size, depth_size=depth_size, repeats=repeats,
-                                 samples=samples if not quick else (samples or 64),
-                                 cache_dir=os.path.join(output, "cache"))
-        report["dof"] = rows
-        report["dof_summary"] = dof.summarize(rows)
-        _write_csv(os.path.join(output, "dof.csv"), rows)
-        dof.pareto_plot(rows, os.path.join(output, "pareto.png"))
-        md += ["## Depth of field against the ray-traced ground truth\n", dof.summary_table(rows), "",
-               dof.compact_table(rows), "", "All methods and quality levels:\n", dof.markdown_table(rows), ""]
-        click.echo(dof.summary_table(rows))
-        click.echo(dof.compact_table(rows))
-        save()
-    if "wide" in parts:
-        _wide_part(report, md, output, seeds, wide_kw, wide_highlights)
-        save()
-    if "wide-tune" in parts:
-        _wide_tune_part(report, md, output, seeds, wide_kw)
-        save()
-    if "speed" in parts:
-        from ..bench import speed
+    output = run["output"]
+    rows = dof.run_dof_bench(scenes=run["scenes"], size=run["size"], depth_size=run["depth_size"],
+                             repeats=run["repeats"], samples=run["samples"], cache_dir=os.path.join(output, "cache"))
+    report["dof"] = rows
+    report["dof_summary"] = dof.summarize(rows)
+    _write_csv(os.path.join(output, "dof.csv"), rows)
+    dof.pareto_plot(rows, os.path.join(output, "pareto.png"))
+    md += ["## Depth of field against the ray-traced ground truth\n", dof.summary_table(rows), "",
+           dof.compact_table(rows), "", "All methods and quality levels:\n", dof.markdown_table(rows), ""]
+    click.echo(dof.summary_table(rows))
+    click.echo(dof.compact_table(rows))
 
-        sizes = ((160, 120),) if quick else ((640, 480), (1920, 1080))
-        dsize = (128, 106) if quick else (512, 424)
-        rows = speed.pipeline_vs_paper(sizes=sizes, depth_size=dsize, repeats=repeats)
-        cost = speed.cost_follows_work(size=sizes[0], depth_size=dsize, repeats=repeats)
-        speed.cost_plot(cost, os.path.join(output, "cost.png"))
-        report["speed"], report["cost"] = rows, cost
-        lines = ["| colour | depth | pcdof ms (register + fill + coc + render) | paper method ms (register + fill + "
-                 "blur/weight/blend) | ratio | paper blur/weight/blend alone ms |", "|---|---|---|---|---|---|"]
-        for r in rows:
-            st, pst = r["pcdof_stages_ms"], r["paper_stages_ms"]
-            ours = " + ".join(f"{st.get(k, 0):.1f}" for k in ("register", "fill", "coc", "render"))
-            theirs = " + ".join(f"{pst.get(k, 0):.1f}" for k in ("register", "fill", "render"))
-            lines.append(f"| {r['color_size']} | {r['depth_size']} | {r['pcdof_ms']:.1f} ({ours}) | "
-                         f"{r['paper_ms']:.1f} ({theirs}) | {r['ratio']:.2f} | {pst.get('render', 0):.1f} |")
-        lines += ["", "| out of focus | f-number | render ms | relative to 100 % |", "|---|---|---|---|"]
-        lines += [f"| {100 * r['share']:.0f} % | {r['f_number']:.2f} | {r['render_ms']:.2f} | "
-                  f"{r['relative_to_full']:.3f} |" for r in cost]
-        md += ["## Speed\n", *lines, ""]
-        click.echo("\n".join(lines))
-        save()
-    if "registration" in parts:
-        from ..bench import registration
 
-        rows = registration.run_registration_bench(quick=quick, repeats=repeats)
-        report["registration"] = rows
-        table = registration.format_registration_table(rows)
-        md += ["## Registration against OpenCV and Open3D\n", table, ""]
-        click.echo(table)
-        save()
-    if "fill" in parts:
-        from ..bench import fill
+def _speed_part(report, md, run) -> None:
+    from ..bench import speed, table_lines
 
-        rows = fill.run_fill_bench(quick=quick)
-        report["fill"] = rows
-        table = fill.markdown_table(rows)
-        md += ["## Hole filling against cv2.inpaint\n", table, ""]
-        click.echo(table)
-        save()
-    save()
-    click.echo(f"wrote {output}/report.md and report.json", err=True)
+    quick, repeats = run["quick"], run["repeats"]
+    sizes = ((160, 120),) if quick else ((640, 480), (1920, 1080))
+    dsize = (128, 106) if quick else (512, 424)
+    rows = speed.pipeline_vs_paper(sizes=sizes, depth_size=dsize, repeats=repeats)
+    cost = speed.cost_follows_work(size=sizes[0], depth_size=dsize, repeats=repeats)
+    speed.cost_plot(cost, os.path.join(run["output"], "cost.png"))
+    report["speed"], report["cost"] = rows, cost
+    lines = table_lines(
+        ("colour", "depth", "pcdof ms (register + fill + coc + render)",
+         "paper method ms (register + fill + blur/weight/blend)", "ratio", "paper blur/weight/blend alone ms"),
+        ((r["color_size"], r["depth_size"], f"{r['pcdof_ms']:.1f} ({_stage_sum(r['pcdof_stages_ms'], PCDOF_STAGES)})",
+          f"{r['paper_ms']:.1f} ({_stage_sum(r['paper_stages_ms'], PAPER_STAGES)})", f"{r['ratio']:.2f}",
+          f"{r['paper_stages_ms'].get('render', 0):.1f}") for r in rows))
+    lines += ["", *table_lines(("out of focus", "f-number", "render ms", "relative to 100 %"), (
+        (f"{100 * r['share']:.0f} %", f"{r['f_number']:.2f}", f"{r['render_ms']:.2f}", f"{r['relative_to_full']:.3f}")
+        for r in cost))]
+    md += ["## Speed\n", *lines, ""]
+    click.echo("\n".join(lines))
+
+
+def _stage_sum(stages_ms: dict, names) -> str:
+    """The times of the stages *names* (ms, 0 where missing) as "a + b + ..."."""
+    return " + ".join(f"{stages_ms.get(k, 0):.1f}" for k in names)
+
+
+def _registration_part(report, md, run) -> None:
+    from ..bench import registration
+
+    report["registration"] = rows = registration.run_registration_bench(quick=run["quick"], repeats=run["repeats"])
+    _table_section(md, "## Registration against OpenCV and Open3D\n", registration.format_registration_table(rows))
+
+
+def _fill_part(report, md, run) -> None:
+    from ..bench import fill
+
+    report["fill"] = rows = fill.run_fill_bench(quick=run["quick"])
+    _table_section(md, "## Hole filling against cv2.inpaint\n", fill.markdown_table(rows))
+
+
+def _table_section(md: list, title: str, table: str) -> None:
+    md += [title, table, ""]
+    click.echo(table)
 
 
 def _blurs(text: str) -> tuple[float, ...]:

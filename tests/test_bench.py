@@ -259,3 +259,38 @@ def test_lens_for_blur_gives_the_requested_largest_blur():
         for blur in (4.0, 64.0):
             lens = lens_for_blur(depth, 300.0, focus, blur)
             assert float(lens.coc_px(depth, 300.0).max()) == pytest.approx(blur, rel=1e-4)
+
+
+def test_table_lines_gives_one_markdown_row_per_row_with_as_many_cells_as_columns():
+    from pcdof.bench import table_lines
+
+    lines = table_lines(("a", "b", "c"), [(1, "x", ""), (2.5, "y", "z")])
+    assert lines == ["| a | b | c |", "|---|---|---|", "| 1 | x |  |", "| 2.5 | y | z |"]
+    assert all(line.count("|") == 4 for line in lines)
+
+
+def test_plot_to_writes_a_png_and_writes_nothing_when_drawing_fails(tmp_path):
+    import matplotlib.pyplot as plt
+
+    from pcdof.bench import plot_to
+
+    with plot_to(str(tmp_path / "ok.png"), figsize=(2, 2)) as (fig, ax):
+        ax.plot([0, 1], [0, 1])
+    assert (tmp_path / "ok.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not plt.fignum_exists(fig.number)
+    with pytest.raises(ZeroDivisionError), plot_to(str(tmp_path / "bad.png"), figsize=(2, 2)) as (fig, ax):
+        ax.plot([0, 1], [0, 1 / 0])
+    assert not (tmp_path / "bad.png").exists() and not plt.fignum_exists(fig.number)
+
+
+def test_wide_spec_default_lens_is_focused_on_the_subject():
+    import numpy as np
+
+    from pcdof.synth import SceneSpec
+    from pcdof.synth.wide import WIDE_SCENES
+
+    for kind, build in WIDE_SCENES.items():
+        spec = build(np.random.default_rng(3))
+        assert isinstance(spec, SceneSpec), kind
+        assert spec.default_lens.focus_distance_m == spec.focus_m["mid"]
+        assert spec.focus_m["near"] < spec.focus_m["mid"] < spec.focus_m["far"]

@@ -798,38 +798,90 @@ def _layer_window(frame: _Frame, li: int, r_max: float, r_front: float, bbox):
     return box, frame.layer[box] == li, ext_reach, extend
 
 
-def _owned(layer: np.ndarray, li: int, box, reach_px: float) -> np.ndarray:
-    """The pixels of *box* whose nearest pixel of layer *li* or a farther layer (Euclidean) is one of
-    layer *li*'s, and no farther from it than the layer reaches beside the occluder: the distance from
-    that pixel to the nearest pixel of a farther layer (unlimited where there is none).
+def _span(lo: int, hi: int, margin: int, bound: slice) -> slice:
+    """Rows (or columns) lo..hi (inclusive) widened by *margin*, within *bound*."""
+    return slice(max(bound.start, lo - margin), min(bound.stop, hi + margin + 1))
+
+
+def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: float, cell_px: int = 1):
+    """The *hidden* pixels of *box* that layer *li* continues: those whose nearest pixel of layer *li* or
+    a farther layer (OpenCV's 5x5 chamfer distance, ties in its scan order) is one of layer *li*'s, no
+    farther from it than the distance from that pixel to the nearest pixel of a farther layer (at
+    least 1 px). Returns (H_box, W_box) bool, a subset of *hidden*.
 
     A hidden pixel is continued by one layer only, the one seen next to it: a small layer (a lamp, a
     glint, a thin rod) is not copied across the whole width a blurred foreground hides, on top of the
     background that is seen all around it.
+
+    The answer is computed where the extension can use it (:func:`_extend_behind` reaches *reach_px*,
+    on the grid of *cell_px* x *cell_px* cells): for the hidden pixels within ``near`` (max-norm) of
+    the layer's bounding box *bbox* (row0, row1, col0, col1, inclusive) and at most ``rd`` (chamfer)
+    from their nearest candidate (the chamfer distance lies between 1 and 1.41 times the max-norm).
+    Each transform runs on the window that decides those pixels: their candidates within ``rd``, then
+    the farther layers within the largest distance tested of the candidates that are tested, inside
+    the box widened by twice the reach. There every answer the extension uses is the one the
+    transforms give on the whole widened box; the others are not decided (the render does not read them).
     """
     h, w = layer.shape
-    pad = 2 * int(math.ceil(reach_px)) + 2  # every pixel that can compete for the box lies in here
-    y0, x0 = max(0, box[0].start - pad), max(0, box[1].start - pad)
-    big = layer[y0:min(h, box[0].stop + pad), x0:min(w, box[1].stop + pad)]
-    behind = big >= li
-    dist, labels = cv2.distanceTransformWithLabels((~behind).astype(np.uint8), cv2.DIST_L2, 5,
+    (by, ey), (bx, ex) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
+    near = (int(math.ceil(reach_px / cell_px)) + 1) * cell_px - 1
+    rd = int(math.ceil(reach_px)) if cell_px == 1 else int(math.ceil(1.41 * near))
+    pad = 2 * int(math.ceil(reach_px)) + 2
+    whole = (slice(max(0, by - pad), min(h, ey + pad)), slice(max(0, bx - pad), min(w, ex + pad)))
+    out = np.zeros_like(hidden)
+    reach_box = (_span(bbox[0] - by, bbox[1] - by, near, slice(0, ey - by)),
+                 _span(bbox[2] - bx, bbox[3] - bx, near, slice(0, ex - bx)))
+    sub = hidden[reach_box]
+    rows, cols = np.flatnonzero(sub.any(axis=1)), np.flatnonzero(sub.any(axis=0))
+    if rows.size == 0:
+        return out
+    # the hidden pixels' bounding box: (y0, y1, x0, x1) inclusive in the frame, *tight* in the box
+    y0, y1 = (int(v) + reach_box[0].start + by for v in (rows[0], rows[-1]))
+    x0, x1 = (int(v) + reach_box[1].start + bx for v in (cols[0], cols[-1]))
+    tight = (slice(y0 - by, y1 + 1 - by), slice(x0 - bx, x1 + 1 - bx))
+    # no farther layer within twice the distance tested: layer li is every hidden pixel's only candidate
+    if not (layer[_span(y0, y1, 2 * rd + 3, whole[0]), _span(x0, x1, 2 * rd + 3, whole[1])] > li).any():
+        out[tight] = hidden[tight]
+        return out
+    win = (_span(y0, y1, rd + 3, whole[0]), _span(x0, x1, rd + 3, whole[1]))
+    lay = layer[win]
+    behind = lay >= li
+    if not behind.any():
+        return out  # no candidate within reach of any hidden pixel: nothing to continue
+    dist, labels = cv2.distanceTransformWithLabels(np.logical_not(behind).view(np.uint8), cv2.DIST_L2, 5,
                                                    labelType=cv2.DIST_LABEL_PIXEL)
-    nearest = np.flatnonzero(behind.ravel())[labels.ravel() - 1]
-    farther = big > li
-    if farther.any():
-        width = cv2.distanceTransform((~farther).astype(np.uint8), cv2.DIST_L2, 5).ravel()[nearest]
-    else:
-        width = np.full(nearest.shape, np.inf, np.float32)
-    own = (big.ravel()[nearest] == li) & (dist.ravel() <= np.maximum(width, 1.0))
-    own = own.reshape(big.shape)
-    return own[box[0].start - y0:box[0].stop - y0, box[1].start - x0:box[1].stop - x0]
+    inner = (slice(y0 - win[0].start, y1 + 1 - win[0].start), slice(x0 - win[1].start, x1 + 1 - win[1].start))
+    at = np.zeros(behind.shape, bool)
+    at[inner] = hidden[tight]
+    at = np.flatnonzero(at)  # the hidden pixels, flat in the window
+    d = dist.ravel()[at]
+    q = np.flatnonzero(behind)[labels.ravel()[at] - 1]  # labels number the candidates in raster order
+    own = (d <= rd) & np.equal(lay, li).ravel()[q]
+    test = own & (d > 1.0)  # within 1 px a candidate of layer li always reaches
+    if test.any():
+        qy, qx = np.divmod(q[test], behind.shape[1])
+        width = _farther_dist(layer, li, qy + win[0].start, qx + win[1].start,
+                              int(math.ceil(float(d[test].max()))) + 3, whole)
+        own[test] = d[test] <= np.maximum(width, 1.0)
+    res = np.zeros(behind.shape, bool)
+    res.ravel()[at] = own
+    out[tight] = res[inner]
+    return out
 
 
-def _hidden(frame: _Frame, canvas: _Canvas, li: int, box, reach_px: float):
+def _farther_dist(layer: np.ndarray, li: int, qy: np.ndarray, qx: np.ndarray, far: int, bound) -> np.ndarray:
+    """Chamfer distance (OpenCV's 5x5) from pixels (qy, qx) to the nearest pixel of a layer farther than
+    *li*, exact up to *far* - 3 px, on the pixels' bounding box widened by *far*, within *bound*."""
+    win = (_span(int(qy.min()), int(qy.max()), far, bound[0]), _span(int(qx.min()), int(qx.max()), far, bound[1]))
+    dist = cv2.distanceTransform(np.less_equal(layer[win], li).view(np.uint8), cv2.DIST_L2, 5)
+    return dist[qy - win[0].start, qx - win[1].start]
+
+
+def _hidden(frame: _Frame, canvas: _Canvas, li: int, box, bbox, reach_px: float, cell_px: int = 1):
     """Pixels of nearer layers that are not yet opaque and that this layer continues (:func:`_owned`), or None."""
     hidden = (frame.layer[box] < li) & (canvas.trans[box] > 0)
     if hidden.any():
-        hidden &= _owned(frame.layer, li, box, reach_px)
+        hidden = _owned(frame.layer, li, box, bbox, hidden, reach_px, cell_px)
     return hidden if hidden.any() else None
 
 
@@ -838,7 +890,7 @@ def _sharp_layer(frame: _Frame, canvas: _Canvas, li: int, n_members: int, r_max:
     """Composite the in-focus layer: an opaque copy, no blur (extended behind nearer layers)."""
     box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
     src, src_r = frame.lin[box], frame.radius[box]
-    hidden = _hidden(frame, canvas, li, box, ext_reach) if extend else None
+    hidden = _hidden(frame, canvas, li, box, bbox, ext_reach) if extend else None
     if hidden is not None:
         src, src_r, m = _extend_behind(src, src_r, m, hidden, ext_reach)
     _composite_sharp(np.ascontiguousarray(src), np.ascontiguousarray(m), box[0].start, box[1].start,
@@ -850,10 +902,10 @@ def _blur_layer(frame: _Frame, canvas: _Canvas, li: int, key: int, n_members: in
                 bbox) -> dict:
     """Scatter one blur layer (at the plan's resolution, uniform tiles convolved) and composite it behind."""
     box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
-    hidden = _hidden(frame, canvas, li, box, ext_reach) if extend else None
     lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
     plan = frame.plan
     s = plan.scale(lo)
+    hidden = _hidden(frame, canvas, li, box, bbox, ext_reach, s) if extend else None
     # uniform tiles: everything within the layer's reach (plus the reduced grid's spread) in this layer
     uniform = np.zeros_like(frame.tiles.copy)
     if plan.convolve_uniform and lo / (2 * s) >= plan.uniform_min_radius_px:

@@ -6,9 +6,15 @@ copied over the whole width the foreground hides: the light it adds would come f
 
 from __future__ import annotations
 
+from unittest import mock
+
+import cv2
+import hypothesis.strategies as st
 import numpy as np
 import pytest
+from hypothesis import given, settings
 
+from pcdof import renderer
 from pcdof.reference import render as ref
 from pcdof.renderer import render_layers_linear
 
@@ -34,3 +40,73 @@ def test_small_layer_is_not_copied_behind_a_blurred_foreground(renderer, radianc
         out = ref.render_layers_linear(lin, coc).astype(np.float32)
     # every source spreads its own light and nearer layers only take some away: no light from nothing
     assert float(out.sum()) <= 1.01 * float(lin.sum())
+
+
+def _owned_whole(layer, li, box, bbox, hidden, reach_px, cell_px=1):
+    """The ownership rule stated plainly: both transforms on the box widened by twice the reach (every
+    pixel that can compete for it), answered for every pixel of the box."""
+    h, w = layer.shape
+    pad = 2 * int(np.ceil(reach_px)) + 2
+    y0, x0 = max(0, box[0].start - pad), max(0, box[1].start - pad)
+    big = layer[y0:min(h, box[0].stop + pad), x0:min(w, box[1].stop + pad)]
+    behind = big >= li
+    dist, labels = cv2.distanceTransformWithLabels((~behind).astype(np.uint8), cv2.DIST_L2, 5,
+                                                   labelType=cv2.DIST_LABEL_PIXEL)
+    nearest = np.flatnonzero(behind.ravel())[labels.ravel() - 1]
+    farther = big > li
+    width = (cv2.distanceTransform((~farther).astype(np.uint8), cv2.DIST_L2, 5).ravel()[nearest] if farther.any()
+             else np.full(nearest.shape, np.inf, np.float32))
+    own = ((big.ravel()[nearest] == li) & (dist.ravel() <= np.maximum(width, 1.0))).reshape(big.shape)
+    return hidden & own[box[0].start - y0:box[0].stop - y0, box[1].start - x0:box[1].stop - x0]
+
+
+def _random_frame(seed):
+    """Random colour and a piecewise-constant signed CoC of random blocks, bars and specks (many layers,
+    many edges, ties between equally near layer pixels)."""
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(24, 160, 2))
+    lin = rng.random((h, w, 3), dtype=np.float32)
+    k = int(rng.integers(2, 10))
+    coc = cv2.resize(rng.uniform(-40, 40, (k, k)).astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST)
+    for _ in range(int(rng.integers(0, 6))):
+        y, x = int(rng.integers(0, h)), int(rng.integers(0, w))
+        coc[y:y + int(rng.integers(1, 6)), x:x + int(rng.integers(1, 40))] = rng.uniform(-60, 60)
+    if rng.random() < 0.4:
+        coc[rng.random((h, w)) < 0.1] = 0.0
+    return lin, coc
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), quality=st.sampled_from(["exact", "balanced", "fast"]))
+def test_ownership_on_its_window_renders_as_on_the_whole_box(seed, quality):
+    """The renderer decides ownership only where the extension can use it, on the smallest windows that
+    decide it: the render is bit for bit the one of the rule answered everywhere on the widened box."""
+    lin, coc = _random_frame(seed)
+    out, info = render_layers_linear(lin, coc, quality=quality)
+    with mock.patch.object(renderer, "_owned", _owned_whole):
+        whole, whole_info = render_layers_linear(lin, coc, quality=quality)
+    np.testing.assert_array_equal(out, whole)
+    assert info["layers"] == whole_info["layers"]
+
+
+def test_ownership_with_no_candidate_near_the_hidden_pixels_owns_nothing():
+    """Hidden pixels whose window holds no pixel of this or a farther layer: nothing owned, no error."""
+    layer = np.zeros((200, 200), np.int32)
+    layer[0, 0] = layer[199, 199] = 1  # the layer's bounding box is the whole frame
+    layer[100, 5] = 2  # a farther layer within twice the reach of the hidden pixels, not within the reach
+    hidden = np.zeros_like(layer, bool)
+    hidden[95:105, 20:30] = True
+    box = (slice(0, 200), slice(0, 200))
+    out = renderer._owned(layer, 1, box, (0, 199, 0, 199), hidden, 8.0)
+    assert out.shape == hidden.shape and not out.any()
+
+
+def test_ownership_with_no_farther_layer_owns_every_hidden_pixel_in_reach():
+    """Only this layer behind: it is every hidden pixel's nearest candidate, so all within reach are owned."""
+    layer = np.zeros((60, 80), np.int32)
+    layer[:, 50:] = 1
+    hidden = layer == 0
+    box = (slice(0, 60), slice(0, 80))
+    out = renderer._owned(layer, 1, box, (0, 59, 50, 79), hidden, 10.0)
+    assert out[:, 40:50].all()  # every hidden pixel within the reach (10 px) of the layer
+    assert (out <= hidden).all() and _owned_whole(layer, 1, box, None, hidden, 10.0)[:, 40:50].all()

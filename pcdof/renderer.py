@@ -816,7 +816,7 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
     The answer is computed where the extension can use it (:func:`_extend_behind` reaches *reach_px*,
     on the grid of *cell_px* x *cell_px* cells): for the hidden pixels within ``near`` (max-norm) of
     the layer's bounding box *bbox* (row0, row1, col0, col1, inclusive) and at most ``rd`` (chamfer)
-    from their nearest candidate (the chamfer distance lies between 1 and 1.41 times the max-norm).
+    from their nearest candidate (the chamfer distance is at least the max-norm).
     Each transform runs on the window that decides those pixels: their candidates within ``rd``, then
     the farther layers within the largest distance tested of the candidates that are tested, inside
     the box widened by twice the reach. There every answer the extension uses is the one the
@@ -824,8 +824,11 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
     """
     h, w = layer.shape
     (by, ey), (bx, ex) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
-    near = (int(math.ceil(reach_px / cell_px)) + 1) * cell_px - 1
-    rd = int(math.ceil(reach_px)) if cell_px == 1 else int(math.ceil(1.41 * near))
+    reach_cells = int(math.ceil(reach_px / cell_px))
+    near = (reach_cells + 1) * cell_px - 1
+    # the chamfer distance is homogeneous and at most 1.4 times the max-norm: a cell within reach_cells
+    # of the layer's cell holds pixels within reach_cells * cell_px + 1.4 (cell_px - 1) of its pixel
+    rd = int(math.ceil(reach_cells * cell_px + 1.41 * (cell_px - 1)))
     pad = 2 * int(math.ceil(reach_px)) + 2
     whole = (slice(max(0, by - pad), min(h, ey + pad)), slice(max(0, bx - pad), min(w, ex + pad)))
     out = np.zeros_like(hidden)

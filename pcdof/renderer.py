@@ -34,6 +34,7 @@ eq. 2 (or eq. 1), computed in the image's own sRGB encoding as in the paper.
 from __future__ import annotations
 
 import math
+import threading
 import warnings
 from dataclasses import dataclass
 
@@ -803,7 +804,8 @@ def _span(lo: int, hi: int, margin: int, bound: slice) -> slice:
     return slice(max(bound.start, lo - margin), min(bound.stop, hi + margin + 1))
 
 
-def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: float, cell_px: int = 1):
+def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: float, cell_px: int = 1,
+           parallel: bool = False):
     """The *hidden* pixels of *box* that layer *li* continues: those whose nearest pixel of layer *li* or
     a farther layer (OpenCV's 5x5 chamfer distance, ties in its scan order) is one of layer *li*'s, no
     farther from it than the distance from that pixel to the nearest pixel of a farther layer (at
@@ -821,6 +823,8 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
     the farther layers within the largest distance tested of the candidates that are tested, inside
     the box widened by twice the reach. There every answer the extension uses is the one the
     transforms give on the whole widened box; the others are not decided (the render does not read them).
+    *parallel*: the farther layers' transform runs on another thread, at the same time as the first,
+    on the window of every candidate that can be tested (same answer, a larger window).
     """
     h, w = layer.shape
     (by, ey), (bx, ex) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
@@ -847,29 +851,69 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
         out[tight] = hidden[tight]
         return out
     win = (_span(y0, y1, rd + 3, whole[0]), _span(x0, x1, rd + 3, whole[1]))
+    inner = (slice(y0 - win[0].start, y1 + 1 - win[0].start), slice(x0 - win[1].start, x1 + 1 - win[1].start))
+    at = np.zeros((win[0].stop - win[0].start, win[1].stop - win[1].start), bool)
+    at[inner] = hidden[tight]
+    out[tight] = _owned_in(layer, li, win, at, rd, whole, parallel)[inner]
+    return out
+
+
+def _owned_in(layer: np.ndarray, li: int, win, at: np.ndarray, rd: int, bound, parallel: bool) -> np.ndarray:
+    """:func:`_owned` on the window *win* of *layer*: which pixels of *at* (h_win, w_win) bool layer *li*
+    continues, decided for those within *rd* of their nearest candidate; (h_win, w_win) bool. The
+    farther layers' transform looks beyond *win*, within *bound*."""
     lay = layer[win]
     behind = lay >= li
+    res = np.zeros_like(at)
     if not behind.any():
-        return out  # no candidate within reach of any hidden pixel: nothing to continue
+        return res  # no candidate within reach of any hidden pixel: nothing to continue
+    if parallel:  # the farther layers' distance on another core, on the window of every candidate tested
+        win2 = (_span(win[0].start, win[0].stop - 1, rd + 3, bound[0]),
+                _span(win[1].start, win[1].stop - 1, rd + 3, bound[1]))
+        far_dist = _in_thread(lambda: cv2.distanceTransform(np.less_equal(layer[win2], li).view(np.uint8),
+                                                            cv2.DIST_L2, 5))
     dist, labels = cv2.distanceTransformWithLabels(np.logical_not(behind).view(np.uint8), cv2.DIST_L2, 5,
                                                    labelType=cv2.DIST_LABEL_PIXEL)
-    inner = (slice(y0 - win[0].start, y1 + 1 - win[0].start), slice(x0 - win[1].start, x1 + 1 - win[1].start))
-    at = np.zeros(behind.shape, bool)
-    at[inner] = hidden[tight]
-    at = np.flatnonzero(at)  # the hidden pixels, flat in the window
+    at = np.flatnonzero(at)
     d = dist.ravel()[at]
     q = np.flatnonzero(behind)[labels.ravel()[at] - 1]  # labels number the candidates in raster order
     own = (d <= rd) & np.equal(lay, li).ravel()[q]
     test = own & (d > 1.0)  # within 1 px a candidate of layer li always reaches
     if test.any():
         qy, qx = np.divmod(q[test], behind.shape[1])
-        width = _farther_dist(layer, li, qy + win[0].start, qx + win[1].start,
-                              int(math.ceil(float(d[test].max()))) + 3, whole)
+        qy += win[0].start
+        qx += win[1].start
+        if parallel:
+            width = far_dist()[qy - win2[0].start, qx - win2[1].start]
+        else:
+            width = _farther_dist(layer, li, qy, qx, int(math.ceil(float(d[test].max()))) + 3, bound)
         own[test] = d[test] <= np.maximum(width, 1.0)
-    res = np.zeros(behind.shape, bool)
+    elif parallel:
+        far_dist()
     res.ravel()[at] = own
-    out[tight] = res[inner]
-    return out
+    return res
+
+
+def _in_thread(fn):
+    """Run fn() on a new thread (OpenCV releases the GIL); returns a function that waits for its result."""
+    done = []
+
+    def target():
+        try:
+            done.append((fn(), None))
+        except BaseException as exc:  # re-raised in the caller's thread
+            done.append((None, exc))
+
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+
+    def result():
+        thread.join()
+        value, exc = done[0]
+        if exc is not None:
+            raise exc
+        return value
+    return result
 
 
 def _farther_dist(layer: np.ndarray, li: int, qy: np.ndarray, qx: np.ndarray, far: int, bound) -> np.ndarray:
@@ -884,7 +928,9 @@ def _hidden(frame: _Frame, canvas: _Canvas, li: int, box, bbox, reach_px: float,
     """Pixels of nearer layers that are not yet opaque and that this layer continues (:func:`_owned`), or None."""
     hidden = (frame.layer[box] < li) & (canvas.trans[box] > 0)
     if hidden.any():
-        hidden = _owned(frame.layer, li, box, bbox, hidden, reach_px, cell_px)
+        # the farther layers' transform on a second core pays for the thread from about 0.2 Mpx
+        parallel = frame.plan.threads > 1 and hidden.size >= 200_000
+        hidden = _owned(frame.layer, li, box, bbox, hidden, reach_px, cell_px, parallel)
     return hidden if hidden.any() else None
 
 

@@ -42,7 +42,7 @@ def test_small_layer_is_not_copied_behind_a_blurred_foreground(renderer, radianc
     assert float(out.sum()) <= 1.01 * float(lin.sum())
 
 
-def _owned_whole(layer, li, box, bbox, hidden, reach_px, cell_px=1):
+def _owned_whole(layer, li, box, bbox, hidden, reach_px, cell_px=1, parallel=False):
     """The ownership rule stated plainly: both transforms on the box widened by twice the reach (every
     pixel that can compete for it), answered for every pixel of the box."""
     h, w = layer.shape
@@ -110,3 +110,46 @@ def test_ownership_with_no_farther_layer_owns_every_hidden_pixel_in_reach():
     out = renderer._owned(layer, 1, box, (0, 59, 50, 79), hidden, 10.0)
     assert out[:, 40:50].all()  # every hidden pixel within the reach (10 px) of the layer
     assert (out <= hidden).all() and _owned_whole(layer, 1, box, None, hidden, 10.0)[:, 40:50].all()
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), cell_px=st.sampled_from([1, 2, 4]))
+def test_ownership_on_two_threads_is_the_serial_answer(seed, cell_px):
+    """The farther layers' transform on its own thread (a larger window) gives the serial answer, bit for bit."""
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(20, 120, 2))
+    k = int(rng.integers(2, 12))
+    layer = cv2.resize(rng.integers(0, 5, (k, k)).astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST)
+    layer = layer.astype(np.int32)
+    li = int(rng.integers(1, 4))
+    ys, xs = np.nonzero(layer == li)
+    if ys.size == 0:
+        return
+    hidden = np.zeros((h, w), bool)  # in a random rectangle: the windows end inside the frame
+    y0, x0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+    hidden[y0:y0 + int(rng.integers(1, h)), x0:x0 + int(rng.integers(1, w))] = True
+    hidden &= (layer < li) & (rng.random((h, w)) < 0.8)
+    box = (slice(0, h), slice(0, w))
+    bbox = (ys.min(), ys.max(), xs.min(), xs.max())
+    reach = float(rng.uniform(1, 20))
+    serial = renderer._owned(layer, li, box, bbox, hidden, reach, cell_px)
+    threaded = renderer._owned(layer, li, box, bbox, hidden, reach, cell_px, parallel=True)
+    np.testing.assert_array_equal(serial, threaded)
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+def test_ownership_sees_a_farther_layer_beyond_the_hidden_pixels_reach(parallel):
+    """A hidden pixel 15 px from a one-pixel layer, which a farther layer meets 11 px beyond: the layer
+    reaches 11 px beside the occluder, not 15, so the pixel is not owned. The farther layer lies 26 px
+    from the hidden pixel, outside the window of its candidates (20 + 3 px): the second transform must
+    look farther."""
+    layer = np.zeros((100, 100), np.int32)
+    layer[50, 25] = 1
+    layer[50, 36] = 2
+    hidden = np.zeros_like(layer, bool)
+    hidden[50, 10] = True
+    box = (slice(0, 100), slice(0, 100))
+    out = renderer._owned(layer, 1, box, (50, 50, 25, 25), hidden, 20.0, parallel=parallel)
+    assert not out.any() and not _owned_whole(layer, 1, box, None, hidden, 20.0).any()
+    layer[50, 36] = 0  # with no farther layer the pixel is owned
+    assert renderer._owned(layer, 1, box, (50, 50, 25, 25), hidden, 20.0, parallel=parallel)[50, 10]

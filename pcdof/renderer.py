@@ -805,7 +805,7 @@ def _span(lo: int, hi: int, margin: int, bound: slice) -> slice:
 
 
 def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: float, cell_px: int = 1,
-           parallel: bool = False):
+           threads: int = 1):
     """The *hidden* pixels of *box* that layer *li* continues: those whose nearest pixel of layer *li* or
     a farther layer (OpenCV's 5x5 chamfer distance, ties in its scan order) is one of layer *li*'s, no
     farther from it than the distance from that pixel to the nearest pixel of a farther layer (at
@@ -823,8 +823,8 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
     the farther layers within the largest distance tested of the candidates that are tested, inside
     the box widened by twice the reach. There every answer the extension uses is the one the
     transforms give on the whole widened box; the others are not decided (the render does not read them).
-    *parallel*: the farther layers' transform runs on another thread, at the same time as the first,
-    on the window of every candidate that can be tested (same answer, a larger window).
+    *threads*: the hidden pixels' box is cut into up to that many strips along its longer side, each
+    decided on its own windows on its own thread (OpenCV releases the GIL): the same answer.
     """
     h, w = layer.shape
     (by, ey), (bx, ex) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
@@ -850,15 +850,28 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
     if not (layer[_span(y0, y1, 2 * rd + 3, whole[0]), _span(x0, x1, 2 * rd + 3, whole[1])] > li).any():
         out[tight] = hidden[tight]
         return out
-    win = (_span(y0, y1, rd + 3, whole[0]), _span(x0, x1, rd + 3, whole[1]))
-    inner = (slice(y0 - win[0].start, y1 + 1 - win[0].start), slice(x0 - win[1].start, x1 + 1 - win[1].start))
-    at = np.zeros((win[0].stop - win[0].start, win[1].stop - win[1].start), bool)
-    at[inner] = hidden[tight]
-    out[tight] = _owned_in(layer, li, win, at, rd, whole, parallel)[inner]
+    # strips along the longer side, one per thread: each pixel's answer depends only on its own window
+    along = 1 if x1 - x0 >= y1 - y0 else 0
+    lo, hi = (x0, x1) if along else (y0, y1)
+    cuts = np.linspace(lo, hi + 1, max(1, min(threads, (hi + 1 - lo) // (4 * rd + 12))) + 1).astype(int)
+    strips = [(y0, y1, int(a), int(b) - 1) if along else (int(a), int(b) - 1, x0, x1) for a, b in zip(cuts, cuts[1:])]
+
+    def strip(sy0, sy1, sx0, sx1):
+        part = (slice(sy0 - by, sy1 + 1 - by), slice(sx0 - bx, sx1 + 1 - bx))
+        win = (_span(sy0, sy1, rd + 3, whole[0]), _span(sx0, sx1, rd + 3, whole[1]))
+        inner = (slice(sy0 - win[0].start, sy1 + 1 - win[0].start), slice(sx0 - win[1].start, sx1 + 1 - win[1].start))
+        at = np.zeros((win[0].stop - win[0].start, win[1].stop - win[1].start), bool)
+        at[inner] = hidden[part]
+        out[part] = _owned_in(layer, li, win, at, rd, whole)[inner]
+
+    others = [_in_thread(lambda box=box: strip(*box)) for box in strips[1:]]
+    strip(*strips[0])
+    for done in others:
+        done()
     return out
 
 
-def _owned_in(layer: np.ndarray, li: int, win, at: np.ndarray, rd: int, bound, parallel: bool) -> np.ndarray:
+def _owned_in(layer: np.ndarray, li: int, win, at: np.ndarray, rd: int, bound) -> np.ndarray:
     """:func:`_owned` on the window *win* of *layer*: which pixels of *at* (h_win, w_win) bool layer *li*
     continues, decided for those within *rd* of their nearest candidate; (h_win, w_win) bool. The
     farther layers' transform looks beyond *win*, within *bound*."""
@@ -867,11 +880,6 @@ def _owned_in(layer: np.ndarray, li: int, win, at: np.ndarray, rd: int, bound, p
     res = np.zeros_like(at)
     if not behind.any():
         return res  # no candidate within reach of any hidden pixel: nothing to continue
-    if parallel:  # the farther layers' distance on another core, on the window of every candidate tested
-        win2 = (_span(win[0].start, win[0].stop - 1, rd + 3, bound[0]),
-                _span(win[1].start, win[1].stop - 1, rd + 3, bound[1]))
-        far_dist = _in_thread(lambda: cv2.distanceTransform(np.less_equal(layer[win2], li).view(np.uint8),
-                                                            cv2.DIST_L2, 5))
     dist, labels = cv2.distanceTransformWithLabels(np.logical_not(behind).view(np.uint8), cv2.DIST_L2, 5,
                                                    labelType=cv2.DIST_LABEL_PIXEL)
     at = np.flatnonzero(at)
@@ -883,13 +891,8 @@ def _owned_in(layer: np.ndarray, li: int, win, at: np.ndarray, rd: int, bound, p
         qy, qx = np.divmod(q[test], behind.shape[1])
         qy += win[0].start
         qx += win[1].start
-        if parallel:
-            width = far_dist()[qy - win2[0].start, qx - win2[1].start]
-        else:
-            width = _farther_dist(layer, li, qy, qx, int(math.ceil(float(d[test].max()))) + 3, bound)
+        width = _farther_dist(layer, li, qy, qx, int(math.ceil(float(d[test].max()))) + 3, bound)
         own[test] = d[test] <= np.maximum(width, 1.0)
-    elif parallel:
-        far_dist()
     res.ravel()[at] = own
     return res
 
@@ -928,9 +931,9 @@ def _hidden(frame: _Frame, canvas: _Canvas, li: int, box, bbox, reach_px: float,
     """Pixels of nearer layers that are not yet opaque and that this layer continues (:func:`_owned`), or None."""
     hidden = (frame.layer[box] < li) & (canvas.trans[box] > 0)
     if hidden.any():
-        # the farther layers' transform on a second core pays for the thread from about 0.2 Mpx
-        parallel = frame.plan.threads > 1 and hidden.size >= 200_000
-        hidden = _owned(frame.layer, li, box, bbox, hidden, reach_px, cell_px, parallel)
+        # a second thread pays for itself from about 0.2 Mpx
+        threads = frame.plan.threads if hidden.size >= 200_000 else 1
+        hidden = _owned(frame.layer, li, box, bbox, hidden, reach_px, cell_px, threads)
     return hidden if hidden.any() else None
 
 

@@ -676,13 +676,32 @@ def _color_for_kernel(color) -> tuple[np.ndarray, float]:
     return c, 1.0
 
 
-def _nearest_known(depth: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """Depth of the nearest known pixel (Euclidean) at every pixel, via cv2.distanceTransformWithLabels."""
-    _, labels = cv2.distanceTransformWithLabels(
-        (~known).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE, labelType=cv2.DIST_LABEL_PIXEL
-    )
-    # DIST_LABEL_PIXEL numbers the zero (known) pixels 1, 2, ... in raster order
-    return depth[known][labels - 1]
+def _nearest_not_lost(depth: np.ndarray, lost: np.ndarray) -> np.ndarray:
+    """At each lost pixel, the depth of the nearest pixel that is not lost, straight up, left, down or
+    right of it (ties in that order); *depth* elsewhere.
+
+    Lost pixels are whole rows without a known pixel crossed with whole columns without one, so the
+    nearest pixel that is not lost always lies on the pixel's own row or column: four straight searches
+    give the Euclidean answer, with a tie rule of their own (no dependence on a library's scan order).
+    """
+    h, w = lost.shape
+    ok = ~lost
+    rows = np.arange(h)[:, None]
+    cols = np.arange(w)[None, :]
+    up = np.maximum.accumulate(np.where(ok, rows, -1), axis=0)
+    down = np.minimum.accumulate(np.where(ok, rows, h)[::-1], axis=0)[::-1]
+    left = np.maximum.accumulate(np.where(ok, cols, -1), axis=1)
+    right = np.minimum.accumulate(np.where(ok, cols, w)[:, ::-1], axis=1)[:, ::-1]
+    ly, lx = np.nonzero(lost)
+    u, l, d, r = up[ly, lx], left[ly, lx], down[ly, lx], right[ly, lx]
+    dist = np.stack([np.where(u >= 0, ly - u, h + w), np.where(l >= 0, lx - l, h + w),
+                     np.where(d < h, d - ly, h + w), np.where(r < w, r - lx, h + w)])
+    pick = np.argmin(dist, axis=0)  # the first of equal distances: up, left, down, right
+    ys = np.choose(pick, [np.clip(u, 0, h - 1), ly, np.clip(d, 0, h - 1), ly])
+    xs = np.choose(pick, [lx, np.clip(l, 0, w - 1), lx, np.clip(r, 0, w - 1)])
+    out = depth.copy()
+    out[ly, lx] = depth[ys, xs]
+    return out
 
 
 class FillPlan(NamedTuple):
@@ -760,10 +779,9 @@ def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, bac
     if lost.any():
         # outside the view with no known pixel on its row or column (a corner), or no known pixel on
         # any of the 16 lines (a small island off every line): the nearest filled or known pixel
-        ly, lx = hole_y[lost], hole_x[lost]
-        found = np.ones(depth.shape, bool)
-        found[ly, lx] = False
-        out[ly, lx] = _nearest_known(out, found)[ly, lx]
+        lost_mask = np.zeros(depth.shape, bool)
+        lost_mask[hole_y[lost], hole_x[lost]] = True
+        out = _nearest_not_lost(out, lost_mask)
     _median_far(out, hole_y, hole_x, r_near, _MEDIAN_MIN_R_STEPS * rules.step, rules.step, edge_ratio,
                 _MEDIAN_ITERATIONS)
     _despeckle(out, hole_y, hole_x, edge_ratio)

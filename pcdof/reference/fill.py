@@ -32,8 +32,8 @@ step = max(1, round(scale))):
    with no candidate on any of the 16 lines is one of these) takes the value, after rules 3-5, of the
    nearest pixel that is not lost. The pixels that are not lost are whole rows and whole columns, so
    the nearest lies straight up, left, down or right; among equally near ones the first in that
-   order (the order of OpenCV's two-pass distance transform, which :mod:`pcdof.fill` uses: its
-   forward pass, up then left, keeps its answer on a tie with the backward pass, down then right).
+   order (:mod:`pcdof.fill` searches the four directions itself, so the rule does not hang on a
+   library's scan order).
 7. Holes farther than 3 steps from their nearest candidate: twice (Jacobi), the median of their
    5 x 5 neighbourhood (taps one step apart, clamped at the border) when its range exceeds
    ``edge_ratio`` relative; otherwise unchanged. Border and lost holes are never "far".

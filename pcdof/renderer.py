@@ -42,6 +42,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
+from .apertures import Aperture, aperture_for, aperture_from_blades, as_aperture
 from .camera import _short, check_color
 from .color import decode_to_linear, encode_from_linear, from_float, to_float
 from .errors import InputError, LensError
@@ -66,10 +67,9 @@ MIN_SOURCE_RADIUS_PX = 0.5
 
 # ----------------------------------------------------------------------------- aperture spans
 _G_SAMPLES = 4096
-# g(u) = u*sqrt(1 - u^2) + asin(u) on [-1, 1]: r^2 * (g(u1) - g(u0)) is the area of the disc of radius r
-# between heights u0*r and u1*r. Tabulated once: a lookup is far cheaper than asin and sqrt per strip.
+# The heights u in [-1, 1] of the aperture tables: a lookup of the tabulated cumulative area is far
+# cheaper than the shape's own formula (asin and sqrt for the disc) per strip.
 _U = np.linspace(-1.0, 1.0, _G_SAMPLES + 1)
-_G_TABLE = (_U * np.sqrt(np.maximum(1 - _U * _U, 0)) + np.arcsin(_U)).astype(np.float64)
 
 
 @njit(cache=True, inline="always", fastmath=True, error_model="numpy")
@@ -82,34 +82,25 @@ def _g(u, table, row):
     return table[row, i] + frac * (table[row, i + 1] - table[row, i])
 
 
-def aperture_table(blades: int, rotation_rad: float) -> np.ndarray:
+def aperture_table(aperture, rotation_rad: float = 0.0) -> np.ndarray:
     """Cumulative area and first moment of the unit aperture below each height, (2, _G_SAMPLES + 1).
 
-    Row 0 is G(u) = integral over v < u of the aperture's width at height v, row 1 is M(u), the
-    same integral of width * mid-point x; u runs over [-1, 1] (circumradius 1). The strip of an
-    aperture of radius r between heights t0 < t1 then has area r^2 (G(t1/r) - G(t0/r)) and its
-    centre at r (M(t1/r) - M(t0/r)) / (G(t1/r) - G(t0/r)). A disc (blades = 0) uses the closed form
-    u sqrt(1 - u^2) + asin(u) and has M = 0; a regular polygon (vertex angles rotation + 2 pi i / N)
-    is integrated numerically on a 64x finer grid.
+    *aperture* is a :class:`pcdof.apertures.Aperture` (or a blade count, 0 or N >= 3, with the first
+    vertex at *rotation_rad*). Row 0 is G(u) = integral over v < u of the aperture's width at height
+    v, row 1 is M(u), the same integral of width * mid-point x; u runs over [-1, 1] (circumradius 1).
+    The strip of an aperture of radius r between heights t0 < t1 then has area r^2 (G(t1/r) - G(t0/r))
+    and its centre at r (M(t1/r) - M(t0/r)) / (G(t1/r) - G(t0/r)). A shape's closed form
+    (:meth:`~pcdof.apertures.Aperture.cumulative`, the disc's u sqrt(1 - u^2) + asin(u)) is used where
+    it has one; otherwise its :meth:`~pcdof.apertures.Aperture.span` is integrated on a 64x finer grid.
     """
-    if blades == 0:
-        return np.stack([_G_TABLE, np.zeros_like(_G_TABLE)])
+    aperture = as_aperture(aperture, rotation_rad)
+    closed = aperture.cumulative(_U)
+    if closed is not None:
+        return np.stack(closed)
     fine = 64 * _G_SAMPLES
     v = np.linspace(-1.0, 1.0, fine + 1)
     v = 0.5 * (v[1:] + v[:-1])  # mid-points of the fine steps
-    angles = rotation_rad + 2.0 * np.pi * np.arange(blades + 1) / blades
-    px, py = np.cos(angles), np.sin(angles)
-    lo = np.full(v.shape, np.inf)
-    hi = np.full(v.shape, -np.inf)
-    for i in range(blades):  # each edge crossing height v bounds the polygon's span there
-        y0, y1 = py[i], py[i + 1]
-        if y0 == y1:
-            continue
-        t = (v - y0) / (y1 - y0)
-        on = (t >= 0) & (t < 1)
-        x = px[i] + t * (px[i + 1] - px[i])
-        lo = np.where(on, np.minimum(lo, x), lo)
-        hi = np.where(on, np.maximum(hi, x), hi)
+    lo, hi = aperture.span(v)
     inside = hi > lo
     width = np.zeros_like(v)
     mid = np.zeros_like(v)
@@ -124,17 +115,16 @@ def aperture_table(blades: int, rotation_rad: float) -> np.ndarray:
 _APERTURE_TABLES: dict = {}
 
 
-def _aperture(blades: int, rotation_rad: float) -> np.ndarray:
-    key = (int(blades), float(rotation_rad))
-    if key not in _APERTURE_TABLES:
+def _aperture(aperture) -> np.ndarray:
+    if aperture not in _APERTURE_TABLES:
         if len(_APERTURE_TABLES) > 64:
             _APERTURE_TABLES.clear()
-        _APERTURE_TABLES[key] = aperture_table(*key)
-    return _APERTURE_TABLES[key]
+        _APERTURE_TABLES[aperture] = aperture_table(aperture)
+    return _APERTURE_TABLES[aperture]
 
 
 @njit(cache=True, inline="always", fastmath=True, error_model="numpy")
-def _strip(dy, r, blades, table):
+def _strip(dy, r, symmetric, table):
     """(area, centre offset) of the aperture's footprint on the pixel row dy rows below its centre."""
     lo = max(dy - 0.5, -r)
     hi = min(dy + 0.5, r)
@@ -143,14 +133,14 @@ def _strip(dy, r, blades, table):
     ghi = _g(hi / r, table, 0)
     glo = _g(lo / r, table, 0)
     area = r * r * (ghi - glo)
-    if blades == 0 or ghi <= glo:
+    if symmetric or ghi <= glo:
         return area, 0.0
     return area, r * (_g(hi / r, table, 1) - _g(lo / r, table, 1)) / (ghi - glo)
 
 
 # ----------------------------------------------------------------------------- layer kernels
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
-def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blades, table, out):
+def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symmetric, table, out):
     """Scatter packed sources into ``out`` rows y_lo..y_hi (H, W, 4: premultiplied colour, coverage).
 
     Sources are sorted by row: those of row y are ``offsets[y]:offsets[y+1]``, at column ``xs``,
@@ -171,7 +161,7 @@ def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, blade
                 r = radius[k]
                 if gap >= r:
                     continue
-                area, centre = _strip(dy, r, blades, table)
+                area, centre = _strip(dy, r, symmetric, table)
                 if area <= 0.0:
                     continue
                 v0, v1, v2, v3 = values[k, 0], values[k, 1], values[k, 2], values[k, 3]
@@ -508,7 +498,7 @@ UNIFORM_MAX_WASTE = 3.0
 _NO_BIN = -(2 ** 31)  # bin of the cells that are not convolved
 
 
-def _footprint_kernel(r: float, blades: int, table: np.ndarray) -> np.ndarray:
+def _footprint_kernel(r: float, symmetric: bool, table: np.ndarray) -> np.ndarray:
     """The scatter's own footprint of one source of radius *r* at a pixel centre, summing to 1: (2R+1, 2R+1) float32.
 
     Scattering a region of sources that all have radius r is the convolution with this kernel.
@@ -521,7 +511,7 @@ def _footprint_kernel(r: float, blades: int, table: np.ndarray) -> np.ndarray:
     offsets[reach + 1:] = 1  # the one source sits on row `reach`
     buf = np.zeros((n, n, 4), np.float32)
     _scatter_packed(np.array([reach], np.float32), np.array([r], np.float32), values, offsets, n, float(r), 0, n - 1,
-                    blades, table, buf)
+                    symmetric, table, buf)
     return np.ascontiguousarray(buf[:, :, 3])
 
 
@@ -618,7 +608,7 @@ def _uniform_plan(fast, radius):
     return bins, groups
 
 
-def _convolve_uniform(lin, share, bins, groups, blades, table, buf):
+def _convolve_uniform(lin, share, bins, groups, symmetric, table, buf):
     """Write the layer's scatter at the cells of *groups* as a convolution, one footprint kernel per group.
 
     lin (hs, ws, C) and share (hs, ws) on the layer's grid; *bins* and *groups* from
@@ -626,7 +616,7 @@ def _convolve_uniform(lin, share, bins, groups, blades, table, buf):
     """
     hs, ws, nc = lin.shape
     for b, radius, (ya, yb, xa, xb) in groups:
-        kernel = _footprint_kernel(radius, blades, table)
+        kernel = _footprint_kernel(radius, symmetric, table)
         k = kernel.shape[0] // 2
         # the window with the kernel's reach around it, so the convolution sees every source it needs
         cy0, cy1, cx0, cx1 = max(0, ya - k), min(hs, yb + k), max(0, xa - k), min(ws, xb + k)
@@ -638,9 +628,10 @@ def _convolve_uniform(lin, share, bins, groups, blades, table, buf):
 
 @dataclass(frozen=True)
 class _Aperture:
-    """The aperture of a render: blade count (0 = disc) and its :func:`aperture_table`."""
+    """The aperture of a render: whether its strips are centred (:attr:`pcdof.apertures.Aperture.symmetric`)
+    and its :func:`aperture_table`."""
 
-    blades: int
+    symmetric: bool
     table: np.ndarray
 
     @property
@@ -721,7 +712,7 @@ def _scatter_sources(grid: _Grid, scattered, aperture: _Aperture, buf) -> int:
         reach = int(math.ceil(r_max + 0.5))
         hs, ws = scattered.shape
         _scatter_packed(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach),
-                        aperture.blades, aperture.table, buf)
+                        aperture.symmetric, aperture.table, buf)
     return n_scattered
 
 
@@ -745,7 +736,7 @@ def _scatter_layer(lin, radius, member, s, aperture: _Aperture, hidden=None, rea
     bins, groups, scattered = _convolved_cells(grid, fast, s)
     n_scattered = _scatter_sources(grid, scattered, aperture, buf)
     if groups:
-        _convolve_uniform(grid.lin, grid.share, bins, groups, aperture.blades, aperture.table, buf)
+        _convolve_uniform(grid.lin, grid.share, bins, groups, aperture.symmetric, aperture.table, buf)
     if nc < 3:
         buf = np.ascontiguousarray(buf[:, :, list(range(nc)) + [3]])
     if s > 1:
@@ -995,8 +986,19 @@ def _tiles_for(coc, tiles, plan: RenderPlan) -> TileMap:
     return tiles
 
 
+def _shape_of(aperture, blades, rotation_deg) -> Aperture:
+    """The render's aperture shape: *aperture*, or the disc / polygon of *blades* and *rotation_deg*."""
+    if aperture is None:
+        return aperture_from_blades(blades, rotation_deg)
+    if not isinstance(aperture, Aperture):
+        raise InputError(f"aperture must be a pcdof.apertures.Aperture; got {type(aperture).__name__}")
+    if blades != 0:
+        raise InputError(f"give aperture or blades, not both; got blades={blades!r} and aperture={aperture!r:.80}")
+    return aperture
+
+
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
-                         rotation_deg: float = 0.0, quality: str = "balanced",
+                         rotation_deg: float = 0.0, aperture: Aperture | None = None, quality: str = "balanced",
                          extend_behind: bool = True, tiles: TileMap | None = None,
                          plan: RenderPlan | None = None) -> tuple[np.ndarray, dict]:
     """Physical depth of field in linear light.
@@ -1006,7 +1008,8 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     lin : (H, W, C) float32, linear radiance, C = 1..3
     signed_coc : (H, W) float32, signed circle-of-confusion diameter in pixels (< 0 in front of focus);
         NaN is unknown and, like unknown depth in :meth:`pcdof.lens.ThinLens.signed_coc_px`, in focus (0)
-    blades, rotation_deg : aperture polygon (0 = disc)
+    blades, rotation_deg : aperture polygon (0 = disc), as :class:`pcdof.lens.ThinLens` has them
+    aperture : a :class:`pcdof.apertures.Aperture` instead of *blades* and *rotation_deg* (any shape)
     quality : a key of :data:`QUALITIES`; sets the plan when *plan* is None
     extend_behind : continue each layer behind the soft edges of nearer blurred layers (partial occlusion)
     tiles : :func:`pcdof.tiles.classify_tiles` of *signed_coc*, if the caller has it (else computed here);
@@ -1021,6 +1024,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     check_quality(quality)
     if lin.ndim != 3 or not 1 <= lin.shape[2] <= 3:
         raise InputError(f"lin must be (H, W, C) with 1 to 3 channels; got shape {lin.shape}")
+    shape = _shape_of(aperture, blades, rotation_deg)
     plan = plan_render(quality=quality) if plan is None else check_render_plan(plan)
     h, w, _ = lin.shape
     lin = np.ascontiguousarray(lin, np.float32)
@@ -1028,8 +1032,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
         coc, radius, layer, keys, counts, r_maxes, boxes = _classify_layers(
             np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX, LAYER_EDGES_PX)
         tiles = _tiles_for(coc, tiles, plan)
-        rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
-        frame = _Frame(lin, radius, layer, tiles, plan, _Aperture(int(blades), _aperture(blades, rot)), extend_behind)
+        frame = _Frame(lin, radius, layer, tiles, plan, _Aperture(shape.symmetric, _aperture(shape)), extend_behind)
         canvas = _Canvas.start(lin.shape, tiles, plan.copy_tiles)
         layers_run = _composite_layers(frame, canvas, keys, counts, r_maxes, boxes)
         out = np.empty_like(lin)
@@ -1069,7 +1072,7 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     lin = to_float(src).copy() if linear else decode_to_linear(src)
     tiles = classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
     out_lin, info = render_layers_linear(np.ascontiguousarray(lin, np.float32), coc,
-                                         blades=lens.aperture_blades, rotation_deg=lens.aperture_rotation_deg,
+                                         aperture=aperture_for(lens),
                                          quality=quality, tiles=tiles, plan=plan)
     if linear:
         out = out_lin if color.dtype.kind == "f" else from_float(out_lin, color.dtype)

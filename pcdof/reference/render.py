@@ -6,8 +6,9 @@ Physical renderer, the rules stated here (those of :func:`pcdof.renderer.render_
    max(|c| / 2, ``MIN_SOURCE_RADIUS_PX``).
 2. Layers: key 0 for |c| < ``LAYER_EDGES_PX[0]``, +-k for ``edges[k-1] <= |c| < edges[k]`` (negative in
    front of focus); layers are visited by ascending key, i.e. from near to far.
-3. Each source spreads weight (colour, 1) / (aperture area) over its footprint (a disc, or the regular
-   polygon with ``blades`` vertices at angles rotation - 90 deg + 360 deg i / blades, circumradius r).
+3. Each source spreads weight (colour, 1) / (aperture area) over its footprint: the aperture shape
+   (:mod:`pcdof.apertures`: a disc, the regular polygon with ``blades`` vertices at angles
+   rotation - 90 deg + 360 deg i / blades, or any registered shape) at circumradius r.
    The anti-aliased edge: on each pixel row the footprint's strip (area a, centroid x_c) is laid out as
    the interval [x_c - a/2, x_c + a/2] of that row, and each pixel gets its overlap with the interval.
    So every source carries exactly its energy (less what falls off the image).
@@ -26,8 +27,8 @@ Physical renderer, the rules stated here (those of :func:`pcdof.renderer.render_
    accumulated opacity, or the input pixel where no light arrived (opacity <= 1e-6).
 
 No tiles, no reduced resolution, no convolution: every source is scattered, at full resolution, with
-the exact strip areas (closed form for the disc, polygon clipping for the polygon) where the fast code
-interpolates a table.
+the exact strip areas of :meth:`pcdof.apertures.Aperture.band` (closed form for the disc, polygon clipping
+for the polygon) where the fast code interpolates a table.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import math
 
 import numpy as np
 
+from ..apertures import Aperture, aperture_for, aperture_from_blades, as_aperture
 from ..color import decode_to_linear, encode_from_linear, to_float
 from ..renderer import LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, SHARP_COC_PX
 from ..lens import MAX_COC_PX
@@ -44,77 +46,37 @@ from .coc import paper_alpha, signed_coc_px
 
 
 # ----------------------------------------------------------------------------- aperture footprint
-def _polygon(blades: int, rotation_rad: float, r: float) -> np.ndarray:
-    """(blades, 2) vertices (x, y) of the regular polygon of circumradius r (image y points down)."""
-    a = rotation_rad + 2.0 * np.pi * np.arange(blades) / blades
-    return r * np.stack([np.cos(a), np.sin(a)], axis=1)
+def strip(dy: int, r: float, aperture, rotation_rad: float = 0.0) -> tuple[float, float]:
+    """(area, centroid x) of the aperture of radius r centred on a pixel, on the pixel row dy rows below.
 
-
-def _clip_band(poly: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """The convex polygon *poly* cut to lo <= y <= hi (Sutherland-Hodgman, two half-planes)."""
-    for bound, sign in ((lo, 1.0), (hi, -1.0)):  # keep sign * (y - bound) >= 0
-        out = []
-        n = len(poly)
-        for i in range(n):
-            p, q = poly[i], poly[(i + 1) % n]
-            p_in, q_in = sign * (p[1] - bound) >= 0, sign * (q[1] - bound) >= 0
-            if p_in:
-                out.append(p)
-            if p_in != q_in:
-                out.append(p + (bound - p[1]) / (q[1] - p[1]) * (q - p))
-        poly = np.array(out).reshape(-1, 2)
-        if len(poly) < 3:
-            return np.zeros((0, 2))
-    return poly
-
-
-def _area_centroid_x(poly: np.ndarray) -> tuple[float, float]:
-    """Area and centroid x of a simple polygon (shoelace formula)."""
-    if len(poly) < 3:
-        return 0.0, 0.0
-    x, y = poly[:, 0], poly[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cross = x * yn - xn * y
-    area = 0.5 * cross.sum()
-    if area == 0.0:
-        return 0.0, 0.0
-    return abs(area), float(((x + xn) * cross).sum() / (6.0 * area))
-
-
-def _disc_g(u: float) -> float:
-    """u sqrt(1 - u^2) + asin(u): the unit disc's area below height u, up to a constant."""
-    u = min(max(u, -1.0), 1.0)
-    return u * math.sqrt(max(1.0 - u * u, 0.0)) + math.asin(u)
-
-
-def strip(dy: int, r: float, blades: int, rotation_rad: float) -> tuple[float, float]:
-    """(area, centroid x) of the aperture of radius r centred on a pixel, on the pixel row dy rows below."""
+    *aperture*: a :class:`pcdof.apertures.Aperture`, or a blade count with its first vertex at *rotation_rad*.
+    """
     lo, hi = max(dy - 0.5, -r), min(dy + 0.5, r)
     if hi <= lo:
         return 0.0, 0.0
-    if blades == 0:
-        return r * r * (_disc_g(hi / r) - _disc_g(lo / r)), 0.0
-    return _area_centroid_x(_clip_band(_polygon(blades, rotation_rad, r), lo, hi))
+    return as_aperture(aperture, rotation_rad).band(r, lo, hi)
 
 
-def unit_area(blades: int) -> float:
+def unit_area(aperture) -> float:
     """Area of the aperture of circumradius 1: pi for the disc, (N / 2) sin(2 pi / N) for the N-gon."""
-    return math.pi if blades == 0 else 0.5 * blades * math.sin(2.0 * math.pi / blades)
+    return as_aperture(aperture).unit_area
 
 
 @functools.lru_cache(maxsize=4096)
-def footprint(r: float, blades: int, rotation_rad: float) -> np.ndarray:
+def footprint(r: float, aperture, rotation_rad: float = 0.0) -> np.ndarray:
     """Coverage of each pixel by the aperture of radius r centred on pixel (R, R): (2R+1, 2R+1), R = ceil(r + 0.5).
 
-    Row by row, the strip's area is laid out as an interval centred on its centroid and each pixel
-    gets its overlap with it (rule 3 of the module docstring). Sums to the aperture's area. Cached
-    (read-only result): the sources of a layer often share a radius.
+    *aperture*: a :class:`pcdof.apertures.Aperture`, or a blade count with its first vertex at
+    *rotation_rad*. Row by row, the strip's area is laid out as an interval centred on its centroid
+    and each pixel gets its overlap with it (rule 3 of the module docstring). Sums to the aperture's
+    area. Cached (read-only result): the sources of a layer often share a radius.
     """
+    shape = as_aperture(aperture, rotation_rad)
     R = int(math.ceil(r + 0.5))
     out = np.zeros((2 * R + 1, 2 * R + 1))
     px = np.arange(-R, R + 1, dtype=np.float64)
     for dy in range(-R, R + 1):
-        area, centre = strip(dy, r, blades, rotation_rad)
+        area, centre = strip(dy, r, shape)
         if area <= 0.0:
             continue
         a, b = centre - 0.5 * area, centre + 0.5 * area
@@ -130,7 +92,7 @@ def layer_keys(signed_coc: np.ndarray) -> np.ndarray:
     return np.where(signed_coc < 0, -k, k)
 
 
-def scatter(lin: np.ndarray, radius: np.ndarray, member: np.ndarray, blades: int, rotation_rad: float) -> np.ndarray:
+def scatter(lin: np.ndarray, radius: np.ndarray, member: np.ndarray, aperture: Aperture) -> np.ndarray:
     """Scatter every member pixel over its own footprint: (H, W, C + 1) premultiplied colour and coverage.
 
     Each source spreads (colour, 1) / (unit_area r^2) over :func:`footprint` (r at least
@@ -138,10 +100,10 @@ def scatter(lin: np.ndarray, radius: np.ndarray, member: np.ndarray, blades: int
     """
     h, w, nc = lin.shape
     buf = np.zeros((h, w, nc + 1))
-    unit = unit_area(blades)
+    unit = aperture.unit_area
     for y, x in zip(*np.nonzero(member)):
         r = max(float(radius[y, x]), MIN_SOURCE_RADIUS_PX)
-        k = footprint(r, blades, rotation_rad) / (unit * r * r)
+        k = footprint(r, aperture) / (unit * r * r)
         R = k.shape[0] // 2
         y0, y1, x0, x1 = max(0, y - R), min(h, y + R + 1), max(0, x - R), min(w, x + R + 1)
         kk = k[y0 - y + R: y1 - y + R, x0 - x + R: x1 - x + R]
@@ -214,14 +176,15 @@ def _composite_layer(buf, acc, acc_a, trans) -> None:
 
 
 def render_layers_linear(lin, signed_coc, *, blades: int = 0, rotation_deg: float = 0.0,
-                         extend_behind_layers: bool = True) -> np.ndarray:
+                         aperture: Aperture | None = None, extend_behind_layers: bool = True) -> np.ndarray:
     """Physical depth of field in linear light (the rules of the module docstring).
 
     Parameters
     ----------
     lin : (H, W, C) float ndarray, linear radiance
     signed_coc : (H, W) float ndarray, signed CoC diameter, pixels (< 0 in front of focus; NaN = 0)
-    blades, rotation_deg : aperture polygon (0 = disc)
+    blades, rotation_deg : aperture polygon (0 = disc), as :class:`pcdof.lens.ThinLens` has them
+    aperture : a :class:`pcdof.apertures.Aperture` instead of *blades* and *rotation_deg* (any shape)
     extend_behind_layers : continue each layer behind nearer, not yet opaque layers (partial occlusion)
 
     Returns
@@ -233,7 +196,7 @@ def render_layers_linear(lin, signed_coc, *, blades: int = 0, rotation_deg: floa
                   -MAX_COC_PX, MAX_COC_PX)
     radius = 0.5 * np.abs(coc)
     keys = layer_keys(coc)
-    rot = math.radians(rotation_deg) - math.pi / 2  # a vertex points up at rotation 0
+    shape = aperture_from_blades(blades, rotation_deg) if aperture is None else as_aperture(aperture)
     h, w, nc = lin.shape
     acc, acc_a, trans = np.zeros((h, w, nc)), np.zeros((h, w)), np.ones((h, w))
     order = np.unique(keys)  # ascending: near to far
@@ -253,7 +216,7 @@ def render_layers_linear(lin, signed_coc, *, blades: int = 0, rotation_deg: floa
             acc_a[sel] += trans[sel]
             trans[sel] = 0.0
             continue
-        _composite_layer(scatter(src, src_r, member, blades, rot), acc, acc_a, trans)
+        _composite_layer(scatter(src, src_r, member, shape), acc, acc_a, trans)
         r_front = max(r_front, r_max)
     lit = acc_a > 1e-6
     return np.where(lit[:, :, None], acc / np.where(lit, acc_a, 1.0)[:, :, None], lin)
@@ -270,7 +233,7 @@ def render_physical(color, depth_m, lens, *, fx: float, linear: bool = False) ->
     if np.abs(coc).max() < SHARP_COC_PX:
         return to_float(src).astype(np.float64)
     lin = to_float(src) if linear else decode_to_linear(src)
-    out = render_layers_linear(lin, coc, blades=lens.aperture_blades, rotation_deg=lens.aperture_rotation_deg)
+    out = render_layers_linear(lin, coc, aperture=aperture_for(lens))
     if linear:
         return out
     return to_float(encode_from_linear(out.astype(np.float32), np.float32)).astype(np.float64)

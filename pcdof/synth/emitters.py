@@ -27,9 +27,9 @@ import math
 
 import numpy as np
 
+from ..apertures import Disc
 from ..errors import InputError
 from ..lens import ThinLens
-from .render import _map_points
 from .scene import Scene
 from .shading import Material
 
@@ -127,7 +127,7 @@ def emitter_term(synth_frame, lens: ThinLens, *, samples: int = EMITTER_SAMPLES,
         uv = np.stack([np.broadcast_to((cell % g + 0.0), (n_pix, n)).ravel(),
                        np.broadcast_to((cell // g + 0.0), (n_pix, n)).ravel()], axis=1)
         uv = (uv + rng.uniform(size=uv.shape)) / g
-        a = a0 + r0[:, None] * _map_points(uv, 0, 0.0)  # concentric map: stratified points on the disc
+        a = a0 + r0[:, None] * Disc().sample(uv)  # concentric map: stratified points on the disc
         inside = (a ** 2).sum(axis=1) <= ap_r ** 2
         origins = np.column_stack([a, np.zeros(len(a))]).astype(np.float32)
         hits = scene.cast(origins, (pf - origins).astype(np.float32))

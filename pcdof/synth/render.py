@@ -42,6 +42,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
+from ..apertures import aperture_for
 from ..camera import Intrinsics
 from ..errors import InputError
 from ..lens import ThinLens
@@ -130,72 +131,24 @@ def _uniform01(seed, pixel, sample, dim):
     return float(x >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
-@njit(cache=True, inline="always")
-def _square_to_aperture(u, v, blades, rotation_rad):
-    """A point of [0, 1)^2 -> the unit aperture (disc, or regular polygon of circumradius 1), area-uniform.
-
-    Disc: Shirley & Chiu's concentric map. Polygon (vertex i at ``rotation + 2 pi i / blades``):
-    *u* picks the fan triangle and the position across it, sqrt(*v*) the distance from the centre.
-    """
-    if blades >= 3:
-        s = u * blades
-        i = min(math.floor(s), blades - 1)
-        frac = s - i
-        a0 = rotation_rad + 2.0 * math.pi * i / blades
-        a1 = a0 + 2.0 * math.pi / blades
-        r = math.sqrt(v)
-        return (r * ((1.0 - frac) * math.cos(a0) + frac * math.cos(a1)),
-                r * ((1.0 - frac) * math.sin(a0) + frac * math.sin(a1)))
-    a = 2.0 * u - 1.0
-    b = 2.0 * v - 1.0
-    if a == 0.0 and b == 0.0:
-        return 0.0, 0.0
-    if abs(a) > abs(b):
-        r = a
-        phi = (math.pi / 4) * (b / a)
-    else:
-        r = b
-        phi = math.pi / 2 - (math.pi / 4) * (a / b)
-    return r * math.cos(phi), r * math.sin(phi)
-
-
-@njit(cache=True)
-def _map_points(uv, blades, rotation_rad):
-    out = np.empty(uv.shape, np.float64)
-    for i in range(uv.shape[0]):
-        x, y = _square_to_aperture(uv[i, 0], uv[i, 1], blades, rotation_rad)
-        out[i, 0] = x
-        out[i, 1] = y
-    return out
-
-
-def aperture_vertex_angle_rad(lens: ThinLens) -> float:
-    """Angle of the polygonal aperture's first vertex from +x, radians (x right, y down).
-
-    At ``aperture_rotation_deg = 0`` a vertex points up (-y), as in :mod:`pcdof.renderer`; positive
-    rotations turn the polygon clockwise on screen.
-    """
-    return math.radians(lens.aperture_rotation_deg) - math.pi / 2
-
-
 def aperture_points(uv, lens: ThinLens) -> np.ndarray:
     """Points (N, 2) in metres on the lens aperture for unit-square samples *uv* (N, 2).
 
-    The map is area-preserving, so uniform (or stratified) *uv* gives uniform (stratified) points
-    over the aperture: a disc of diameter ``lens.aperture_m``, or the regular polygon of
-    circumradius ``lens.aperture_m / 2`` with ``lens.aperture_blades`` vertices, the first at
-    :func:`aperture_vertex_angle_rad` (pointing up at rotation 0). Behind the focus plane the bokeh
-    has this shape; in front of it, the shape mirrored through its centre.
+    The map (:meth:`pcdof.apertures.Aperture.sample` of :func:`pcdof.apertures.aperture_for`) is
+    area-preserving, so uniform (or stratified) *uv* gives uniform (stratified) points over the
+    aperture: a disc of diameter ``lens.aperture_m``, or the regular polygon of circumradius
+    ``lens.aperture_m / 2`` with ``lens.aperture_blades`` vertices, the first pointing up at rotation 0.
+    Behind the focus plane the bokeh has this shape; in front of it, the shape mirrored through its centre.
     """
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    pts = _map_points(uv, lens.aperture_blades, aperture_vertex_angle_rad(lens))
-    return 0.5 * lens.aperture_m * pts
+    return 0.5 * lens.aperture_m * aperture_for(lens).sample(uv)
 
 
 @njit(cache=True, parallel=True)
-def _lens_rays(focus, pixels, n, m, radius, blades, rotation_rad, seed, sub, sub_du, sub_dv, origins, dirs):
+def _lens_rays(focus, pixels, n, m, radius, sample, params, seed, sub, sub_du, sub_dv, origins, dirs):
     """Rays of the given pixels (flat indices): one jittered sample per cell of an n x m grid on the
-    aperture, each from its aperture point through the pixel's focus point ``focus[pixel]``.
+    aperture, each from its aperture point through the pixel's focus point ``focus[pixel]``. The
+    aperture point is ``radius * sample(u, v, params)`` (:attr:`pcdof.apertures.Aperture.sampler`).
 
     With a box pixel filter (*sub* > 1) this is done for each of the pixel's sub x sub grid points,
     the same points the pinhole colour image averages (*sub_du*, *sub_dv*: one pixel's extent on
@@ -218,7 +171,7 @@ def _lens_rays(focus, pixels, n, m, radius, blades, rotation_rad, seed, sub, sub
                     k = q * s + a * m + b
                     u = (a + _uniform01(seed, pix, k, 0)) / n
                     v = (b + _uniform01(seed, pix, k, 1)) / m
-                    x, y = _square_to_aperture(u, v, blades, rotation_rad)
+                    x, y = sample(u, v, params)
                     j = i * s * ss + k
                     origins[j, 0] = radius * x
                     origins[j, 1] = radius * y
@@ -299,7 +252,7 @@ def _render_pixels(synth_frame, lens: ThinLens, pixels: np.ndarray, samples: int
     chunk = max(1, RAYS_PER_CHUNK // s)
     origins = np.empty((min(chunk, pixels.shape[0]) * s, 3), np.float32)
     dirs = np.empty_like(origins)
-    rot = aperture_vertex_angle_rad(lens)
+    sample, params = aperture_for(lens).sampler
     scene = synth_frame.scene
     starts = range(0, pixels.shape[0], chunk)
     if progress:
@@ -309,8 +262,8 @@ def _render_pixels(synth_frame, lens: ThinLens, pixels: np.ndarray, samples: int
     for lo in starts:
         hi = min(pixels.shape[0], lo + chunk)
         k = (hi - lo) * s
-        _lens_rays(focus, pixels[lo:hi], n, m, 0.5 * lens.aperture_m, lens.aperture_blades, rot, seed, sub, sub_du,
-                   sub_dv, origins, dirs)
+        _lens_rays(focus, pixels[lo:hi], n, m, 0.5 * lens.aperture_m, sample, params, seed, sub, sub_du, sub_dv,
+                   origins, dirs)
         rad, _ = scene.trace(origins[:k], dirs[:k])
         out[lo:hi] = rad.reshape(hi - lo, s, 3).mean(axis=1)
     return out

@@ -128,6 +128,9 @@ class ThinLens:
     aperture_blades : int, 0 = circular aperture, >= 3 = regular polygon with that many blades
     aperture_rotation_deg : float, rotation of the polygonal aperture; stored reduced to [0, 360/N)
         (a circle's to [0, 360)), the angles that give different shapes
+    aperture_shape : optional :class:`pcdof.apertures.Aperture` (any registered shape, e.g. one of
+        :data:`pcdof.apertures.APERTURES` built with its parameters); it replaces the disc or polygon that
+        ``aperture_blades`` describes (which must then be 0)
     """
 
     focal_length_mm: float
@@ -135,6 +138,7 @@ class ThinLens:
     focus_distance_m: float
     aperture_blades: int = 0
     aperture_rotation_deg: float = 0.0
+    aperture_shape: object = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "focal_length_mm", positive_number("focal_length_mm", self.focal_length_mm))
@@ -154,6 +158,14 @@ class ThinLens:
         if rotation < 0:
             rotation += period  # may round up to the period itself for a tiny negative angle: that is 0
         object.__setattr__(self, "aperture_rotation_deg", rotation + 0.0 if rotation < period else 0.0)
+        if self.aperture_shape is not None:
+            from .apertures import Aperture
+
+            if not isinstance(self.aperture_shape, Aperture):
+                raise LensError(f"aperture_shape must be a pcdof.apertures.Aperture or None; "
+                                f"got {type(self.aperture_shape).__name__}")
+            if self.aperture_blades:
+                raise LensError("give aperture_shape or aperture_blades, not both")
 
     @property
     def aperture_m(self) -> float:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from dataclasses import dataclass
@@ -126,3 +127,35 @@ class TestNewShape:
         np.testing.assert_allclose(out, ref, atol=2e-4, rtol=0)
         disc = ref_render.render_layers_linear(lin, coc, extend_behind_layers=False)
         assert np.abs(disc - ref).max() > 0.01  # the shape matters: a disc render is far from it
+
+
+class TestShapeOnTheLens:
+    """A registered shape reaches every renderer through the lens: ThinLens(aperture_shape=...)."""
+
+    def test_pipeline_renders_the_lens_shape(self, cats_eye):
+        from pcdof.apertures import aperture_for
+        from pcdof.camera import Intrinsics, RGBDFrame, Rig
+        from pcdof.errors import LensError
+        from pcdof.lens import ThinLens
+        from pcdof.pipeline import run
+
+        lens = ThinLens(focal_length_mm=400, f_number=1.4, focus_distance_m=1.0, aperture_shape=cats_eye)
+        assert aperture_for(lens) is cats_eye
+        rng = np.random.default_rng(5)
+        color = np.zeros((40, 48, 3), np.uint8)
+        color[20, 24] = 200  # one bright point on a dark wall behind the focus
+        color += rng.integers(0, 3, color.shape, dtype=np.uint8)
+        frame = RGBDFrame(color, np.full((40, 48), 3.0, np.float32), Rig.registered(Intrinsics(48, 40, 50.0, 50.0, 23.5, 19.5)))
+        shaped = run(frame, lens, quality="exact").image.astype(float)
+        disc = run(frame, dataclasses.replace(lens, aperture_shape=None), quality="exact").image.astype(float)
+        assert np.abs(shaped - disc).max() > 5  # the bokeh of the point has the lens's shape
+        x = np.arange(48)
+        # the bokeh's centroid moves by the shape's: 0.3 r (r = 4.8 px here), the disc's stays at the point
+        centre = lambda img: (img.sum(axis=(0, 2)) * x).sum() / img.sum()  # noqa: E731
+        above = lambda img: np.maximum(img - 3.0, 0.0)  # noqa: E731 - the point's light, not the wall's noise
+        assert centre(above(shaped)) - centre(above(disc)) > 0.7
+        with pytest.raises(LensError, match="aperture_shape or aperture_blades"):
+            ThinLens(focal_length_mm=100, f_number=1.4, focus_distance_m=1.0, aperture_blades=6,
+                     aperture_shape=cats_eye)
+        with pytest.raises(LensError, match="aperture_shape must be"):
+            ThinLens(focal_length_mm=100, f_number=1.4, focus_distance_m=1.0, aperture_shape="cats-eye")

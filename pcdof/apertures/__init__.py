@@ -114,11 +114,14 @@ def aperture_from_blades(blades: int, rotation_deg: float = 0.0) -> Aperture:
 
 
 def aperture_for(lens) -> Aperture:
-    """The aperture shape of a :class:`pcdof.lens.ThinLens` (its ``aperture_blades`` and ``aperture_rotation_deg``)."""
+    """The aperture shape of a :class:`pcdof.lens.ThinLens`: its ``aperture_shape`` when it has one, else the
+    disc or polygon of its ``aperture_blades`` and ``aperture_rotation_deg``."""
     from ..lens import ThinLens
 
     if not isinstance(lens, ThinLens):
         raise InputError(f"lens must be a ThinLens; got {type(lens).__name__}")
+    if lens.aperture_shape is not None:
+        return lens.aperture_shape
     return aperture_from_blades(lens.aperture_blades, lens.aperture_rotation_deg)
 
 

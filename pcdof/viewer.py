@@ -30,15 +30,13 @@ viewer :mod:`pcdof.web`; the interface's names stay importable from here.
 from __future__ import annotations
 
 import math
-import os
-import secrets
 from dataclasses import dataclass
 
 import numpy as np
 
 from .camera import Intrinsics, check_color
 from .cloud import check_stride
-from .errors import ImageWriteError, InputError, LensError
+from .errors import InputError, LensError
 from .lens import ThinLens, positive_number
 
 #: Colours of the scene elements (named colours PyVista understands; tests look for the plane's).

@@ -150,19 +150,25 @@ def rss_mb(pid: int) -> float:
     raise RuntimeError("no VmRSS")
 
 
-@pytest.fixture(scope="module")
-def served(tmp_path_factory):
-    """A server for the two-plane frame and a headless Chromium: (server process, browser, url, output dir)."""
-    _need_browser()
+def write_frame_files(folder) -> list[str]:
+    """The two-plane frame as colour, depth and calibration files in *folder*: the server's arguments."""
     from pcdof import io
-    from playwright.sync_api import sync_playwright
 
-    folder = tmp_path_factory.mktemp("web")
     color, depth = two_plane_frame()
     io.write_image(folder / "color.png", color)
     io.write_depth(folder / "depth.png", depth)
     io.write_json(folder / "calib.json", Rig.registered(INTR).to_dict())
-    files = [str(folder / "color.png"), str(folder / "depth.png"), "--calib", str(folder / "calib.json")]
+    return [str(folder / "color.png"), str(folder / "depth.png"), "--calib", str(folder / "calib.json")]
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """A server for the two-plane frame and a headless Chromium: (server process, browser, url, output dir)."""
+    _need_browser()
+    from playwright.sync_api import sync_playwright
+
+    folder = tmp_path_factory.mktemp("web")
+    files = write_frame_files(folder)
     port = free_port()
     proc = start_server(files, folder / "out", port)
     try:
@@ -318,15 +324,10 @@ class TestPage:
 
 def test_closing_the_last_tab_cancels_pending_work(served, tmp_path):
     """A lens change schedules the full-resolution render; closing the tab right after cancels it."""
-    from pcdof import io
 
     browser = served[1]  # the module's browser (Playwright's sync API runs one at a time); a server of its own
 
-    color, depth = two_plane_frame()
-    io.write_image(tmp_path / "color.png", color)
-    io.write_depth(tmp_path / "depth.png", depth)
-    io.write_json(tmp_path / "calib.json", Rig.registered(INTR).to_dict())
-    files = [str(tmp_path / "color.png"), str(tmp_path / "depth.png"), "--calib", str(tmp_path / "calib.json")]
+    files = write_frame_files(tmp_path)
     port = free_port()
     proc = start_server(files, tmp_path / "out", port)
     try:

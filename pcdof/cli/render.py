@@ -6,7 +6,6 @@ import contextlib
 import os
 
 import click
-import numpy as np
 
 from ..errors import InputError
 from ..io.writers import IMAGE_FORMATS

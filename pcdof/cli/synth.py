@@ -64,7 +64,6 @@ def command(name, output, size, depth_size, seed, focal_length_mm, f_number, foc
     (e.g. dof_gt.png after --no-gt); other files in OUTPUT are left alone.
     """
     from ..errors import LensError
-    from ..lens import ThinLens
     from ..synth import generate_scene, write_scene
     from ..synth.frame import check_seed
     from ..synth.rig import parse_size

@@ -13,7 +13,6 @@ import dataclasses
 import argparse
 import time
 
-from ..lens import ThinLens
 from .frame import generate_scene
 from .render import max_coc_px, render_ground_truth
 from .rig import DEPTH_SIZE, parse_size

@@ -40,11 +40,17 @@ _HUES = ((1.0, 0.78, 0.5), (1.0, 0.55, 0.25), (0.6, 0.75, 1.0), (1.0, 0.5, 0.8),
 DEFAULT_FOCAL_LENGTH_MM, DEFAULT_F_NUMBER = 50.0, 2.0
 
 
+#: what each object of a wide scene is (``WideSpec.object_groups``)
+OBJECT_GROUPS = ("room", "subject", "foreground", "thin", "light", "glint")
+
+
 @dataclass(frozen=True, eq=False)
 class WideSpec(SceneSpec):
-    """A :class:`~pcdof.synth.scenes.SceneSpec` with its three focus distances, metres (``near``, ``mid``, ``far``)."""
+    """A :class:`~pcdof.synth.scenes.SceneSpec` with its three focus distances, metres (``near``, ``mid``, ``far``),
+    and what each object of the scene is (``object_groups``: one name of :data:`OBJECT_GROUPS` per geometry id)."""
 
     focus_m: dict = field(kw_only=True)
+    object_groups: tuple = field(default=(), kw_only=True)
 
 
 def _radiance(rng) -> float:
@@ -151,13 +157,16 @@ def _build(rng, *, dark: bool, n_thin: int, n_lights: int, kind: str) -> WideSpe
     back_z = rng.uniform(2.6, 4.4)  # within the sensor range (4.5 m)
     z_fg = rng.uniform(0.45, 0.85)
     z_subject = rng.uniform(1.1, min(2.6, back_z - 0.8))
-    objs = _room(rng, back_z, dark)
-    subject = _subject(rng, z_subject)
     levels: list = []
-    objs += subject + _foreground(rng, z_fg)
-    objs += _thin(rng, n_thin, (z_fg, back_z - 0.3))
-    objs += _lights(rng, n_lights, (z_subject + 0.3, back_z - 0.1), levels)
-    objs += _glints(rng, int(rng.integers(1, 4)), subject, levels)
+    # drawn in this order (room, subject, foreground, thin, lights, glints): a new part goes last
+    room_objs = _room(rng, back_z, dark)
+    subject = _subject(rng, z_subject)
+    parts = (("room", room_objs), ("subject", subject), ("foreground", _foreground(rng, z_fg)),
+             ("thin", _thin(rng, n_thin, (z_fg, back_z - 0.3))),
+             ("light", _lights(rng, n_lights, (z_subject + 0.3, back_z - 0.1), levels)),
+             ("glint", _glints(rng, int(rng.integers(1, 4)), subject, levels)))
+    objs = [o for _, part in parts for o in part]
+    groups = tuple(name for name, part in parts for _ in part)
     ambient = rng.uniform(0.15, 0.4) if dark else rng.uniform(0.25, 0.5)
     light = (rng.uniform(-0.6, 0.6), -rng.uniform(0.4, 0.9), -rng.uniform(0.3, 0.8))
     scene = Scene(objs, light_dir=light, ambient=ambient, diffuse=rng.uniform(0.5, 0.9))
@@ -165,7 +174,7 @@ def _build(rng, *, dark: bool, n_thin: int, n_lights: int, kind: str) -> WideSpe
     lens = ThinLens(focal_length_mm=DEFAULT_FOCAL_LENGTH_MM, f_number=DEFAULT_F_NUMBER, focus_distance_m=focus["mid"])
     return WideSpec(scene, lens, f"{kind}: foreground {z_fg:.2f} m, subject {z_subject:.2f} m, back wall "
                     f"{back_z:.2f} m, {n_thin} thin rods, {len(levels)} emitters/glints",
-                    {"emitter_radiance": levels, "back_z_m": back_z}, focus_m=focus)
+                    {"emitter_radiance": levels, "back_z_m": back_z}, focus_m=focus, object_groups=groups)
 
 
 def room_scene(rng: np.random.Generator) -> WideSpec:

@@ -13,11 +13,12 @@ from ..errors import InputError
 from ..versions import library_versions
 from ._common import check_output_file, check_output_folder, handle_errors, make_output_folder
 
-#: every part; "wide-tune" (choosing the highlight default on the tuning seeds) runs only when named
-PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune")
+#: every part; "wide-tune" (choosing the highlight default on the tuning seeds) and "hidden" (what the hidden
+#: background costs) run only when named
+PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune", "hidden")
 DEFAULT_PARTS = ("dof", "wide", "speed", "registration", "fill")
 #: the order the parts run in (the report's sections follow it)
-RUN_ORDER = ("dof", "wide", "wide-tune", "speed", "registration", "fill")
+RUN_ORDER = ("dof", "wide", "wide-tune", "hidden", "speed", "registration", "fill")
 #: the stages each side of the speed table sums
 PCDOF_STAGES, PAPER_STAGES = ("register", "fill", "coc", "render"), ("register", "fill", "render")
 
@@ -73,6 +74,8 @@ def _output_files(parts) -> list[str]:
         files += ["dof.csv", "pareto.png"]
     if "wide" in parts:
         files += ["wide.csv", "budget.png", "wide_tiers.png"]
+    if "hidden" in parts:
+        files += ["hidden.csv"]
     if "speed" in parts:
         files += ["cost.png"]
     return files
@@ -91,9 +94,10 @@ def _output_files(parts) -> list[str]:
 @click.option("--scenes", default=None, callback=_scene_list,
               help="Comma-separated scene names of the dof part (default: all).")
 @click.option("--seeds", type=click.IntRange(min=1), default=2, show_default=True,
-              help="Seeds per scene type of the wide part (reported seeds 100, 101, ...; tuning seeds 0, 1, ...).")
+              help="Seeds per scene type of the wide and hidden parts (reported seeds 100, 101, ...; tuning seeds "
+                   "0, 1, ...).")
 @click.option("--wide-size", default="256x192", show_default=True,
-              help="Colour size of the wide part (its depth camera: --depth-size).")
+              help="Colour size of the wide and hidden parts (their depth camera: --depth-size).")
 @click.option("--wide-blurs", default="16,64", show_default=True, callback=lambda ctx, param, v: _blurs(v),
               help="Largest blurs of the wide part's lens settings, px at a 640 px wide frame (scaled to "
                    "--wide-size's width), comma-separated.")
@@ -116,6 +120,7 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes, see
     steps = {"dof": lambda: _dof_part(report, md, run),
              "wide": lambda: _wide_part(report, md, output, run["seeds"], run["wide_kw"], wide_highlights),
              "wide-tune": lambda: _wide_tune_part(report, md, output, run["seeds"], run["wide_kw"]),
+             "hidden": lambda: _hidden_part(report, md, output, run["seeds"], run["wide_kw"]),
              "speed": lambda: _speed_part(report, md, run), "registration": lambda: _registration_part(report, md, run),
              "fill": lambda: _fill_part(report, md, run)}
     for part in (p for p in RUN_ORDER if p in only):
@@ -145,7 +150,7 @@ def _settings(output, parts, quick, size, depth_size, repeats, samples, scenes, 
     check_output_folder(output, "output")
     for name in _output_files(parts):
         check_output_file(os.path.join(output, name), "output")
-    if "dof" in parts or "wide" in parts or "wide-tune" in parts:
+    if any(p in parts for p in ("dof", "wide", "wide-tune", "hidden")):
         check_output_folder(os.path.join(output, "cache"), "output")
     wide_kw = {"kinds": None, "blurs": wide_blurs, "size": wide_size, "depth_size": depth_size,
                "reference_width_px": None if absolute_blurs else wide.REFERENCE_WIDTH_PX}
@@ -244,10 +249,17 @@ def _highlights(text: str):
     return text if text == how else gain
 
 
+def _report_seeds(seeds: int) -> tuple[int, ...]:
+    """The first *seeds* reported seeds of the wide benchmark (100, 101, ...)."""
+    from ..bench import wide
+
+    return wide.REPORT_SEEDS[:seeds] if seeds <= len(wide.REPORT_SEEDS) else tuple(range(100, 100 + seeds))
+
+
 def _wide_part(report, md, output, seeds, kw, highlights) -> None:
     from ..bench import wide
 
-    seed_list = wide.REPORT_SEEDS[:seeds] if seeds <= len(wide.REPORT_SEEDS) else tuple(range(100, 100 + seeds))
+    seed_list = _report_seeds(seeds)
     rows = wide.run_wide(seeds=seed_list, highlights=highlights, cache_dir=os.path.join(output, "cache"), **kw)
     report["wide"] = rows
     report["wide_budget"] = wide.budget_summary(rows)
@@ -289,3 +301,25 @@ def _wide_tune_part(report, md, output, seeds, kw) -> None:
     md += ["## Highlight settings on the tuning seeds\n",
            f"Tuning seeds {', '.join(map(str, seed_list))}, never reported elsewhere.\n", table, ""]
     click.echo(table)
+
+
+def _hidden_part(report, md, output, seeds, kw) -> None:
+    from ..bench import hidden, wide
+
+    seed_list = _report_seeds(seeds)
+    rows = hidden.run_hidden(seeds=seed_list, cache_dir=os.path.join(output, "cache"), **kw)
+    report["hidden"] = rows
+    report["hidden_cost"] = hidden.cost_summary(rows)
+    _write_csv(os.path.join(output, "hidden.csv"), [{k: v for k, v in r.items() if k != "sse"} for r in rows])
+    size = f"{kw['size'][0]}x{kw['size'][1]}"
+    note = (f"Reported seeds {', '.join(map(str, seed_list))} at {size}, the wide part's cases and ground truths. "
+            f"pcdof exact from the true depth and unclipped linear colour ({hidden.PLAIN}), and the same render "
+            f"given the true hidden layers ({hidden.ORACLE}: each depth group ray traced with the nearer groups "
+            "removed, rendered on its own and composited front to back with over). The difference is what the "
+            "background hidden behind blurred foregrounds costs.")
+    tables = ["### What the hidden background costs (mean PSNR, dB)\n", hidden.cost_table(rows), "",
+              "### PSNR per blur bucket (overall / depth-edge band, dB; pixels pooled by their true CoC)\n",
+              wide.bucket_table(rows), ""]
+    md += ["## Hidden background: pcdof given the true hidden layers\n", note, "", *tables]
+    click.echo(note)
+    click.echo("\n".join(tables))

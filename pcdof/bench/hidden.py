@@ -1,0 +1,327 @@
+"""What the hidden background costs: pcdof rendered from the true hidden layers (a counterfactual).
+
+A single RGB-D view never sees what a blurred foreground hides, yet a real lens sees part of it
+around the foreground's soft edge. pcdof continues a hidden pixel from the visible layer beside it
+(``pcdof.reference.render.owned``). This part of the wide benchmark measures what that guess costs
+by giving the renderer what it cannot know: the true hidden layers.
+
+Method. The scene's objects are cut into depth groups, front to back (:func:`depth_groups`). For
+group *i* the pinhole frame of the scene with every group in front of *i* removed is ray traced
+(:func:`trace_layers`, the colour camera's own rays and pixel filter): its exact depth, the group's
+coverage ``m_i`` (the share of each pixel's rays whose first hit is group *i*) and its light
+``c_i`` (the mean radiance of those rays, i.e. colour premultiplied by coverage). pcdof's physical
+renderer is linear in colour for a fixed depth map (``tests/test_bench_hidden.py`` checks it to
+float32 rounding), so ``F_i = render(c_i, depth_i)`` is group *i*'s light at the output and
+``a_i = render(m_i, depth_i)`` its opacity, each occluded by the nearer objects left in frame *i*.
+The oracle composites them with *over* (:func:`composite_over`)::
+
+    oracle = F_1 + (1 - a_1) (F_2 + (1 - a_2) ( ... F_n))
+
+With one group it is the plain render. Scored against the same ray-traced ground truth as the
+wide part, ``PSNR(oracle) - PSNR(plain)`` (plain: true depth and unclipped linear colour, the
+error budget's last row) is what the hidden background costs.
+
+What it leaves out (so the cost measured is a lower bound): background hidden behind an object of
+the *same* group is still continued by the renderer (the subject's primitives among themselves, a
+lamp among lamps); and two groups that overlap in depth (the floor reaches in front of the subject)
+are composited in group order, exact except where both are partly transparent at one pixel (an
+error of order ``a_i a_j``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+
+#: the row names of the plain render and of the oracle
+PLAIN, ORACLE = "true depth+linear", "true depth+linear+hidden layers"
+#: depth groups of a wide scene, front to back (see :func:`depth_groups`)
+GROUP_NAMES = ("foreground", "thin in front of the subject", "subject and glints",
+               "thin and lights behind the subject", "room")
+
+
+@dataclass(frozen=True)
+class HiddenLayer:
+    """One depth group as seen with every nearer group removed.
+
+    name : str
+    light : (H, W, 3) float32 ndarray, linear radiance premultiplied by coverage (the group's light)
+    coverage : (H, W) float32 ndarray in [0, 1], share of each pixel's rays whose first hit is the group
+    depth_m : (H, W) float32 ndarray, metres, z-depth of the pixel centre's first hit in this frame
+    """
+
+    name: str
+    light: np.ndarray
+    coverage: np.ndarray
+    depth_m: np.ndarray
+
+
+def depth_groups(object_groups, scene) -> list[tuple[str, list[int]]]:
+    """A wide scene's objects cut into depth groups, front to back (empty groups left out).
+
+    The groups (:data:`GROUP_NAMES`): the foreground occluder; thin rods whose nearest point lies in
+    front of the subject's; the subject with its glints (which sit on its surface); the thin rods
+    behind the subject's nearest point with the lights (drawn between the subject and the back
+    wall); the room, which encloses everything.
+
+    Parameters
+    ----------
+    object_groups : sequence of str, ``WideSpec.object_groups`` (one name per geometry id)
+    scene : pcdof.synth.Scene with one mesh per name
+
+    Returns
+    -------
+    list of (group name, object ids)
+    """
+    from ..synth.wide import OBJECT_GROUPS
+
+    labels = list(object_groups)
+    if len(labels) != len(scene.meshes) or any(lab not in OBJECT_GROUPS for lab in labels):
+        raise InputError(f"object_groups must name each of the scene's {len(scene.meshes)} objects with one of "
+                         f"{', '.join(OBJECT_GROUPS)}; got {labels!r}")
+    near = [float(m.bounds[0][2]) for m in scene.meshes]
+    subject = [i for i, lab in enumerate(labels) if lab == "subject"]
+    z_subject = min((near[i] for i in subject), default=np.inf)
+
+    def pick(*names, front=None):
+        return [i for i, lab in enumerate(labels)
+                if lab in names and (front is None or (near[i] < z_subject) == front)]
+
+    groups = (pick("foreground"), pick("thin", front=True), pick("subject", "glint"),
+              pick("thin", front=False) + pick("light"), pick("room"))
+    return [(name, ids) for name, ids in zip(GROUP_NAMES, groups) if ids]
+
+
+def _check_groups(groups, n_objects: int) -> list[tuple[str, list[int]]]:
+    groups = [(str(name), [int(i) for i in ids]) for name, ids in groups]
+    ids = [i for _, g in groups for i in g]
+    if not groups or any(not g for _, g in groups) or len(set(ids)) != len(ids) \
+            or any(not 0 <= i < n_objects for i in ids):
+        raise InputError(f"groups must be non-empty lists of distinct object ids in [0, {n_objects}); got {groups!r}")
+    return groups
+
+
+def trace_layers(scene, intrinsics, groups, *, pixel_samples: int = 1) -> list[HiddenLayer]:
+    """Ray trace each depth group with every nearer group removed.
+
+    Parameters
+    ----------
+    scene : pcdof.synth.Scene that encloses the camera (every ray hits something)
+    intrinsics : Intrinsics of the colour camera (no distortion)
+    groups : list of (name, object ids), front to back (:func:`depth_groups`); objects in no group
+        are left out of every frame
+    pixel_samples : int >= 1, the colour image's pixel filter (``SyntheticFrame.pixel_samples``):
+        the same k x k rays per pixel as :func:`pcdof.synth.render.render_pinhole`
+
+    Returns
+    -------
+    list of :class:`HiddenLayer`, one per group. The first frame holds every group, so the sum of
+    the layers' light seen there is the pinhole image.
+    """
+    from ..synth.render import _pixel_directions
+    from ..synth.scene import Scene
+
+    groups = _check_groups(groups, len(scene.meshes))
+    k = int(pixel_samples)
+    if k < 1:
+        raise InputError(f"pixel_samples must be an integer >= 1; got {pixel_samples!r}")
+    h, w = intrinsics.height, intrinsics.width
+    dirs = _pixel_directions(intrinsics).astype(np.float32)
+    origins = np.zeros_like(dirs)
+    offs = [None] if k == 1 else (np.arange(k) + 0.5) / k - 0.5
+    layers = []
+    for gi, (name, _) in enumerate(groups):
+        kept = [i for _, ids in groups[gi:] for i in ids]
+        sub = Scene([(scene.meshes[i], scene.materials[i], scene.smooth[i]) for i in kept],
+                    light_dir=scene.light_dir, ambient=scene.ambient, diffuse=scene.diffuse,
+                    background=scene.background)
+        mine = np.zeros(len(kept) + 1, bool)  # sub-scene geometry id -> in group gi (a miss maps to the last)
+        mine[:len(groups[gi][1])] = True
+        t = sub.cast(origins, dirs)["t_hit"]
+        if not np.all(np.isfinite(t)):
+            raise InputError(f"scene must enclose the camera; {int(np.sum(~np.isfinite(t)))} rays of group "
+                             f"{name!r}'s frame hit nothing")
+        light, cover = np.zeros((h * w, 3), np.float64), np.zeros(h * w, np.float64)
+        for oy in offs:
+            for ox in offs:
+                d = dirs if ox is None else dirs + np.array([ox / intrinsics.fx, oy / intrinsics.fy, 0], np.float32)
+                hits = sub.cast(origins, d)
+                hit = mine[np.minimum(hits["geometry_ids"], len(kept)).astype(np.int64)]
+                light[hit] += sub.shade(origins, d, hits)[hit]
+                cover += hit
+        n = len(offs) ** 2
+        layers.append(HiddenLayer(name, (light / n).astype(np.float32).reshape(h, w, 3),
+                                  (cover / n).astype(np.float32).reshape(h, w), t.astype(np.float32).reshape(h, w)))
+    return layers
+
+
+def composite_over(lights, opacities) -> np.ndarray:
+    """Front-to-back *over*: ``F_1 + (1 - a_1) (F_2 + (1 - a_2) ( ... F_n))``.
+
+    Parameters
+    ----------
+    lights : sequence of n (H, W, 3) float arrays, each layer's premultiplied light
+    opacities : sequence of n - 1 (or n; the last is not used) (H, W) float arrays, the layers' opacity
+
+    Returns
+    -------
+    (H, W, 3) float32 ndarray
+    """
+    lights = [np.asarray(f, np.float32) for f in lights]
+    opacities = [np.asarray(a, np.float32) for a in opacities]
+    if not lights or len(opacities) not in (len(lights) - 1, len(lights)):
+        raise InputError(f"lights and opacities must be n >= 1 and n - 1 or n arrays; got {len(lights)} and "
+                         f"{len(opacities)}")
+    shape = lights[0].shape
+    if len(shape) != 3 or shape[2] != 3 or any(f.shape != shape for f in lights) \
+            or any(a.shape != shape[:2] for a in opacities):
+        raise InputError(f"lights must be (H, W, 3) and opacities (H, W), all of one size; got "
+                         f"{[f.shape for f in lights]} and {[a.shape for a in opacities]}")
+    out = lights[-1].copy()
+    for f, a in zip(lights[-2::-1], opacities[len(lights) - 2::-1]):
+        out = f + (1.0 - a)[..., None] * out
+    return out
+
+
+def render_oracle(layers, lens, fx: float, *, quality: str = "exact", max_range_m: float = 10.0) -> np.ndarray:
+    """pcdof's physical render given the true hidden layers (:func:`trace_layers`): each layer's
+    light and coverage rendered on its own depth, composited with :func:`composite_over`.
+
+    Returns
+    -------
+    (H, W, 3) float32 ndarray, linear radiance
+    """
+    from ..pipeline import render_from_depth
+
+    layers = list(layers)
+    if not layers or not all(isinstance(la, HiddenLayer) for la in layers):
+        raise InputError(f"layers must be a non-empty list of HiddenLayer; got {layers!r:.80}")
+
+    def draw(image, depth):
+        return render_from_depth(image, depth, lens, fx, linear=True, quality=quality, max_range_m=max_range_m)[0]
+
+    lights = [draw(la.light, la.depth_m) for la in layers]
+    opacities = [draw(la.coverage, la.depth_m) for la in layers[:-1]]
+    return composite_over(lights, opacities)
+
+
+def _case_row(case, lens, size, method, image, gt, coc, band) -> dict:
+    """One scored row, in the wide part's row format (:func:`pcdof.bench.wide.run_wide`)."""
+    from .wide import _bucket_sums, _encode, _psnr
+
+    kind, seed, focus, blur = case
+    err = np.mean((_encode(image) - gt) ** 2, axis=2)
+    return {"scene": kind, "seed": seed, "focus": focus, "blur_px": blur, "blur_share": blur / size[0],
+            "f_number": lens.f_number, "focus_distance_m": lens.focus_distance_m, "method": method,
+            "psnr": _psnr(float(err.sum()), err.size), "psnr_edge": _psnr(float(err[band].sum()), int(band.sum())),
+            "sse": _bucket_sums(err, coc, band)}
+
+
+def run_hidden(*, kinds=None, seeds=None, blurs=None, reference_width_px=640, size=(256, 192), depth_size=(256, 212),
+               quality: str = "exact", cache_dir=None, progress: bool = True) -> list[dict]:
+    """Score the plain render and the oracle (:func:`render_oracle`) on every wide case.
+
+    Parameters are those of :func:`pcdof.bench.wide.run_wide` (seeds default to its
+    :data:`~pcdof.bench.wide.REPORT_SEEDS`, blurs to :data:`~pcdof.bench.wide.BLURS_PX`; the same
+    *cache_dir* shares its ray-traced ground truths); *quality* is pcdof's (``exact`` in the budget).
+
+    Returns
+    -------
+    list of dict, two rows per case (methods :data:`PLAIN` and :data:`ORACLE`) in the wide part's
+    format, each with "groups": the number of depth groups of the frame
+    """
+    from tqdm.auto import tqdm
+
+    from ..color import linear_to_srgb
+    from ..metrics import depth_edge_band
+    from ..plans import QUALITIES
+    from ..synth.wide import generate_wide, lens_for_blur
+    from . import wide
+
+    if quality not in QUALITIES:
+        raise InputError(f"quality must be one of {', '.join(QUALITIES)}; got {quality!r}")
+    seeds = wide.REPORT_SEEDS if seeds is None else seeds
+    blurs = wide.BLURS_PX if blurs is None else blurs
+    px = wide.scaled_blurs(wide._check(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
+    cases = wide.wide_cases(*wide._check(kinds, seeds, px))
+    rows, frames = [], {}
+    for case in tqdm(cases, desc="hidden bench", unit="case", disable=not progress):
+        kind, seed, focus, blur = case
+        if (kind, seed) not in frames:
+            sf, spec = generate_wide(kind, seed=seed, color_size=size, depth_size=depth_size)
+            groups = depth_groups(spec.object_groups, spec.scene)
+            frames = {(kind, seed): (sf, spec, trace_layers(spec.scene, sf.rig.color, groups,
+                                                            pixel_samples=sf.pixel_samples))}
+        sf, spec, layers = frames[(kind, seed)]
+        lens = lens_for_blur(sf.depth_color_m, sf.rig.color.fx, spec.focus_m[focus], blur)
+        gt = linear_to_srgb(np.clip(wide._ground_truth(
+            sf, lens, cache_dir=cache_dir, key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2]),
+            0, 1))
+        coc = lens.coc_px(sf.depth_color_m, sf.rig.color.fx)
+        band = depth_edge_band(sf.depth_color_m, max(3, int(round(blur / 2))))
+        plain = render_oracle([_whole(sf)], lens, sf.rig.color.fx, quality=quality,
+                              max_range_m=sf.rig.max_range_m)
+        oracle = render_oracle(layers, lens, sf.rig.color.fx, quality=quality, max_range_m=sf.rig.max_range_m)
+        for method, image in ((PLAIN, plain), (ORACLE, oracle)):
+            rows.append({**_case_row(case, lens, size, method, image, gt, coc, band), "groups": len(layers)})
+    return rows
+
+
+def _whole(sf) -> HiddenLayer:
+    """The frame as one layer: its pinhole colour and exact depth (the plain render's input)."""
+    return HiddenLayer("whole frame", sf.color_linear, np.ones(sf.depth_color_m.shape, np.float32), sf.depth_color_m)
+
+
+def cost_summary(rows: list[dict]) -> list[dict]:
+    """What the hidden background costs, per focus position and largest blur, per scene type, and over all cases.
+
+    Returns
+    -------
+    list of dict: group ("focus, blur" / "scene" / "all"), label, cases, psnr_plain, psnr_oracle,
+    cost_db and cost_edge_db (mean over cases of PSNR(oracle) - PSNR(plain), overall and in the
+    depth-edge band), worst_db and best_db (the smallest and largest per-case cost)
+    """
+    from ..synth.wide import FOCUS_POSITIONS
+
+    pairs = {}
+    for r in rows:
+        pairs.setdefault((r["scene"], r["seed"], r["focus"], r["blur_px"]), {})[r["method"]] = r
+    pairs = [(p[PLAIN], p[ORACLE]) for p in pairs.values() if PLAIN in p and ORACLE in p]
+    keys = sorted({(a["focus"], a["blur_px"], a["blur_share"]) for a, _ in pairs},
+                  key=lambda k: (FOCUS_POSITIONS.index(k[0]) if k[0] in FOCUS_POSITIONS else 99, k[1]))
+    selections = [("focus, blur", f"{f}, {100 * s:.3g} % ({b:g} px)",
+                   lambda a, f=f, b=b: (a["focus"], a["blur_px"]) == (f, b)) for f, b, s in keys]
+    selections += [("focus", f, lambda a, f=f: a["focus"] == f) for f in dict.fromkeys(k[0] for k in keys)]
+    selections += [("scene", k, lambda a, k=k: a["scene"] == k) for k in dict.fromkeys(a["scene"] for a, _ in pairs)]
+    selections += [("all", "all cases", lambda a: True)]
+    out = []
+    for group, label, keep in selections:
+        sel = [(a, o) for a, o in pairs if keep(a)]
+        if not sel:
+            continue
+        cost = [o["psnr"] - a["psnr"] for a, o in sel]
+        out.append({"group": group, "label": label, "cases": len(sel),
+                    "psnr_plain": float(np.mean([a["psnr"] for a, _ in sel])),
+                    "psnr_plain_edge": float(np.mean([a["psnr_edge"] for a, _ in sel])),
+                    "psnr_oracle": float(np.mean([o["psnr"] for _, o in sel])),
+                    "psnr_oracle_edge": float(np.mean([o["psnr_edge"] for _, o in sel])),
+                    "cost_db": float(np.mean(cost)),
+                    "cost_edge_db": float(np.mean([o["psnr_edge"] - a["psnr_edge"] for a, o in sel])),
+                    "worst_db": float(min(cost)), "best_db": float(max(cost))})
+    return out
+
+
+def cost_table(rows: list[dict]) -> str:
+    """:func:`cost_summary` as Markdown: mean PSNR of the plain render and the oracle, and the cost."""
+    from . import table_lines
+
+    lines = table_lines(
+        ("cases", "n", "plain (true depth + linear) dB, overall / edge", "given the true hidden layers dB",
+         "hidden background costs dB, overall / edge", "per case: smallest / largest cost dB"),
+        ((s["label"], s["cases"], f"{s['psnr_plain']:.2f} / {s['psnr_plain_edge']:.2f}",
+          f"{s['psnr_oracle']:.2f} / {s['psnr_oracle_edge']:.2f}", f"{s['cost_db']:.2f} / {s['cost_edge_db']:.2f}",
+          f"{s['worst_db']:+.2f} / {s['best_db']:+.2f}") for s in cost_summary(rows)))
+    return "\n".join(lines)

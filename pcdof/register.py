@@ -75,6 +75,11 @@ MAX_PRIMITIVE_PX = 512
 _MIN_Z_M = 1e-6
 # Edge-function tolerance: pixels on a shared edge are drawn by both triangles (no cracks).
 _EDGE_EPS = 1e-9
+# The same for the float32 edge functions of the row kernel, as a distance in colour pixels.
+_ROW_EDGE_EPS_PX = 1e-4
+# Pixels per row of the row kernel: 16 float32 lanes, one AVX-512 vector (two AVX2 ones); the trip count
+# the compiler vectorises (at 8 it unrolls the loop into scalar code instead).
+_ROW_PX = 16
 
 # Fast-math without "nnan"/"ninf": NaN and inf tests (unknown depth, rays without inverse) stay exact.
 # The kernels use error_model="numpy": a division by zero gives inf or NaN instead of raising, so
@@ -362,66 +367,64 @@ def _triangle(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _triangle_coefs(u0, v0, w0, u1, v1, w1, u2, v2, w2):
+def _triangle_coefs(u0, v0, w0, u1, v1, w1, u2, v2, w2, keep):
     """A triangle's three edge functions and its 1/z plane, each as float32 (a, b, c) of a x + b y + c.
 
     The edge functions are the doubled signed areas of (p, next corner, corner after), signed so
-    that they are >= 0 inside and widened by the same tolerance as :func:`_inside` (shared edges
-    are drawn by both triangles). A degenerate triangle gets an edge that is negative everywhere.
+    that they are >= 0 inside and widened by :data:`_ROW_EDGE_EPS_PX` pixels (a pixel centre on an
+    edge shared by two triangles is drawn by both, whatever the float32 rounding of either). A
+    triangle that is not kept, or is degenerate, gets an edge that is negative everywhere.
     """
     area, gx, gy = _plane(u0, v0, w0, u1, v1, w1, u2, v2, w2)
     sg = 1.0 if area > 0.0 else -1.0
-    tol = _EDGE_EPS * abs(area)
-    a0 = (v1 - v2) * sg
-    b0 = (u2 - u1) * sg
-    c0 = (u1 * v2 - u2 * v1) * sg + tol
-    if area == 0.0:
+    a0, b0 = (v1 - v2) * sg, (u2 - u1) * sg
+    a1, b1 = (v2 - v0) * sg, (u0 - u2) * sg
+    a2, b2 = (v0 - v1) * sg, (u1 - u0) * sg
+    c0 = (u1 * v2 - u2 * v1) * sg + _ROW_EDGE_EPS_PX * (abs(a0) + abs(b0))
+    c1 = (u2 * v0 - u0 * v2) * sg + _ROW_EDGE_EPS_PX * (abs(a1) + abs(b1))
+    c2 = (u0 * v1 - u1 * v0) * sg + _ROW_EDGE_EPS_PX * (abs(a2) + abs(b2))
+    if area == 0.0 or not keep:
         a0, b0, c0 = 0.0, 0.0, -1.0
     f = np.float32
-    return (f(a0), f(b0), f(c0),
-            f((v2 - v0) * sg), f((u0 - u2) * sg), f((u2 * v0 - u0 * v2) * sg + tol),
-            f((v0 - v1) * sg), f((u1 - u0) * sg), f((u0 * v1 - u1 * v0) * sg + tol),
-            f(gx), f(gy), f(w0 - gx * u0 - gy * v0))
+    return (f(a0), f(b0), f(c0), f(a1), f(b1), f(c1), f(a2), f(b2), f(c2), f(gx), f(gy), f(w0 - gx * u0 - gy * v0))
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _quad_block(buf, block, xs, top, ya, yb, u0, v0, w0, u1, v1, w1, u2, v2, w2, u3, v3, w3):
-    """Draw triangles (p0, p1, p2) and (p0, p2, p3) on the pixels x = xs..xs + 3, rows ya..yb of top..top + 3.
+def _quad_rows(buf, xs, top, ya, yb, p0, p1, p2, p3, keep_t, keep_s):
+    """Draw triangles t = (p0, p1, p2) and s = (p0, p2, p3) on the pixels x = xs..xs + 15 of rows ya..yb.
 
-    For the quads of a depth grid a few times coarser than the colour grid (Kinect v2: about
-    3x3 colour pixels each). All 16 pixel centres of the 4x4 block are evaluated in one
-    branch-free loop that the compiler vectorises (edge functions and planes are taken relative
-    to the block's corner, so float32 keeps their precision), into the scratch *block*; then
-    the rows inside the quad's box are merged into the 1/z buffer. Centres outside both
-    triangles contribute 0, which leaves the buffer unchanged.
+    Each corner p is (u, v, 1/z); *keep_t*, *keep_s* say which triangles are drawn. For quads whose
+    bounding box is at most :data:`_ROW_PX` pixels wide (a depth grid up to several times coarser
+    than the colour grid, or finer). Edge functions and planes are taken relative to (xs, top), so
+    float32 keeps their precision; each row evaluates its 16 centres in one branch-free loop that
+    the compiler vectorises, and merges them into the row by max (a centre outside both triangles
+    gives 0, which leaves the buffer unchanged; the row belongs to this band alone).
     """
     ox = np.float64(xs)
     oy = np.float64(top)
-    t = _triangle_coefs(u0 - ox, v0 - oy, w0, u1 - ox, v1 - oy, w1, u2 - ox, v2 - oy, w2)
-    s = _triangle_coefs(u0 - ox, v0 - oy, w0, u2 - ox, v2 - oy, w2, u3 - ox, v3 - oy, w3)
+    t = _triangle_coefs(p0[0] - ox, p0[1] - oy, p0[2], p1[0] - ox, p1[1] - oy, p1[2], p2[0] - ox, p2[1] - oy, p2[2],
+                        keep_t)
+    s = _triangle_coefs(p0[0] - ox, p0[1] - oy, p0[2], p2[0] - ox, p2[1] - oy, p2[2], p3[0] - ox, p3[1] - oy, p3[2],
+                        keep_s)
     zero = np.float32(0.0)
-    for k in range(16):
-        x = np.float32(k & 3)
-        y = np.float32(k >> 2)
-        in_t = min(t[0] * x + t[1] * y + t[2], min(t[3] * x + t[4] * y + t[5], t[6] * x + t[7] * y + t[8])) >= zero
-        in_s = min(s[0] * x + s[1] * y + s[2], min(s[3] * x + s[4] * y + s[5], s[6] * x + s[7] * y + s[8])) >= zero
-        iz_t = t[9] * x + t[10] * y + t[11]
-        iz_s = s[9] * x + s[10] * y + s[11]
-        block[k] = max(iz_t if in_t else zero, iz_s if in_s else zero)
     for y in range(ya, yb + 1):
-        q = 4 * (y - top)
-        buf[y, xs] = max(buf[y, xs], block[q])
-        buf[y, xs + 1] = max(buf[y, xs + 1], block[q + 1])
-        buf[y, xs + 2] = max(buf[y, xs + 2], block[q + 2])
-        buf[y, xs + 3] = max(buf[y, xs + 3], block[q + 3])
+        yy = np.float32(y - top)
+        t0, t1, t2, tz = t[1] * yy + t[2], t[4] * yy + t[5], t[7] * yy + t[8], t[10] * yy + t[11]
+        s0, s1, s2, sz = s[1] * yy + s[2], s[4] * yy + s[5], s[7] * yy + s[8], s[10] * yy + s[11]
+        row = buf[y, xs:xs + _ROW_PX]
+        for k in range(_ROW_PX):
+            x = np.float32(k)
+            in_t = min(t[0] * x + t0, min(t[3] * x + t1, t[6] * x + t2)) >= zero
+            in_s = min(s[0] * x + s0, min(s[3] * x + s1, s[6] * x + s2)) >= zero
+            row[k] = max(row[k], max(t[9] * x + tz if in_t else zero, s[9] * x + sz if in_s else zero))
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _quad(buf, block, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, diag_ad, use_block):
-    """Draw a whole quad (both triangles of its split), sharing one bounding box.
+def _quad(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, code, use_rows):
+    """Draw the kept triangles of a quad (*code*: see the quad split codes), sharing one bounding box.
 
-    Boxes of at most 4 pixel centres are tested centre by centre, boxes of up to 4x4 by
-    :func:`_quad_block` (when *use_block*), larger ones by scanlines.
+    Boxes at most :data:`_ROW_PX` pixels wide take :func:`_quad_rows` (when *use_rows*); otherwise
+    each kept triangle is drawn by :func:`_triangle` (centre by centre, or by scanlines).
     """
     vmin = min(min(va, vb), min(vc, vd))
     vmax = max(max(va, vb), max(vc, vd))
@@ -430,37 +433,22 @@ def _quad(buf, block, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, di
     if xa > xb or ya > yb:
         return
     W = buf.shape[1]
-    # the path and the block's origin depend on the whole quad, not on the band: bands change no bit
-    top = int(np.ceil(vmin))
-    rows = int(np.floor(vmax)) - top + 1
-    if use_block and xb - xa < 4 and rows <= 4 and W >= 4 and (xb - xa + 1) * rows > _SMALL_BOX_PX:
-        # diagonal a-d: (a, b, d) and (a, d, c); diagonal b-c: (c, a, b) and (c, b, d); selected, not branched
-        _quad_block(buf, block, min(xa, W - 4), top, ya, yb,
-                    ua if diag_ad else uc, va if diag_ad else vc, wa if diag_ad else wc,
-                    ub if diag_ad else ua, vb if diag_ad else va, wb if diag_ad else wa,
-                    ud if diag_ad else ub, vd if diag_ad else vb, wd if diag_ad else wb,
-                    uc if diag_ad else ud, vc if diag_ad else vd, wc if diag_ad else wd)
+    diag_ad = (code & 3) != 0
+    if use_rows and xb - xa < _ROW_PX and W >= _ROW_PX:
+        # diagonal a-d: (a, b, d) and (a, d, c); diagonal b-c: (c, a, b) and (c, b, d); selected, not branched.
+        # The origin depends on the quad alone, not on the band: bands change no bit.
+        a, b, c, d = (ua, va, wa), (ub, vb, wb), (uc, vc, wc), (ud, vd, wd)
+        _quad_rows(buf, min(xa, W - _ROW_PX), int(np.ceil(vmin)), ya, yb, a if diag_ad else c, b if diag_ad else a,
+                   d if diag_ad else b, c if diag_ad else d, (code & 5) != 0, (code & 10) != 0)
         return
-    if (xb - xa + 1) * (yb - ya + 1) > _SMALL_BOX_PX:
-        if diag_ad:
-            _scan(buf, y0, y1, ua, va, wa, ub, vb, wb, ud, vd, wd)
-            _scan(buf, y0, y1, ua, va, wa, ud, vd, wd, uc, vc, wc)
-        else:
-            _scan(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc)
-            _scan(buf, y0, y1, ub, vb, wb, ud, vd, wd, uc, vc, wc)
-        return
-    for y in range(ya, yb + 1):
-        for x in range(xa, xb + 1):
-            if diag_ad:
-                iz = _inside(x, y, ua, va, wa, ub, vb, wb, ud, vd, wd)
-                if iz < 0.0:
-                    iz = _inside(x, y, ua, va, wa, ud, vd, wd, uc, vc, wc)
-            else:
-                iz = _inside(x, y, ua, va, wa, ub, vb, wb, uc, vc, wc)
-                if iz < 0.0:
-                    iz = _inside(x, y, ub, vb, wb, ud, vd, wd, uc, vc, wc)
-            if iz > buf[y, x]:
-                buf[y, x] = iz
+    if code & 1:
+        _triangle(buf, y0, y1, ua, va, wa, ub, vb, wb, ud, vd, wd)
+    if code & 2:
+        _triangle(buf, y0, y1, ua, va, wa, ud, vd, wd, uc, vc, wc)
+    if code & 4:
+        _triangle(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc)
+    if code & 8:
+        _triangle(buf, y0, y1, ub, vb, wb, ud, vd, wd, uc, vc, wc)
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
@@ -519,12 +507,11 @@ def _rasterise(counter, n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_
     empty, largest = nearest, no division per pixel); each band clears its rows first and turns
     them into z at the end. Bands own disjoint rows of *out*, so tasks never write the same pixel
     (no races, no merge); a depth row is visited by every band its projection can touch. Quads of
-    at most 4x4 colour pixels take the block kernel when *use_block*.
+    at most 16 colour pixels wide take the row kernel when *use_block*.
     """
     h, w = IZ.shape
     H, W = out.shape
     band_h = -(-H // n_bands)
-    block = np.empty(16, np.float32)  # scratch of _quad_block
     while True:
         y0, y1 = _next_rows(counter, n_bands, band_h, H)
         if y0 < 0:
@@ -551,17 +538,7 @@ def _rasterise(counter, n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_
                 ud = np.float64(U[i + 1, j + 1])
                 vd = np.float64(V[i + 1, j + 1])
                 wd = np.float64(IZ[i + 1, j + 1])
-                if code & _WHOLE:
-                    _quad(out, block, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, (code & 1) != 0,
-                          use_block)
-                elif code == 1:
-                    _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, ud, vd, wd)
-                elif code == 2:
-                    _triangle(out, y0, y1, ua, va, wa, ud, vd, wd, uc, vc, wc)
-                elif code == 4:
-                    _triangle(out, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc)
-                else:
-                    _triangle(out, y0, y1, ub, vb, wb, ud, vd, wd, uc, vc, wc)
+                _quad(out, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, code, use_block)
         for i in range(h):
             if row_hi[i] < y0 - 1 or row_lo[i] > y1 + 1:
                 continue

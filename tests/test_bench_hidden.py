@@ -211,6 +211,10 @@ class TestOracleOnTheSquare:
         sf, lens, oracle, plain, truth = renders
         _, _, far = self._bands(sf, lens)
         np.testing.assert_allclose(oracle[far], plain[far], rtol=0, atol=1e-6)
+        layers = hidden.trace_layers(sf.scene, sf.rig.color, GROUPS, pixel_samples=sf.pixel_samples)
+        scattered = hidden.render_oracle(layers, lens, sf.rig.color.fx, convolve_uniform=False)
+        np.testing.assert_allclose(scattered[far], plain[far], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(scattered, oracle, rtol=0, atol=1e-3)  # the convolution: within its bin
 
     def test_one_layer_is_the_plain_render(self, renders):
         sf, lens, _, plain, _ = renders
@@ -301,10 +305,51 @@ def test_cli_hidden_part(tmp_path):
     assert result.exit_code == 0, result.output
     report = json.loads((out / "report.json").read_text())
     rows = report["hidden"]
-    assert {r["method"] for r in rows} == {hidden.PLAIN, hidden.ORACLE} and len(rows) == 6
-    assert all(10 < r["psnr"] < 80 and r["groups"] >= 3 for r in rows)
+    methods = (hidden.PLAIN_BUDGET, hidden.PLAIN, hidden.ORACLE, hidden.ORACLE_MERGED)
+    assert [r["method"] for r in rows] == list(methods) * 3
+    assert all(10 < r["psnr"] < 80 for r in rows)
+    for plain_budget, plain, oracle, merged in zip(*[iter(rows)] * 4):
+        assert plain_budget["groups"] == plain["groups"] == 1 and oracle["groups"] >= 3
+        assert 1 <= merged["groups"] <= oracle["groups"]
     summary = {s["label"]: s for s in report["hidden_cost"]}
     assert summary["all cases"]["cases"] == 3
     assert (out / "hidden.csv").read_text().count("\n") == len(rows) + 1
     assert "What the hidden background costs" in (out / "report.md").read_text()
     assert "wide" not in report and "dof" not in report  # only the part named
+
+
+class TestMergeSimilarBlur:
+    """Groups merge into the one in front when their blurs are closer to each other than to sharp."""
+
+    @staticmethod
+    def _layers(depths):
+        return [hidden.HiddenLayer(f"g{i}", np.zeros((4, 4, 3), np.float32), np.ones((4, 4), np.float32),
+                                   np.full((4, 4), z, np.float32)) for i, z in enumerate(depths)]
+
+    def test_the_rule(self):
+        lens = ThinLens(focal_length_mm=50.0, f_number=2.0, focus_distance_m=1.0)
+        depths = (0.5, 1.0, 1.5, 1.6, 8.0, 9.0)
+        coc = [float(lens.signed_coc_px(np.float32(z), FX)) for z in depths]
+        groups = [(f"g{i}", [i]) for i in range(len(depths))]
+        got = hidden.merge_similar_blur(groups, self._layers(depths), lens, FX)
+        want, kp = [[groups[0][0], [0]]], coc[0]
+        for i in range(1, len(depths)):  # the rule written out
+            if abs(coc[i] - kp) < min(abs(coc[i]), abs(kp)):
+                want[-1] = [want[-1][0] + f" + g{i}", want[-1][1] + [i]]
+            else:
+                want.append([f"g{i}", [i]])
+            kp = coc[i]
+        assert [(n, ids) for n, ids in got] == [(n, ids) for n, ids in want]
+        # in focus never merges; 1.5 and 1.6 m blur alike and merge, and so do 8 and 9 m, but not 1.6 and 8 m
+        assert got == [("g0", [0]), ("g1", [1]), ("g2 + g3", [2, 3]), ("g4 + g5", [4, 5])]
+
+    def test_a_group_unseen_in_its_frame_stays_apart(self):
+        lens = ThinLens(focal_length_mm=50.0, f_number=2.0, focus_distance_m=1.0)
+        layers = self._layers((3.0, 3.1))
+        layers[1] = hidden.HiddenLayer("g1", layers[1].light, np.zeros((4, 4), np.float32), layers[1].depth_m)
+        assert len(hidden.merge_similar_blur([("g0", [0]), ("g1", [1])], layers, lens, FX)) == 2
+
+    def test_invalid(self):
+        lens = ThinLens(focal_length_mm=50.0, f_number=2.0, focus_distance_m=1.0)
+        with pytest.raises(InputError, match="layers"):
+            hidden.merge_similar_blur([("g0", [0]), ("g1", [1])], self._layers((1.0,)), lens, FX)

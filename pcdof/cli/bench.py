@@ -310,13 +310,16 @@ def _hidden_part(report, md, output, seeds, kw) -> None:
     rows = hidden.run_hidden(seeds=seed_list, cache_dir=os.path.join(output, "cache"), **kw)
     report["hidden"] = rows
     report["hidden_cost"] = hidden.cost_summary(rows)
+    report["hidden_cost_merged"] = hidden.cost_summary(rows, oracle=hidden.ORACLE_MERGED)
     _write_csv(os.path.join(output, "hidden.csv"), [{k: v for k, v in r.items() if k != "sse"} for r in rows])
     size = f"{kw['size'][0]}x{kw['size'][1]}"
     note = (f"Reported seeds {', '.join(map(str, seed_list))} at {size}, the wide part's cases and ground truths. "
-            f"pcdof exact from the true depth and unclipped linear colour ({hidden.PLAIN}), and the same render "
-            f"given the true hidden layers ({hidden.ORACLE}: each depth group ray traced with the nearer groups "
-            "removed, rendered on its own and composited front to back with over). The difference is what the "
-            "background hidden behind blurred foregrounds costs.")
+            f"'{hidden.PLAIN_BUDGET}' is the error budget's pcdof exact from the true depth and unclipped linear "
+            f"colour; '{hidden.PLAIN}' the same with every tile scattered; '{hidden.ORACLE}' the same render given "
+            "the true hidden layers (each depth group ray traced with the nearer groups removed, rendered on its "
+            f"own and composited front to back with over); '{hidden.ORACLE_MERGED}' merges groups whose blurs "
+            "are closer to each other than to sharp first. Oracle minus plain is what the background hidden "
+            "behind blurred foregrounds costs.")
     tables = ["### What the hidden background costs (mean PSNR, dB)\n", hidden.cost_table(rows), "",
               "### PSNR per blur bucket (overall / depth-edge band, dB; pixels pooled by their true CoC)\n",
               wide.bucket_table(rows), ""]

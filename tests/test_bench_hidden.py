@@ -162,9 +162,10 @@ class TestTraceLayers:
         with pytest.raises(InputError, match="groups"):
             hidden.trace_layers(square_frame.scene, square_frame.rig.color, groups)
 
-    def test_invalid_pixel_samples(self, square_frame):
+    @pytest.mark.parametrize("bad", [0, -2, 1.5, "2", True, None])
+    def test_invalid_pixel_samples(self, square_frame, bad):
         with pytest.raises(PcdofError, match="pixel_samples"):
-            hidden.trace_layers(square_frame.scene, square_frame.rig.color, GROUPS, pixel_samples=0)
+            hidden.trace_layers(square_frame.scene, square_frame.rig.color, GROUPS, pixel_samples=bad)
 
 
 class TestOracleOnTheSquare:

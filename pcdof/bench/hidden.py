@@ -131,16 +131,17 @@ def trace_layers(scene, intrinsics, groups, *, pixel_samples: int = 1) -> list[H
 
     Returns
     -------
-    list of :class:`HiddenLayer`, one per group. The first frame holds every group, so the sum of
-    the layers' light seen there is the pinhole image.
+    list of :class:`HiddenLayer`, one per group. The first layer's frame holds every group: its
+    depth is the pinhole frame's, and with a single group holding every object its light is the
+    pinhole image (:func:`pcdof.synth.render.render_pinhole`, bit for bit).
     """
     from ..synth.render import _pixel_directions
     from ..synth.scene import Scene
 
     groups = _check_groups(groups, len(scene.meshes))
-    k = int(pixel_samples)
-    if k < 1:
+    if isinstance(pixel_samples, bool) or not isinstance(pixel_samples, (int, np.integer)) or pixel_samples < 1:
         raise InputError(f"pixel_samples must be an integer >= 1; got {pixel_samples!r}")
+    k = int(pixel_samples)
     h, w = intrinsics.height, intrinsics.width
     dirs = _pixel_directions(intrinsics).astype(np.float32)
     origins = np.zeros_like(dirs)

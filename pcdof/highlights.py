@@ -2,51 +2,68 @@
 
 A sensor, or an 8-bit sRGB encoding, clips every channel at 1 (diffuse white). Blurring a clipped
 lamp of true radiance 50 spreads 1, not 50, over its bokeh disc: the disc comes out dim and grey.
-These functions raise clipped pixels towards a radiance estimate so the blur spreads about the
+These functions raise clipped channels towards a radiance estimate so the blur spreads about the
 right amount of light. They only apply to clipped input (8-bit or 16-bit sRGB, clipped linear
 data); linear/HDR input (EXR, float TIFF/NPY, 16-bit linear) must be passed through untouched
 (:func:`needs_reconstruction` says which).
 
+Only clipped channels change, and only upwards: a channel below the clip level was measured. So a
+render from the reconstruction, encoded with clipping at white again, keeps every output pixel
+within the input's per-channel range (a raised channel already held the encoding's top code).
+
 Assumptions (what the estimates rely on)
 ----------------------------------------
-* A pixel is clipped where a channel reaches ``clip_level`` (default 254.5/255 encoded, i.e. the
-  two top 8-bit codes); the true radiance there is at least the clip level.
-* A clipped blob is one light source or one specular glint with one colour.
-* ``gain``: every clipped pixel gets ``gain`` times its colour (hue from the unclipped rim).
+* A channel is clipped where it reaches ``clip_level`` (default 254.5/255 encoded, i.e. the top
+  8-bit code); its true radiance there is at least the clip level.
+* A clipped blob (8-connected pixels with a clipped channel) is one light source or one specular
+  glint with one radiance per channel.
+* ``prior`` (what ``auto`` runs): the radiance of a clipped channel is log-uniform between the clip
+  level and :data:`PRIOR_MAX` times diffuse white (an assumption about scenes; the bound is chosen
+  on the wide benchmark's tuning seeds, below). The blob is blurred by the disc of its circle of
+  confusion (the median over its pixels, from the render's own CoC map) and shown clipped at
+  white, sRGB-encoded; the level chosen per blob and channel minimises the expected sum of squared
+  differences of that display from the truth, over the prior (:func:`expected_best_level`, a
+  32-point quadrature). A blob that is not blurred (CoC below 1 px), or whose blurred light shows
+  white whatever its radiance, keeps its value; the more thinly its light is spread, the higher
+  the level. The blob's edge pixels (with a 4-neighbour outside it) are partly covered by the
+  source: given that they clipped, their expected value is (L + clip) / 2 (coverage even over the
+  part of (0, 1) that clips), and they are raised to that instead of L. Overlapping footprints,
+  occlusion by nearer layers and the renderer's exact kernel are not modelled.
+* ``prior-rim``: ``prior`` times the likelihood of the blob's edge counts under the ``rim`` model
+  (:func:`rim_likelihood`).
 * ``rim``: the source is sharp in the input and sampled by a box pixel filter, so a pixel on its
   edge sees ``alpha * L + (1 - alpha) * B`` with coverage alpha spread evenly over (0, 1). The
   share of edge pixels that stay below the clip level is then about ``(1 - B) / (L - B)``:
   counting clipped and unclipped edge pixels measures L. Where too few edge pixels are unclipped
-  (a very bright or tiny source) the estimate is only a lower bound and ``gain`` is used instead
-  when larger.
-* ``auto``: ``rim`` where a blob has enough edge pixels to count (``min_edge`` or more), ``gain``
-  otherwise.
+  (a very bright or tiny source) the estimate is only a lower bound and ``gain`` is used instead.
+  The wide benchmark's ray tracer samples two rays per pixel, so its edge coverage is 0, 1/2 or 1,
+  not even: its edges say little beyond "L >= 2 - B", which is why the rim evidence does not help
+  there (real optics and sensors blur edges continuously; not measured on real frames).
+* ``gain``: every clipped channel of a blob gets ``gain`` times diffuse white (times the channel's
+  share of the blob's colour, which relates clipped channels to each other).
 
-Measured (``pcdof bench --only wide-tune --seeds 5 --wide-size 256x192``: the wide benchmark's tuning
-seeds 0-4, 90 cases, largest blurs 2.5 % and 10 % of the width, i.e. 6.4 and 25.6 px at 256 x 192;
-renderer with one-layer partial-occlusion continuation). Mean PSNR, pcdof exact given the true depth /
-pcdof balanced on the measured input, and per case on measured input the change from ``off`` (mean,
-worst, cases losing more than 0.1 dB):
+How the default was chosen
+--------------------------
+Rule, stated before the measurement (:func:`pcdof.bench.wide.choose_highlights`): on the tuning seeds
+0-4 (90 cases; ``pcdof bench --only wide-tune --seeds 5 --wide-size 256x192``), pcdof balanced on
+measured input, the setting with the largest mean change from ``off`` per case among those whose
+every case loses at most 0.25 dB to ``off``, overall and in the depth-edge band. Mean change / worst
+case / worst edge band (dB), tuning seeds:
 
-* off: 30.10 / 29.94
-* gain 2: 31.38 / 31.25; +1.32, worst -0.11, 2 of 90 lose
-* gain 4: 32.05 / 32.06; +2.12, worst -1.24, 7 of 90
-* gain 8: 31.88 / 32.00; +2.06, worst -3.00, 18 of 90
-* gain 16: 31.18 / 31.32; +1.38, worst -7.71, 21 of 90
-* rim: 31.80 / 31.75; +1.81, worst -0.38, 3 of 90
-* auto (gain 8): 32.11 / 32.15; +2.21, worst -1.24, 7 of 90
+* gain 2 +1.34 / -0.09 / -0.11; gain 3 +1.94 / -0.39 / -0.56; gain 4 +2.21 / -1.00 / -1.39
+* rim +1.86 / -0.26 / -0.38
+* prior, max 8 +1.42 / -0.02 / -0.02; 12 +1.69 / -0.05 / -0.06; **16 +1.86 / -0.13 / -0.19**;
+  20 +1.97 / -0.30 / -0.43; 24 +2.05 / -0.41 / -0.58; 32 +2.16 / -0.92 / -1.21
+* prior-rim, max 8 +1.69 / 0.00 / 0.00; 12 +1.77 / -0.15 / -0.22; 16 +1.81 / -0.33 / -0.47
 
-On the reported seeds 100-102 (54 cases, ``pcdof bench --only wide --seeds 3 --wide-size 256x192
---wide-highlights X``), pcdof balanced on measured input, change from ``off``: ``auto`` +1.29 dB mean
-but 14 cases lose more than 0.1 dB (worst -1.94 dB); ``rim`` +1.27, 13 cases (worst -1.80); gain 2
-+1.02, 5 cases (only one overall, -0.52 dB; four in the edge band only, by at most 0.18 dB). The
-losses of the larger estimates are focus-far and focus-mid shots, mostly with the small blur, where
-an overestimated blob spreads light the ground truth does not have (not analysed further). Gain 2
-is the one setting that gains on average on both seed sets with a worst tuning case within 0.11 dB; ``auto`` recovers about 1 dB more on average at the cost of
-such losses.
+The rule picks ``prior`` with a bound of 16, now ``auto`` and the default. The losses of the larger
+bounds and gains are blobs of low radiance (2-4 x white) raised several times too high; the 8-bit
+input does not say which blobs those are. What an exact per-blob level would give (the true
+median radiance of each clipped channel of each blob, edge pixels as above), pcdof exact with
+true depth on the tuning seeds: 33.31 dB against 33.95 from the unclipped linear colour, 30.10 with
+``off`` and 31.92 with ``auto``: the model of a blob leaves 0.6 dB, the unknown level 1.4 dB.
 
-The estimate is a guess about light the input never recorded: it raises the mean error where the
-guess is wrong, so ``off`` stays available.
+The estimate is a guess about light the input never recorded: ``off`` stays available.
 """
 
 from __future__ import annotations
@@ -57,16 +74,23 @@ import cv2
 import numpy as np
 
 from .errors import InputError
+from .lens import MAX_COC_PX
 
 #: linear clip level: sRGB code 254.5 / 255 decoded (pixels at or above it count as clipped)
 CLIP_LEVEL = float(((254.5 / 255 + 0.055) / 1.055) ** 2.4)
-#: default gain of ``gain``, and the fallback of ``rim`` and ``auto`` (multiples of diffuse white; see the
+#: default gain of ``gain``, and the fallback of ``rim`` (multiples of diffuse white; see the
 #: module docstring for what each setting measured)
 DEFAULT_GAIN = 8.0
 #: largest radiance any estimate may give
 MAX_GAIN = 64.0
 #: fewest edge pixels for the rim estimate to count
 MIN_EDGE = 6
+#: upper bound of the ``prior`` method's log-uniform radiance prior (multiples of diffuse white)
+PRIOR_MAX = 16.0
+#: radiance levels of the prior's quadrature (log-spaced midpoints), and the most pixels of a blob's
+#: footprint its expected loss is summed over (an even subsample beyond that)
+PRIOR_SAMPLES = 32
+MAX_FOOTPRINT_PX = 1024
 
 
 def needs_reconstruction(color: np.ndarray, *, linear: bool) -> bool:
@@ -74,15 +98,33 @@ def needs_reconstruction(color: np.ndarray, *, linear: bool) -> bool:
     return not linear and np.asarray(color).dtype in (np.uint8, np.uint16)
 
 
+def _number(name, v, lo, *, strict=False):
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
+            or v < lo or (strict and v == lo):
+        raise InputError(f"{name} must be a finite number {'>' if strict else '>='} {lo:g}; got {v!r}")
+    return float(v)
+
+
 def _check(linear_rgb, clip_level, gain):
     img = np.asarray(linear_rgb)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype.kind != "f":
         raise InputError(f"linear_rgb must be an (H, W, 3) float array; got {img.shape} {img.dtype}")
-    for name, v, lo in (("clip_level", clip_level, 0.0), ("gain", gain, 1.0)):
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating)) or not math.isfinite(v) or v < lo \
-                or (name == "clip_level" and v == 0):
-            raise InputError(f"{name} must be a finite number {'> 0' if lo == 0 else '>= 1'}; got {v!r}")
+    _number("clip_level", clip_level, 0.0, strict=True)
+    _number("gain", gain, 1.0)
     return img.astype(np.float32, copy=True)
+
+
+def _check_coc(coc_px, shape):
+    if coc_px is None:
+        raise InputError("coc_px must be an (H, W) array of circle-of-confusion diameters (px) for method 'prior'; "
+                         "got None")
+    coc = np.asarray(coc_px)
+    if coc.shape != tuple(shape[:2]) or coc.dtype.kind not in "fiu":
+        raise InputError(f"coc_px must be an (H, W) = {tuple(shape[:2])} number array; got {coc.shape} {coc.dtype}")
+    coc = np.abs(coc.astype(np.float32))
+    if np.isnan(coc).any():
+        raise InputError("coc_px must not hold NaN")
+    return np.minimum(coc, MAX_COC_PX)  # the renderer clamps the blur there too
 
 
 def _hue(img, mask):
@@ -91,31 +133,52 @@ def _hue(img, mask):
     return c / c.max() if c.max() > 0 else np.ones(3, np.float32)
 
 
-def _fill(img, clipped, levels_for_blob):
-    """Set each clipped blob's pixels to max(input, level * hue); *levels_for_blob(mask, ring) -> level*."""
+def _blobs(img, clip_level, pad):
+    """Each clipped blob (8-connected pixels with a clipped channel): (window slices, blob mask in the
+    window, per-channel clipped mask in the window, every clipped pixel in the window). *pad(blob mask in
+    its bounding box, the box's slices) -> px* widens the window beyond the box."""
+    clipped = (img >= clip_level).any(axis=2)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(clipped.astype(np.uint8), connectivity=8)
-    if n <= 1:
-        return img
-    kernel = np.ones((3, 3), np.uint8)
-    out = img.copy()
+    h, w = clipped.shape
     for b in range(1, n):
-        x, y, w, h = stats[b, :4]
-        y0, y1, x0, x1 = max(y - 3, 0), y + h + 3, max(x - 3, 0), x + w + 3
-        mask = labels[y0:y1, x0:x1] == b
+        x, y, bw, bh = (int(v) for v in stats[b, :4])
+        p = int(pad(labels[y:y + bh, x:x + bw] == b, (slice(y, y + bh), slice(x, x + bw))))
+        win = (slice(max(y - p, 0), min(y + bh + p, h)), slice(max(x - p, 0), min(x + bw + p, w)))
+        mask = labels[win] == b
+        yield win, mask, mask[..., None] & (img[win] >= clip_level), clipped[win]
+
+
+def _fill(img, clip_level, levels_for_blob):
+    """Raise each clipped blob's clipped channels to max(input, level * hue); unclipped channels are measured
+    values and stay. *levels_for_blob(block, mask, ring) -> level*."""
+    out = img.copy()
+    kernel = np.ones((3, 3), np.uint8)
+    for win, mask, clipped_ch, clipped in _blobs(img, clip_level, lambda m, s: 3):
+        block = img[win]
         grown = cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
-        ring = grown & ~mask & ~clipped[y0:y1, x0:x1]
-        level = levels_for_blob(img[y0:y1, x0:x1], mask, ring)
-        hue = _hue(img[y0:y1, x0:x1], mask)
-        block = out[y0:y1, x0:x1]
-        block[mask] = np.maximum(block[mask], level * hue)
+        ring = grown & ~mask & ~clipped
+        level = levels_for_blob(block, mask, ring)
+        raised = np.maximum(block, level * _hue(block, mask))
+        out[win] = np.where(clipped_ch, raised, out[win])
     return out
 
 
-def reconstruct_gain(linear_rgb, *, gain: float = DEFAULT_GAIN, clip_level: float = CLIP_LEVEL) -> np.ndarray:
-    """Clipped blobs raised to *gain* times diffuse white (hue from their rim). (H, W, 3) float32, linear."""
+def reconstruct_gain(linear_rgb, *, gain: float = DEFAULT_GAIN, clip_level: float = CLIP_LEVEL, **_) -> np.ndarray:
+    """Clipped channels of each blob raised to *gain* times diffuse white (hue from the blob). (H, W, 3) float32."""
     img = _check(linear_rgb, clip_level, gain)
-    clipped = (img >= clip_level).any(axis=2)
-    return _fill(img, clipped, lambda block, mask, ring: float(gain))
+    return _fill(img, clip_level, lambda block, mask, ring: float(gain))
+
+
+def _rim_counts(values, mask, ring, clip_level):
+    """Edge of one blob: (background, lit, clipped). Background: the median of *values* (h, w) just outside
+    the *ring*; lit: ring pixels brighter than it by 2 % of the clip level; clipped: pixels of *mask* with a
+    4-neighbour outside it."""
+    outer = cv2.dilate((mask | ring).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~mask & ~ring
+    bg = float(np.median(values[outer])) if outer.any() else 0.0
+    n_lit = int(np.count_nonzero(ring & (values > bg + 0.02 * clip_level)))
+    inner = cv2.erode(mask.astype(np.uint8), np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8),
+                      borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    return min(bg, 0.9 * clip_level), n_lit, int(np.count_nonzero(mask & ~inner))
 
 
 def rim_level(block, mask, ring, *, clip_level: float = CLIP_LEVEL, min_edge: int = MIN_EDGE):
@@ -124,42 +187,170 @@ def rim_level(block, mask, ring, *, clip_level: float = CLIP_LEVEL, min_edge: in
     Edge pixels: clipped pixels with an unclipped 4-neighbour, plus the unclipped lit rim (brighter
     than the background, the median just outside the rim, by more than 2 % of the clip level).
     """
-    outer = cv2.dilate((mask | ring).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~mask & ~ring
-    bg = float(np.median(block[outer].max(axis=1))) if outer.any() else 0.0
-    lit = ring & (block.max(axis=2) > bg + 0.02 * clip_level)
-    inner = cv2.erode(mask.astype(np.uint8), np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8),
-                      borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
-    edge_clipped = int(np.count_nonzero(mask & ~inner))
-    n_lit = int(np.count_nonzero(lit))
+    bg, n_lit, edge_clipped = _rim_counts(block.max(axis=2), mask, ring, clip_level)
     if edge_clipped + n_lit < min_edge or n_lit == 0:
         return None
-    bg = min(bg, 0.9 * clip_level)
     return float(np.clip(bg + (clip_level - bg) * (edge_clipped + n_lit) / n_lit, clip_level, MAX_GAIN))
 
 
 def reconstruct_rim(linear_rgb, *, gain: float = DEFAULT_GAIN, clip_level: float = CLIP_LEVEL,
-                    min_edge: int = MIN_EDGE) -> np.ndarray:
-    """Each clipped blob raised to its :func:`rim_level` estimate (lower bound: *gain*). (H, W, 3) float32."""
-    return _reconstruct_measured(linear_rgb, gain, clip_level, min_edge, floor_share=0.0)
-
-
-def reconstruct_auto(linear_rgb, *, gain: float = DEFAULT_GAIN, clip_level: float = CLIP_LEVEL,
-                     min_edge: int = MIN_EDGE) -> np.ndarray:
-    """``rim`` where a blob's edge is measurable and its estimate exceeds *gain*'s share, else *gain*."""
-    return _reconstruct_measured(linear_rgb, gain, clip_level, min_edge, floor_share=0.5)
-
-
-def _reconstruct_measured(linear_rgb, gain, clip_level, min_edge, *, floor_share: float) -> np.ndarray:
-    """Each clipped blob raised to max(its :func:`rim_level` estimate, *floor_share* x *gain*), or to *gain* where
-    it has none."""
+                    min_edge: int = MIN_EDGE, **_) -> np.ndarray:
+    """Each clipped blob raised to its :func:`rim_level` estimate (*gain* where the edge says nothing). (H, W, 3)
+    float32."""
     img = _check(linear_rgb, clip_level, gain)
-    clipped = (img >= clip_level).any(axis=2)
 
     def level(block, mask, ring):
         est = rim_level(block, mask, ring, clip_level=clip_level, min_edge=min_edge)
-        return float(gain) if est is None else max(est, floor_share * float(gain))
+        return float(gain) if est is None else est
 
-    return _fill(img, clipped, level)
+    return _fill(img, clip_level, level)
+
+
+def disc_kernel(diameter_px: float, *, supersample: int = 4) -> np.ndarray:
+    """A uniform disc of *diameter_px*, each cell weighted by its covered area (supersampled), sum 1.
+    (n, n) float32, n odd; a single 1 below 1 px."""
+    r = float(diameter_px) / 2
+    n = 2 * int(math.ceil(r - 0.5)) + 1 if r > 0.5 else 1
+    sub = (np.arange(n * supersample) + 0.5) / supersample - n / 2
+    x, y = np.meshgrid(sub, sub)
+    k = (x ** 2 + y ** 2 <= max(r, 0.5) ** 2).reshape(n, supersample, n, supersample).mean(axis=(1, 3))
+    return (k / k.sum()).astype(np.float32)
+
+
+def _display(linear):
+    """What a pixel shows: linear light clipped at white, sRGB-encoded (the scale the loss is taken on)."""
+    v = np.clip(linear, 0.0, 1.0)
+    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
+
+
+def prior_levels(clip_level: float, prior_max: float, n: int = PRIOR_SAMPLES) -> np.ndarray:
+    """Quadrature of the log-uniform prior over [clip_level, prior_max]: *n* log-spaced midpoints (equal weight)."""
+    lo, hi = math.log(clip_level), math.log(max(prior_max, clip_level))
+    return np.exp(lo + (np.arange(n) + 0.5) / n * (hi - lo))
+
+
+def expected_best_level(base, k, weight, levels, keep: float, level_weights=None) -> float:
+    """The radiance that minimises the expected displayed error of one blurred channel.
+
+    Parameters
+    ----------
+    base : (N,) float, the blurred light at N output pixels without the blob's clipped pixels
+    k : (N,) float, the blob's clipped pixels blurred (its share of each output pixel)
+    weight : (N,) float, pixels each sample stands for
+    levels : (T,) float, possible true radiances (the prior's quadrature levels)
+    keep : float, the level of not raising the blob (its clipped value)
+    level_weights : (T,) float >= 0, their probabilities (None: equally likely)
+
+    Returns
+    -------
+    float, the candidate (*keep* or one of *levels*) with the least expected sum of squared
+    differences of :func:`_display` from the truth; ties go to the lowest, so a blob whose output
+    stays white (or unchanged) whatever its radiance is not raised.
+    """
+    cands = np.concatenate(([keep], levels))
+    shown = _display(base[None, :] + cands[:, None] * k[None, :])  # (1 + T, N): row 0 keep, rows 1.. the truths
+    # einsum, not a BLAS product: one thread, and the same sums on every machine
+    a2 = np.einsum("cn,cn,n->c", shown, shown, weight)
+    cross = np.einsum("cn,tn->ct", shown * weight, shown[1:])  # (1 + T, T)
+    loss = a2[:, None] - 2 * cross + a2[None, 1:]
+    p = np.full(len(levels), 1.0 / len(levels)) if level_weights is None else level_weights / level_weights.sum()
+    expected = loss @ p
+    # the first candidate within rounding of the least (the expanded square leaves ~1e-12 noise)
+    return float(cands[int(np.argmax(expected <= expected.min() + 1e-7 * max(float(weight.sum()), 1.0)))])
+
+
+def rim_likelihood(chan, mask, clipped, levels, clip_level: float) -> np.ndarray:
+    """Likelihood of each radiance in *levels* given one channel's edge of a blob (the ``rim`` model).
+
+    A sharp source of radiance L over background B, box-filtered by the pixel, gives an edge pixel
+    ``alpha * L + (1 - alpha) * B`` with coverage alpha spread evenly over (0, 1): it stays below the
+    clip level with probability p(L) = (clip - B) / (L - B). Counting the edge's unclipped lit pixels
+    (n_lit, brighter than B by 2 % of the clip level) and its clipped pixels (n_clip, those with an
+    unclipped 4-neighbour) gives the binomial likelihood p^n_lit (1 - p)^n_clip.
+
+    Parameters
+    ----------
+    chan : (h, w) float, one channel around the blob; mask : (h, w) bool, the blob's clipped pixels
+    in that channel; clipped : (h, w) bool, every pixel with a clipped channel; levels : (T,) float
+
+    Returns
+    -------
+    (T,) float, largest 1 (all ones where the edge says nothing)
+    """
+    ring = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~mask & ~clipped
+    bg, n_lit, n_clip = _rim_counts(chan, mask, ring, clip_level)
+    p = np.clip((clip_level - bg) / np.maximum(levels - bg, 1e-6), 1e-9, 1 - 1e-9)
+    log = n_lit * np.log(p) + n_clip * np.log1p(-p)
+    return np.exp(log - log.max())
+
+
+def _edge(mask):
+    """Pixels of *mask* with a 4-neighbour outside it: a source's partly covered edge (beyond the array's
+    border the mask continues)."""
+    cross = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
+    return mask & ~cv2.erode(mask.astype(np.uint8), cross, borderType=cv2.BORDER_REPLICATE).astype(bool)
+
+
+def _prior_block(block, clipped_ch, clipped, coc, levels, clip_level, use_rim):
+    """One blob's window with its clipped channels raised (:func:`reconstruct_prior`). (h, w, 3) float32."""
+    out = block.copy()
+    d = float(np.median(coc)) if coc.size else 0.0
+    if d < 1.0:
+        return out  # no blur: the output stays at white whatever the radiance
+    kern = disc_kernel(d)
+
+    def blur(a, border=cv2.BORDER_CONSTANT):
+        return cv2.filter2D(a.astype(np.float32), -1, kern, borderType=border).ravel().astype(np.float64)
+
+    for c in range(3):
+        m = clipped_ch[..., c]
+        if not m.any():
+            continue
+        chan, edge = block[..., c], _edge(m)
+        keep = float(chan[m].max())
+        # an edge pixel is partly covered: given that it clipped, its coverage is even over (p, 1), so its
+        # expected value is (L + clip) / 2 (see the module notes); the interior is L
+        k_edge = blur(edge)
+        base = blur(np.where(m, 0.0, chan), cv2.BORDER_REPLICATE) + keep / 2 * k_edge
+        k = blur(m & ~edge) + k_edge / 2
+        sel = np.flatnonzero(k > 1e-6)
+        step = max(1, int(math.ceil(sel.size / MAX_FOOTPRINT_PX)))
+        sel = sel[::step]
+        lw = rim_likelihood(chan, m, clipped, levels, clip_level) if use_rim else None
+        level = expected_best_level(base[sel], k[sel], np.full(sel.size, float(step)), levels, keep, lw)
+        out[..., c] = np.where(m, np.maximum(chan, np.where(edge, (level + keep) / 2, level)), chan)
+    return out
+
+
+def reconstruct_prior(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, prior_max: float = PRIOR_MAX,
+                      use_rim: bool = False, **_) -> np.ndarray:
+    """Each clipped channel of each blob raised to the level of least expected output error.
+
+    The blob's true radiance is unknown (at least *clip_level*); under a log-uniform prior up to
+    *prior_max* the level chosen minimises the expected squared error of the displayed output
+    after the blob is blurred by the disc of its circle of confusion (:func:`expected_best_level`).
+    A blob that is not blurred, or whose blurred light stays above white in every plausible case,
+    is not raised. (H, W, 3) float32, linear.
+    """
+    img = _check(linear_rgb, clip_level, 1.0)
+    coc = _check_coc(coc_px, img.shape)
+    prior_max = _number("prior_max", prior_max, clip_level)
+    levels = prior_levels(clip_level, prior_max)
+    out = img.copy()
+
+    def pad(mask, sl):
+        return math.ceil(float(np.median(coc[sl][mask])) / 2) + 1
+
+    for win, mask, clipped_ch, clipped in _blobs(img, clip_level, pad):
+        raised = _prior_block(img[win], clipped_ch, clipped, coc[win][mask], levels, clip_level, use_rim)
+        out[win] = np.where(clipped_ch, raised, out[win])
+    return out
+
+
+def reconstruct_prior_rim(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, prior_max: float = PRIOR_MAX,
+                          **_) -> np.ndarray:
+    """:func:`reconstruct_prior` with the prior narrowed by each channel's edge (:func:`rim_likelihood`)."""
+    return reconstruct_prior(linear_rgb, coc_px=coc_px, clip_level=clip_level, prior_max=prior_max, use_rim=True)
 
 
 def reconstruct_off(linear_rgb, *, clip_level: float = CLIP_LEVEL, **_) -> np.ndarray:
@@ -167,21 +358,30 @@ def reconstruct_off(linear_rgb, *, clip_level: float = CLIP_LEVEL, **_) -> np.nd
     return _check(linear_rgb, clip_level, 1.0)
 
 
-#: strategy name -> function(linear_rgb, *, gain, clip_level) -> linear_rgb
-HIGHLIGHT_METHODS = {"off": reconstruct_off, "gain": reconstruct_gain, "rim": reconstruct_rim,
-                     "auto": reconstruct_auto}
+#: strategy name -> function(linear_rgb, *, gain, clip_level, coc_px, prior_max) -> linear_rgb
+#: ("auto": the method the wide benchmark's tuning seeds chose, see the module notes)
+HIGHLIGHT_METHODS = {"off": reconstruct_off, "auto": reconstruct_prior, "gain": reconstruct_gain,
+                     "rim": reconstruct_rim, "prior": reconstruct_prior, "prior-rim": reconstruct_prior_rim}
+#: methods that need the circle of confusion (``coc_px``)
+NEEDS_COC = frozenset(m for m, f in HIGHLIGHT_METHODS.items() if f in (reconstruct_prior, reconstruct_prior_rim))
 
 
 def reconstruct_highlights(linear_rgb, *, method: str = "auto", gain: float = DEFAULT_GAIN,
-                           clip_level: float = CLIP_LEVEL) -> np.ndarray:
+                           clip_level: float = CLIP_LEVEL, coc_px=None, prior_max: float = PRIOR_MAX) -> np.ndarray:
     """Estimate the radiance of clipped pixels of a linear image (pure: the input is not modified).
+
+    Only clipped channels change (an unclipped channel is a measurement), and only upwards.
 
     Parameters
     ----------
     linear_rgb : (H, W, 3) float ndarray, linear light decoded from clipped input (values <= 1)
     method : str, a key of :data:`HIGHLIGHT_METHODS`
-    gain : float >= 1, the radiance given to clipped blobs (``gain``), or the fallback of ``rim``/``auto``
+    gain : float >= 1, the radiance given to clipped blobs (``gain``), or the fallback of ``rim``
     clip_level : float > 0, linear value at and above which a channel counts as clipped
+    coc_px : (H, W) float ndarray, circle-of-confusion diameter (px; the sign is ignored, clamped to
+        :data:`pcdof.lens.MAX_COC_PX` like the renderer's) of each pixel in the render; needed by the
+        methods of :data:`NEEDS_COC`
+    prior_max : float >= clip_level, upper bound of the ``prior`` method's radiance prior
 
     Returns
     -------
@@ -193,9 +393,13 @@ def reconstruct_highlights(linear_rgb, *, method: str = "auto", gain: float = DE
     >>> float(reconstruct_highlights(img, method="gain", gain=5.0)[4, 4, 0])
     5.0
     """
-    if method not in HIGHLIGHT_METHODS:
+    if not isinstance(method, str) or method not in HIGHLIGHT_METHODS:
         raise InputError(f"method must be one of {', '.join(HIGHLIGHT_METHODS)}; got {method!r}")
-    return HIGHLIGHT_METHODS[method](linear_rgb, gain=gain, clip_level=clip_level)
+    _number("clip_level", clip_level, 0.0, strict=True)
+    _number("gain", gain, 1.0)
+    _number("prior_max", prior_max, clip_level)
+    return HIGHLIGHT_METHODS[method](linear_rgb, gain=gain, clip_level=clip_level, coc_px=coc_px,
+                                     prior_max=prior_max)
 
 
 def parse_highlights(value) -> tuple[str, float]:

@@ -115,8 +115,9 @@ def fill_stage(depth_m: np.ndarray, color: np.ndarray, trace: list, *, method: s
         return fill_depth(depth_m, color, method=method, parallel=plan.threads > 1)
 
 
-def highlights_stage(color, trace: list, *, highlights, method: str, linear: bool):
-    """Clipped highlights raised to an estimate of their radiance (:mod:`pcdof.highlights`).
+def highlights_stage(color, trace: list, *, highlights, method: str, linear: bool, coc_px=None):
+    """Clipped highlights raised to an estimate of their radiance (:mod:`pcdof.highlights`; *coc_px*:
+    the render's circle of confusion, which the estimate weighs).
 
     Returns (colour to render, linear flag): linear float32 light when something was reconstructed,
     else *color* and *linear* unchanged (skipped: off, the paper method, linear input, nothing clipped).
@@ -142,7 +143,7 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
             return color, linear
         rec.reason = f"{how} (gain {gain:g}): {clipped} clipped pixels"
         rec.detail = {"method": how, "gain": gain, "clipped_pixels": clipped}
-        return reconstruct_highlights(lin, method=how, gain=gain, clip_level=clip_level), True
+        return reconstruct_highlights(lin, method=how, gain=gain, clip_level=clip_level, coc_px=coc_px), True
 
 
 def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False,
@@ -156,7 +157,8 @@ def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", 
             rec.detail = {"max_coc_px": float(coc.max()) if coc.size else 0.0,
                           "out_of_focus_share": float(np.mean(coc >= 1.0)) if coc.size else 0.0}
             rec.reason = f"max {rec.detail['max_coc_px']:.2f} px"
-    source, source_linear = highlights_stage(color, trace, highlights=highlights, method=method, linear=linear)
+    source, source_linear = highlights_stage(color, trace, highlights=highlights, method=method, linear=linear,
+                                             coc_px=coc)
     with _Timer(trace, "render") as rec:
         image, info = render_image(source, depth_filled_m, lens, fx=fx, method=method,
                                    max_range_m=max_range_m, linear=source_linear, quality=quality, signed_coc=signed)
@@ -225,10 +227,10 @@ def render(frame: RGBDFrame, lens, **options) -> np.ndarray:
 
 def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "physical",
                       max_range_m: float = 10.0, linear: bool = False, quality: str = "balanced",
-                      highlights="off"):
+                      highlights="auto"):
     """Render from an already registered, hole-free depth (previews, sliders). Returns (image, trace).
 
-    The options are those of :class:`~pcdof.options.RenderOptions`."""
+    The options are those of :class:`~pcdof.options.RenderOptions` (with its defaults)."""
     check_method(method)
     color = check_color(color)
     depth = np.asarray(_depth_array(depth_filled_m, "depth_filled_m"), np.float32)

@@ -23,26 +23,33 @@ def _box_filtered_disc(level, radius=3.3, bg=0.1, size=24, k=8):
 @pytest.mark.parametrize("method", list(HIGHLIGHT_METHODS))
 def test_unclipped_input_is_returned_unchanged(method):
     img = np.random.default_rng(0).uniform(0, 0.9, (20, 30, 3)).astype(np.float32)
-    out = reconstruct_highlights(img, method=method)
+    out = reconstruct_highlights(img, method=method, coc_px=np.full((20, 30), 9.0))
     assert out.dtype == np.float32 and np.array_equal(out, img) and out is not img
 
 
 @pytest.mark.parametrize("method", list(HIGHLIGHT_METHODS))
-def test_input_is_not_modified_and_only_clipped_pixels_change(method):
+def test_input_is_not_modified_and_only_clipped_channels_change(method):
     clipped, _ = _box_filtered_disc(20.0)
+    clipped[..., 2] *= 0.5  # a yellowish lamp: blue is measured everywhere
     before = clipped.copy()
-    out = reconstruct_highlights(clipped, method=method, gain=6.0)
+    out = reconstruct_highlights(clipped, method=method, gain=6.0, coc_px=np.full(clipped.shape[:2], 7.0))
     assert np.array_equal(clipped, before)
-    changed = np.any(out != clipped, axis=2)
-    assert not np.any(changed & ~(clipped >= CLIP_LEVEL).any(axis=2))
+    changed = out != clipped
+    assert not np.any(changed & (clipped < CLIP_LEVEL))
     assert np.all(out >= clipped)
+    assert method == "off" or changed.any()
 
 
-def test_gain_sets_clipped_pixels_to_the_gain_with_their_hue():
+def test_gain_raises_clipped_channels_only():
+    """Red clipped everywhere, green in the core only: red gets the gain, green the gain times its share
+    of the blob (its hue), blue (measured) stays."""
     img = np.zeros((9, 9, 3), np.float32)
     img[3:6, 3:6] = (1.0, 0.5, 0.25)
+    img[4, 4, 1] = 1.0
     out = reconstruct_highlights(img, method="gain", gain=4.0)
-    assert np.allclose(out[4, 4], (4.0, 2.0, 1.0))
+    green_hue = (8 * 0.5 + 1.0) / 9
+    assert np.allclose(out[4, 4], (4.0, 4.0 * green_hue, 0.25))
+    assert np.allclose(out[3, 3], (4.0, 0.5, 0.25))
     assert np.array_equal(out[0, 0], img[0, 0])
 
 
@@ -55,7 +62,7 @@ def test_rim_estimate_grows_with_the_radiance_of_a_box_filtered_source():
     for level in (1.5, 2.5, 4.0):
         clipped, _ = _box_filtered_disc(level, radius=5.2, size=32)
         got = []
-        _fill(clipped, (clipped >= CLIP_LEVEL).any(axis=2), lambda b, m, r: got.append(rim_level(b, m, r)) or 1.0)
+        _fill(clipped, CLIP_LEVEL, lambda b, m, r: got.append(rim_level(b, m, r)) or 1.0)
         assert len(got) == 1 and got[0] is not None
         assert level / 2.2 <= got[0] <= level * 1.3
         estimates.append(got[0])
@@ -67,7 +74,7 @@ def test_reconstruction_brings_the_blurred_energy_closer():
     import cv2
 
     clipped, true = _box_filtered_disc(3.0, radius=5.2, size=32)
-    out = reconstruct_highlights(clipped, method="auto")
+    out = reconstruct_highlights(clipped, method="rim")
     blur = lambda a: cv2.blur(a, (15, 15))  # noqa: E731
     assert np.abs(blur(out) - blur(true)).mean() < 0.8 * np.abs(blur(clipped) - blur(true)).mean()
 
@@ -81,7 +88,12 @@ def test_linear_input_needs_no_reconstruction():
 
 @pytest.mark.parametrize("kwargs, match", [
     ({"method": "nope"}, "method"), ({"gain": 0.5}, "gain"), ({"gain": float("nan")}, "gain"),
-    ({"clip_level": 0.0}, "clip_level"),
+    ({"clip_level": 0.0}, "clip_level"), ({"method": "prior"}, "coc_px"),
+    ({"method": "prior", "coc_px": np.zeros((4, 5))}, "coc_px"),
+    ({"method": "prior", "coc_px": np.full((4, 4), np.nan)}, "coc_px"),
+    ({"method": "prior", "coc_px": np.full((4, 4), "a")}, "coc_px"),
+    ({"method": "prior", "coc_px": np.zeros((4, 4)), "prior_max": 0.5}, "prior_max"),
+    ({"method": "auto", "coc_px": np.zeros((4, 4)), "prior_max": float("inf")}, "prior_max"),
 ])
 def test_bad_options_name_the_argument(kwargs, match):
     with pytest.raises(InputError, match=match):

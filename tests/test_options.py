@@ -117,16 +117,18 @@ class TestHighlights:
         with pytest.raises(InputError, match="highlights"):
             RenderOptions(ThinLens(50, 2, 1.0), highlights=value)
 
-    def test_off_by_default_and_skipped(self):
+    def test_auto_by_default_and_off_skips(self):
         f, lens = clipped_frame(), ThinLens(50, 1.4, 1.0)
-        res = run(f, lens)
-        assert next(t for t in res.trace if t.name == "highlights").reason == "off"
+        assert RenderOptions(lens).highlights == "auto"
+        stage = next(t for t in run(f, lens).trace if t.name == "highlights")
+        assert not stage.skipped and stage.detail["method"] == "auto"
+        assert next(t for t in run(f, lens, highlights="off").trace if t.name == "highlights").reason == "off"
 
     def test_gain_brightens_the_bokeh_by_the_lamps_extra_energy(self):
         from pcdof.color import decode_to_linear
 
         f, lens = clipped_frame(), ThinLens(200, 1.0, 1.0)  # the lamp spread over an 8 px disc
-        off = decode_to_linear(run(f, lens).image)
+        off = decode_to_linear(run(f, lens, highlights="off").image)
         on_res = run(f, lens, highlights=4.0)
         on = decode_to_linear(on_res.image)
         stage = next(t for t in on_res.trace if t.name == "highlights")

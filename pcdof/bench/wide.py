@@ -143,23 +143,36 @@ def render_variant(variant, sf, lens) -> np.ndarray:
     """pcdof's render of one :class:`Variant` (or the name of a :data:`BUDGET` variant) of a case.
 
     Highlights given as a pipeline value run through the pipeline's highlights stage (the render
-    comes back in the input's dtype); a dict of reconstruction options is applied here and the
-    linear result rendered (a linear float image).
+    comes back in the input's dtype); a dict of reconstruction options is applied here, between the
+    pipeline's stages (the circle of confusion of the filled depth as the pipeline computes it), and
+    the linear result rendered (a linear float image).
     """
     from ..camera import RGBDFrame
-    from ..highlights import reconstruct_highlights
     from ..pipeline import run
 
     v = BUDGET[variant] if isinstance(variant, str) else variant
-    hl = v.highlights
+    color, linear, hl = sf.color, False, v.highlights
     if v.colour == "linear":
         color, linear, hl = sf.color_linear, True, "off"
-    elif isinstance(hl, dict):
-        color, linear, hl = reconstruct_highlights(decode_to_linear(sf.color), **hl), True, "off"
-    else:
-        color, linear = sf.color, False
     frame = _true_frame(sf, color) if v.true_depth else RGBDFrame(color, sf.depth_m, sf.rig)
+    if isinstance(hl, dict):
+        return _render_reconstructed(frame, lens, hl, quality=v.quality)
     return run(frame, lens, quality=v.quality, linear=linear, highlights=hl).image
+
+
+def _render_reconstructed(frame, lens, options: dict, *, quality: str) -> np.ndarray:
+    """*frame* registered and filled as :func:`pcdof.pipeline.run` does, its colour reconstructed with
+    :func:`pcdof.highlights.reconstruct_highlights` (*options*), rendered as linear light."""
+    from ..highlights import reconstruct_highlights
+    from ..options import as_options
+    from ..pipeline import fill_stage, register_stage, render_from_depth
+
+    trace: list = []
+    filled = fill_stage(register_stage(frame, trace), frame.color, trace, method=as_options(lens).fill_method)
+    fx = frame.rig.color.fx
+    lin = reconstruct_highlights(decode_to_linear(frame.color), coc_px=lens.coc_px(filled, fx), **options)
+    return render_from_depth(lin, filled, lens, fx, max_range_m=frame.rig.max_range_m, linear=True,
+                             quality=quality)[0]
 
 
 def _bucket_sums(err, coc, band) -> dict:
@@ -465,12 +478,18 @@ def tier_table(rows: list[dict], ref: str = "pcdof-exact") -> str:
 
 
 #: highlight settings compared on the tuning seeds
-HIGHLIGHT_CANDIDATES = ({"method": "off"}, *({"method": "gain", "gain": g} for g in (2.0, 4.0, 8.0, 16.0, 32.0)),
-                        {"method": "rim"}, *({"method": "auto", "gain": g} for g in (4.0, 8.0, 16.0)))
+HIGHLIGHT_CANDIDATES = ({"method": "off"}, *({"method": "gain", "gain": g} for g in (2.0, 3.0, 4.0)), {"method": "rim"},
+                        *({"method": "prior", "prior_max": m} for m in (8.0, 12.0, 16.0, 20.0, 24.0, 32.0)),
+                        *({"method": "prior-rim", "prior_max": m} for m in (8.0, 12.0, 16.0)))
+#: the rule that picks the default from the tuning table, stated before it is run: the largest mean
+#: change from off per case (balanced, measured input) among the settings whose every case loses at
+#: most this much to off, overall and in the edge band (dB); off when none does
+DEFAULT_RULE_MAX_LOSS_DB = 0.25
 
 
 def _label(cand: dict) -> str:
-    return cand["method"] + (f" {cand['gain']:g}" if "gain" in cand else "")
+    return cand["method"] + "".join(f" {v:g}" if k == "gain" else f" max {v:g}" if k == "prior_max"
+                                    else f" {k} {v}" for k, v in cand.items() if k != "method")
 
 
 def tune_highlights(*, kinds=None, seeds=TUNING_SEEDS, blurs=BLURS_PX, reference_width_px=REFERENCE_WIDTH_PX,
@@ -502,17 +521,29 @@ def tune_highlights(*, kinds=None, seeds=TUNING_SEEDS, blurs=BLURS_PX, reference
                     "psnr_measured": float(np.mean([r["psnr"] for r in rows if r["method"] == m])),
                     "psnr_measured_edge": float(np.mean([r["psnr_edge"] for r in rows if r["method"] == m])),
                     "gain_db": c.get("mean_db", float("nan")), "worst_db": c.get("worst_db", float("nan")),
+                    "worst_edge_db": c.get("worst_edge_db", float("nan")),
                     "losses": len(c.get("losses", [])), "cases": c["cases"]})
     return out
 
 
+def choose_highlights(tuned: list[dict], *, max_loss_db: float = DEFAULT_RULE_MAX_LOSS_DB) -> dict:
+    """The setting the default rule picks from :func:`tune_highlights`' rows (:data:`DEFAULT_RULE_MAX_LOSS_DB`)."""
+    ok = [t for t in tuned if min(t["worst_db"], t["worst_edge_db"]) >= -max_loss_db]
+    best = max(ok, key=lambda t: t["gain_db"], default=None)
+    return best["highlights"] if best is not None and best["gain_db"] > 0 else {"method": "off"}
+
+
 def tuning_table(tuned: list[dict]) -> str:
     lines = ["| highlights | exact, true depth: PSNR / edge dB | balanced, measured: PSNR / edge dB | "
-             "change from off per case (measured): mean / worst dB | cases losing > 0.1 dB |", "|---|---|---|---|---|"]
+             "change from off per case (measured): mean / worst / worst edge dB | cases losing > 0.1 dB |",
+             "|---|---|---|---|---|"]
     for t in tuned:
         lines.append(f"| {_label(t['highlights'])} | {t['psnr']:.2f} / {t['psnr_edge']:.2f} | "
                      f"{t['psnr_measured']:.2f} / {t['psnr_measured_edge']:.2f} | {t['gain_db']:+.2f} / "
-                     f"{t['worst_db']:+.2f} | {t['losses']} of {t['cases']} |")
+                     f"{t['worst_db']:+.2f} / {t['worst_edge_db']:+.2f} | {t['losses']} of {t['cases']} |")
+    lines += ["", f"The rule (largest mean change among settings whose every case loses at most "
+                  f"{DEFAULT_RULE_MAX_LOSS_DB:g} dB to off, overall and in the edge band) picks: "
+                  f"{_label(choose_highlights(tuned))}"]
     return "\n".join(lines)
 
 

@@ -275,9 +275,11 @@ def _render_option_decorators() -> list:
         click.option("--fill-method", type=click.Choice(list(FILL_METHODS)), default="joint-bilateral",
                      show_default=True, help="Depth hole filling method."),
         click.option("--linear", is_flag=True, help="Colour is linear light (float EXR/TIFF/NPY), not sRGB."),
-        click.option("--highlights", type=str, default="off", show_default=True, metavar="auto|off|gain|rim|GAIN",
+        click.option("--highlights", type=str, default="auto", show_default=True,
+                     metavar="auto|off|gain|rim|prior|prior-rim|GAIN",
                      help="Physical method, 8/16-bit sRGB colour: estimate the radiance of clipped highlights "
-                          "before the blur (a number: every clipped blob gets that many times diffuse white)."),
+                          "before the blur; only clipped channels are raised (auto: the level of least expected "
+                          "error given each blob's blur; a number: that many times diffuse white)."),
         click.option("--sigma", "blur_sigma_px", type=float, default=4.0, show_default=True,
                      help="Paper method: Gaussian blur sigma in pixels."),
         click.option("--weight", type=click.Choice(["eq2", "eq1"]), default="eq2", show_default=True,

@@ -7,6 +7,7 @@ import numpy as np
 from numba import njit, prange
 
 from .errors import InputError
+from .kernels import read_only
 
 
 def to_float(image: np.ndarray) -> np.ndarray:
@@ -120,7 +121,7 @@ def encode_from_linear(linear: np.ndarray, dtype: np.dtype) -> np.ndarray:
     if np.dtype(dtype) == np.uint8:
         lin = np.ascontiguousarray(linear, np.float32)
         out = np.empty(lin.shape, np.uint8)
-        _encode8(lin.reshape(-1), *_encode8_tables(), out.reshape(-1))
+        _encode8(read_only(lin.reshape(-1)), *_encode8_tables(), out.reshape(-1))  # one kernel type
         return out
     enc = linear_to_srgb(np.clip(linear, 0.0, None))
     if np.dtype(dtype).kind != "f":

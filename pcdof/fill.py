@@ -71,6 +71,7 @@ from numba import njit, prange
 
 from .camera import as_depth_m, check_color
 from .errors import InputError
+from .kernels import read_only
 from .lens import finite_number
 
 #: Default relative depth gap that separates two surfaces among a hole pixel's candidates.
@@ -148,6 +149,11 @@ def needs_fill(depth_m) -> tuple[bool, str]:
 
 # ---------------------------------------------------------------------------------------------
 # numba kernels
+#
+# inline="always" copies a helper's numba IR into every caller before typing, so each copy is
+# typed and optimised again: the small per-candidate helpers (_color_sim, _extrapolate, _gap_depth,
+# _insert_sorted) are inlined for speed, the large once-per-hole ones (_border_inv, _candidates,
+# _choose_surface) are plain calls, which compiles _combine in about a quarter less time.
 
 
 @njit(cache=True)
@@ -375,7 +381,7 @@ def _extrapolate(bnd, q, px, py, cap_px, rules):
     return min(max(ivq, rules.inv_lo), rules.inv_hi), rq
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _border_inv(holes, bnd, h, rules):
     """1/z of hole *h* if it lies outside the depth camera's view, else -1 (0: outside, with
     nothing on its row or column to extend).
@@ -427,7 +433,7 @@ def _gap_depth(slot, iv, r, far_min_z, gap_px):
     return z_fg if n >= _GAP_MIN_PAIRS else 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _candidates(holes, bnd, h, rules, iv, r, kq, qs, slot):
     """Collect hole *h*'s candidates into the slot arrays (step 1); returns how many."""
     m = 0
@@ -444,7 +450,7 @@ def _candidates(holes, bnd, h, rules, iv, r, kq, qs, slot):
     return m
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, z, order):
     """(1/z, kind) of a hole whose candidates span several surfaces (steps 2-4)."""
     for j in range(m):  # sort far to near (insertion sort: at most 16 candidates)
@@ -661,19 +667,20 @@ def _prepare(depth_m, color, *, need_color):
 
 def _color_for_kernel(color) -> tuple[np.ndarray, float]:
     """(H, W, 3) colour image (grey repeated: same distances as an RGB grey) and the factor that
-    scales its values to [0, 1]. Floats other than float32 and float64 (which the kernels cannot
-    index) are converted: float16 exactly to float32, longer ones to float64."""
+    scales its values to [0, 1].
+
+    The kernels take two colour dtypes, so numba compiles two specialisations, not one per input
+    dtype: uint8 as it is (the common case, no copy) and everything else as float64. The kernel reads
+    each colour value as a float64, and uint16, float16, float32 and float64 values are exactly
+    float64 values, so the conversion changes no result (longer floats are rounded, as before).
+    """
     c = np.asarray(color)
+    unit = 1.0 / 255.0 if c.dtype == np.uint8 else 1.0 / 65535.0 if c.dtype == np.uint16 else 1.0
+    if c.dtype != np.uint8:
+        c = c.astype(np.float64)
     if c.ndim == 2:
         c = np.repeat(c[:, :, None], 3, axis=2)
-    if c.dtype.kind == "f" and c.dtype not in (np.float32, np.float64):
-        c = c.astype(np.float32 if c.dtype.itemsize < 4 else np.float64)
-    c = np.ascontiguousarray(c)
-    if c.dtype == np.uint8:
-        return c, 1.0 / 255.0
-    if c.dtype == np.uint16:
-        return c, 1.0 / 65535.0
-    return c, 1.0
+    return np.ascontiguousarray(c), unit
 
 
 def _nearest_not_lost(depth: np.ndarray, lost: np.ndarray) -> np.ndarray:
@@ -765,6 +772,7 @@ def _rules(shape, *, use_color, unit, edge_ratio, sigma_color, background_bias, 
 
 def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, background_bias):
     """Filled depth and each hole's kind (``SURFACE``, ``BORDER``, ``GAP``, ``LOST``), by hole index."""
+    depth, guide = read_only(depth), read_only(guide)  # one kernel type whatever the caller's flags
     hole_id, label, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = _index(depth)
     rules = _rules(depth.shape, use_color=use_color, unit=unit, edge_ratio=edge_ratio, sigma_color=sigma_color,
                    background_bias=background_bias, zmin=zmin, zmax=zmax)
@@ -951,6 +959,10 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", parallel: boo
     """
     check_fill_method(method)
     fn = FILL_METHODS[method]
+    if fn is not fill_telea:
+        from .kernels import ensure_warm
+
+        ensure_warm(stages=("fill",))  # the first call after an install compiles the fill kernels, saying so
     try:
         return fn(depth_m, color, parallel=parallel, **options)
     except TypeError as exc:
@@ -960,8 +972,9 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", parallel: boo
 
 
 def warmup() -> None:
-    """Compile (or load from numba's cache) the fill kernels on a tiny input, for every colour dtype."""
+    """Compile (or load from numba's cache) the fill kernels on a tiny input, for both colour paths
+    (uint8, and float64 for every other dtype: see :func:`_color_for_kernel`)."""
     d = np.array([[1.0, 0.0, 2.0], [1.0, 0.0, 2.0]], np.float32)
-    for color in (np.zeros((2, 3, 3), np.uint8), np.zeros((2, 3, 3), np.uint16), np.zeros((2, 3, 3), np.float32)):
+    for color in (np.zeros((2, 3, 3), np.uint8), np.zeros((2, 3, 3), np.float32)):
         fill_joint_bilateral(d, color, parallel=False)
     fill_nearest_background(d, None, parallel=False)

@@ -1,11 +1,13 @@
 """The numba kernels of every stage: compiled once after install, and said so.
 
 numba compiles each kernel the first time it runs and keeps the machine code in its on-disk
-cache, so only the first run after an install (or an upgrade) pays for compiling, about half a
-minute. :func:`ensure_warm` finds out, cheaply and before any work, whether that is about to
-happen (a kernel with no entry in the cache index) and then compiles every stage with a line of
-progress on stderr, so a new user sees why the first frame takes long; when the cache is warm it
-prints nothing. ``pcdof warmup`` does the same ahead of time.
+cache, so only the first run after an install (or an upgrade) pays for compiling. :func:`ensure_warm`
+finds out, cheaply and before any work, whether that is about to happen for the stages a caller is
+going to run (a stage with a module none of whose kernels is in the cache index) and then compiles
+those stages, side by side in fresh interpreters, with an estimate and a line of progress per stage on
+stderr, so a new user sees why the first frame takes long; when the cache is warm it prints nothing.
+Stages are compiled only when asked for (lazily), so a call that runs one stage compiles that stage
+only. ``pcdof warmup`` does the same ahead of time (e.g. at install).
 """
 
 from __future__ import annotations
@@ -17,12 +19,34 @@ import time
 
 #: stage -> (module with its ``warmup()``, modules whose cached kernels it compiles)
 STAGES = {
-    "register": ("pcdof.register", ("pcdof.register",)),
+    "register": ("pcdof.register", ("pcdof.register", "pcdof.distortion")),
     "fill": ("pcdof.fill", ("pcdof.fill",)),
     "render": ("pcdof.renderer", ("pcdof.renderer", "pcdof.tiles", "pcdof.lens", "pcdof.color")),
 }
 
-_checked = False
+#: CPU seconds each stage's ``warmup()`` takes to compile with an empty cache, measured on the
+#: project's 2-core reference machine; only for the estimate printed before compiling.
+COMPILE_CPU_S = {"register": 19.0, "fill": 11.5, "render": 12.0}
+
+#: stages this process has checked (or compiled): each is checked once per process
+_checked: set = set()
+
+
+def read_only(array):
+    """A read-only view of *array* (no copy): numba compiles a separate specialisation for read-only
+    arrays, so a kernel's input arrays are passed read-only always, one type whatever the caller's flags.
+
+    Parameters
+    ----------
+    array : ndarray
+
+    Returns
+    -------
+    ndarray, the same data, not writeable
+    """
+    view = array.view()
+    view.flags.writeable = False
+    return view
 
 
 def _cached_dispatchers(module_name: str) -> list:
@@ -46,16 +70,10 @@ def _in_cache(dispatcher) -> bool:
         return True
 
 
-def cold_stages() -> list[str]:
-    """The stages numba would have to compile, in pipeline order: those with a module none of whose kernels
-    is in the on-disk cache (a new install or upgrade; numba keys its cache by each source file). A module
-    with some kernels cached has been run before: kernels of rarer paths compile when first needed."""
-    return [stage for stage, (_, modules) in STAGES.items()
-            if any(not any(_in_cache(d) for d in _cached_dispatchers(m)) for m in modules)]
-
-
 def check_stages(stages) -> list[str]:
     """*stages* as a list if every one is a key of :data:`STAGES`; else an InputError naming the unknown ones."""
+    if isinstance(stages, str):
+        stages = [stages]
     stages = list(stages)
     bad = [s for s in stages if s not in STAGES]
     if bad:
@@ -65,19 +83,39 @@ def check_stages(stages) -> list[str]:
     return stages
 
 
+def cold_stages(stages=tuple(STAGES)) -> list[str]:
+    """The stages among *stages* that numba would have to compile, in pipeline order: those with a module
+    none of whose kernels is in the on-disk cache (a new install or upgrade; numba keys its cache by each
+    source file). A module with some kernels cached has been run before: kernels of rarer paths compile
+    when first needed."""
+    stages = check_stages(stages)
+    return [stage for stage, (_, modules) in STAGES.items() if stage in stages
+            and any(not any(_in_cache(d) for d in _cached_dispatchers(m)) for m in modules)]
+
+
+def estimate_seconds(stages, workers: int | None = None) -> float:
+    """Wall seconds to compile *stages* on *workers* cores (default: this machine's), from
+    :data:`COMPILE_CPU_S`: the longest stage, or the work shared among the cores if that is longer."""
+    cpu = [COMPILE_CPU_S[s] for s in check_stages(stages)]
+    if not cpu:
+        return 0.0
+    workers = max(1, min(len(cpu), workers or os.cpu_count() or 1))
+    return max(max(cpu), sum(cpu) / workers)
+
+
 def _warm_stage(stage: str) -> float:
     """Run *stage*'s warm-up here; returns its seconds."""
-    global _checked
-    _checked = True  # the stage's own calls must not start another warm-up
+    _checked.update(STAGES)  # the stage's own calls must not start another warm-up
     t0 = time.perf_counter()
     importlib.import_module(STAGES[stage][0]).warmup()
     return time.perf_counter() - t0
 
 
-def _compile_apart(stages, say) -> dict:
+def _compile_apart(stages, say, t0: float) -> dict:
     """Compile *stages* side by side in fresh interpreters (numba compiles one function at a time per
-    process, and the stages share no kernel), each writing numba's on-disk cache. Returns seconds per
-    stage that succeeded; a stage that failed there is left to this process."""
+    process, and the stages share no kernel), each writing numba's on-disk cache; *say* gets a line as
+    each one ends (seconds since *t0*). Returns seconds per stage that succeeded; a stage that failed
+    there is left to this process."""
     import subprocess
 
     procs = {}
@@ -89,25 +127,41 @@ def _compile_apart(stages, say) -> dict:
         except OSError:  # no processes here: compile in this process
             break
     seconds = {}
-    for stage, proc in procs.items():
-        out, _ = proc.communicate()
-        if proc.returncode == 0:
-            seconds[stage] = float(out.split()[-1])
-            say(f"  [{len(seconds)}/{len(stages)}] {stage}: {seconds[stage]:.1f} s")
+    done = 0
+    while procs:
+        for stage, proc in list(procs.items()):
+            if proc.poll() is None:
+                continue
+            out, _ = proc.communicate()
+            del procs[stage]
+            done += 1
+            if proc.returncode == 0 and out.split():
+                seconds[stage] = float(out.split()[-1])
+                say(f"  [{done}/{len(stages)}] {stage} compiled ({time.perf_counter() - t0:.0f} s)")
+        time.sleep(0.05)
     return seconds
 
 
 def warmup(stages=tuple(STAGES), *, progress=None, processes: bool = False) -> dict:
     """Compile (or load from numba's cache) the kernels of *stages*; returns seconds per stage.
 
-    *progress*, if given, is called with one line of text as each stage starts and ends.
-    *processes*: compile the stages that are not in numba's cache (:func:`cold_stages`) side by side
-    in fresh interpreters first (numba compiles one function at a time per process), then load them here.
+    Parameters
+    ----------
+    stages : iterable of keys of :data:`STAGES`
+    progress : callable taking one line of text, or None; called as each stage starts and ends
+    processes : bool, compile the stages that are not in numba's cache (:func:`cold_stages`) side by
+        side in fresh interpreters first (numba compiles one function at a time per process), then
+        load them here
+
+    Returns
+    -------
+    dict, stage -> seconds (compiling and loading)
     """
     stages = check_stages(stages)
     say = progress or (lambda line: None)
-    cold = [s for s in cold_stages() if s in stages] if processes and (os.cpu_count() or 1) > 1 else []
-    apart = _compile_apart(cold, say) if len(cold) > 1 else {}
+    t0 = time.perf_counter()
+    cold = cold_stages(stages) if processes and (os.cpu_count() or 1) > 1 else []
+    apart = _compile_apart(cold, say, t0) if len(cold) > 1 else {}
     seconds = {}
     for i, stage in enumerate(stages, 1):
         if stage not in apart:
@@ -118,14 +172,16 @@ def warmup(stages=tuple(STAGES), *, progress=None, processes: bool = False) -> d
     return seconds
 
 
-def ensure_warm(stream=None) -> None:
-    """Once per process: when some kernel is not in numba's cache, compile every such stage now, saying so on
-    *stream* (default stderr). Silent and cheap (a few milliseconds, once) when the cache is warm."""
-    global _checked
-    if _checked:
+def ensure_warm(stream=None, *, stages=None) -> None:
+    """Before running *stages* (default: every stage), compile those of them that are not in numba's
+    cache, saying so on *stream* (default stderr): an estimate first, then a line as each stage is done.
+    Each stage is checked once per process; silent and cheap (about a millisecond per stage) when the
+    cache is warm."""
+    todo = [s for s in (STAGES if stages is None else check_stages(stages)) if s not in _checked]
+    if not todo:
         return
-    _checked = True
-    cold = cold_stages()
+    _checked.update(todo)
+    cold = cold_stages(todo)
     if not cold:
         return
     stream = sys.stderr if stream is None else stream
@@ -133,7 +189,8 @@ def ensure_warm(stream=None) -> None:
     def say(line):
         print(line, file=stream, flush=True)
 
-    say(f"pcdof: compiling kernels, once after install (about 10-20 s per stage): {', '.join(cold)}")
+    say(f"pcdof: compiling kernels, once after install: {', '.join(cold)} "
+        f"(about {estimate_seconds(cold):.0f} s on {os.cpu_count() or 1} cores)")
     t0 = time.perf_counter()
     warmup(cold, progress=say, processes=True)
     say(f"pcdof: kernels compiled and cached in {time.perf_counter() - t0:.0f} s")

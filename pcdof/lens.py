@@ -22,6 +22,7 @@ from numba import njit, prange
 
 from .camera import _as_array, _short
 from .errors import CalibrationError, InputError, LensError
+from .kernels import read_only
 
 #: Largest circle of confusion (pixels) the renderers compute; larger ones are clamped with a warning.
 MAX_COC_PX = 256.0
@@ -200,7 +201,9 @@ class ThinLens:
         if z.dtype not in (np.float32, np.float64):
             z = z.astype(np.float64)
         out = np.empty(z.shape, np.float32)
-        _signed_coc(np.ascontiguousarray(z).reshape(-1), scale, 1.0 / self.focus_distance_m, out.reshape(-1))
+        # float32 (the pipeline's depth) or float64 (everything else), read-only: two kernel types at most
+        _signed_coc(read_only(np.ascontiguousarray(z).reshape(-1)), scale, 1.0 / self.focus_distance_m,
+                    out.reshape(-1))
         return out
 
     def coc_px(self, depth_m, fx: float) -> np.ndarray:

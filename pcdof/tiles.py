@@ -28,6 +28,7 @@ import numpy as np
 from numba import njit
 
 from .errors import InputError
+from .kernels import read_only
 from .plans import TILE_PX  # noqa: F401  (the default tile side, pixels; re-exported)
 #: Largest relative CoC spread (max - min over mean) of a uniform tile and everything that reaches it.
 UNIFORM_SPREAD = 0.1
@@ -175,7 +176,7 @@ def classify_tiles(signed_coc, *, tile_px: int = TILE_PX, sharp_px: float = 1.0)
         raise InputError(f"tile_px must be an integer >= 1; got {tile_px!r}")
     if not (isinstance(sharp_px, (int, float)) and math.isfinite(sharp_px) and sharp_px > 0):
         raise InputError(f"sharp_px must be a finite number > 0; got {sharp_px!r}")
-    coc = np.ascontiguousarray(coc, np.float32)
+    coc = read_only(np.ascontiguousarray(coc, np.float32))  # one kernel type whatever the caller's flags
     lo, hi, front_r = _tile_ranges(coc, int(tile_px), float(sharp_px))
     sharp = (lo > -sharp_px) & (hi < sharp_px)
     copy = sharp & ~_reached_from_front(front_r, int(tile_px))

@@ -113,7 +113,7 @@ class TestKernels:
         assert set(seconds) == set(kernels.STAGES) and all(s >= 0 for s in seconds.values())
         assert kernels.cold_stages() == []
         stream = io.StringIO()
-        kernels._checked = False
+        kernels._checked.clear()
         kernels.ensure_warm(stream)
         assert stream.getvalue() == ""
         result = CliRunner().invoke(command, ["--stages", "render"])

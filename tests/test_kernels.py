@@ -1,0 +1,193 @@
+"""Kernels compiled once and said so (pcdof.kernels), one kernel type per input dtype, and a light
+render command (no heavy library imported, no kernel compiled when the cache is warm)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pcdof import kernels
+from pcdof.errors import InputError, PcdofError
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SAMPLE = os.path.join(ROOT, "data", "sample")
+HEAVY = ("open3d", "pyvista", "dask", "matplotlib", "trimesh")
+
+
+def _python(code: str, env: dict | None = None, timeout: float = 600) -> subprocess.CompletedProcess:
+    """Run *code* in a fresh interpreter (this one's), from a temporary working folder."""
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
+                          env={**os.environ, **(env or {})}, timeout=timeout, cwd=ROOT)
+
+
+class TestReadOnly:
+    def test_view_not_copy(self):
+        a = np.arange(6, dtype=np.float32).reshape(2, 3)
+        v = kernels.read_only(a)
+        assert not v.flags.writeable and np.shares_memory(a, v) and a.flags.writeable
+        np.testing.assert_array_equal(v, a)
+        with pytest.raises(ValueError):
+            v[0, 0] = 1.0
+
+    def test_fill_compiles_one_type_per_colour_path(self):
+        """Writable, read-only, grey and every colour dtype share two kernel types (uint8, float64), all
+        read-only; the results are the same whatever the caller's array flags."""
+        from pcdof.fill import _combine, fill_joint_bilateral
+
+        rng = np.random.default_rng(3)
+        depth = rng.uniform(1.0, 3.0, (12, 16)).astype(np.float32)
+        depth[4:8, 5:9] = 0.0
+        color = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+        frozen = color.copy()
+        frozen.flags.writeable = False
+        frozen_depth = depth.copy()
+        frozen_depth.flags.writeable = False
+        ref = fill_joint_bilateral(depth, color)
+        np.testing.assert_array_equal(fill_joint_bilateral(frozen_depth, frozen), ref)
+        for c in (color[:, :, 0], color.astype(np.uint16) * 257, color.astype(np.float32) / 255,
+                  color.astype(np.float16) / 255, color.astype(np.float64) / 255):
+            assert fill_joint_bilateral(depth, c).shape == depth.shape
+        colour_types = {sig[1] for sig in _combine.signatures}
+        assert {t.dtype.name for t in colour_types} <= {"uint8", "float64"}
+        assert all(not t.mutable and t.layout == "C" for t in colour_types)
+        assert all(not sig[0].mutable for sig in _combine.signatures)  # the depth too
+
+    def test_coc_and_tiles_take_read_only_inputs(self):
+        from pcdof.lens import ThinLens, _signed_coc
+        from pcdof.tiles import _tile_ranges, classify_tiles
+
+        depth = np.linspace(0.5, 4.0, 64, dtype=np.float32).reshape(8, 8)
+        frozen = depth.copy()
+        frozen.flags.writeable = False
+        lens = ThinLens(50.0, 2.0, 1.5)
+        coc = lens.signed_coc_px(depth, 500.0)
+        np.testing.assert_array_equal(lens.signed_coc_px(frozen, 500.0), coc)
+        np.testing.assert_array_equal(lens.signed_coc_px(depth.astype(np.uint16), 500.0),
+                                      lens.signed_coc_px(depth.astype(np.uint16).astype(np.float64), 500.0))
+        assert all(not sig[0].mutable for sig in _signed_coc.signatures)
+        assert {sig[0].dtype.name for sig in _signed_coc.signatures} <= {"float32", "float64"}
+        coc.flags.writeable = False
+        classify_tiles(coc, tile_px=4)
+        classify_tiles(np.array(coc), tile_px=4)
+        assert len(_tile_ranges.signatures) == 1 and not _tile_ranges.signatures[0][0].mutable
+
+
+class TestStages:
+    def test_check_stages(self):
+        assert kernels.check_stages("fill") == ["fill"]
+        assert kernels.check_stages(("render", "register")) == ["render", "register"]
+        with pytest.raises(InputError, match="stages must be among") as err:
+            kernels.check_stages(["render", "paint"])
+        assert isinstance(err.value, PcdofError) and "paint" in str(err.value)
+
+    def test_estimate_is_the_longest_stage_or_the_shared_work(self):
+        cpu = kernels.COMPILE_CPU_S
+        assert kernels.estimate_seconds([]) == 0.0
+        assert kernels.estimate_seconds(["fill"], workers=8) == cpu["fill"]
+        both = ["fill", "render"]
+        assert kernels.estimate_seconds(both, workers=1) == pytest.approx(cpu["fill"] + cpu["render"])
+        assert kernels.estimate_seconds(both, workers=2) == max(cpu["fill"], cpu["render"])
+        three = list(kernels.STAGES)
+        assert kernels.estimate_seconds(three, workers=2) == pytest.approx(
+            max(max(cpu.values()), sum(cpu.values()) / 2))
+
+    def test_warm_stages_are_checked_once_and_silently(self, monkeypatch):
+        import io
+
+        calls = []
+        monkeypatch.setattr(kernels, "_checked", set())
+        monkeypatch.setattr(kernels, "cold_stages", lambda stages=(): calls.append(list(stages)) or [])
+        stream = io.StringIO()
+        kernels.ensure_warm(stream, stages=["fill"])
+        kernels.ensure_warm(stream, stages=["fill"])
+        kernels.ensure_warm(stream)
+        assert calls == [["fill"], ["register", "render"]] and stream.getvalue() == ""
+
+
+class TestColdCache:
+    def test_first_use_says_what_it_compiles(self, tmp_path):
+        """With an empty cache every stage is cold; the first call names the stages it compiles and an
+        estimate, then one line per stage and the total (the compile itself replaced here by a stand-in)."""
+        proc = _python("""
+            import sys
+            from pcdof import kernels
+            print(kernels.cold_stages())
+            kernels.warmup = lambda stages, progress, processes: [progress(f"  [{i}/{len(stages)}] {s}: 0.0 s")
+                                                                  for i, s in enumerate(stages, 1)]
+            kernels.ensure_warm(sys.stdout, stages=["fill", "render"])
+            kernels.ensure_warm(sys.stdout, stages=["fill"])  # checked once per process
+        """, {"NUMBA_CACHE_DIR": str(tmp_path)})
+        assert proc.returncode == 0, proc.stderr
+        lines = proc.stdout.splitlines()
+        assert lines[0] == "['register', 'fill', 'render']"
+        assert lines[1].startswith("pcdof: compiling kernels, once after install: fill, render (about ")
+        assert lines[2:4] == ["  [1/2] fill: 0.0 s", "  [2/2] render: 0.0 s"]
+        assert lines[4].startswith("pcdof: kernels compiled and cached in ") and len(lines) == 5
+
+    @pytest.mark.slow
+    def test_fill_compiles_once_with_progress(self, tmp_path):
+        """A real compile of one stage into an empty cache: progress on stderr, then a warm cache, silent."""
+        code = """
+            import numpy as np
+            from pcdof.fill import fill_depth
+            d = np.array([[1.0, 0.0, 2.0]], np.float32)
+            print(fill_depth(d, np.zeros((1, 3, 3), np.uint8)).tolist())
+            from pcdof import kernels
+            print(kernels.cold_stages(["fill"]))
+        """
+        env = {"NUMBA_CACHE_DIR": str(tmp_path)}
+        first = _python(code, env)
+        assert first.returncode == 0, first.stderr
+        assert first.stdout.splitlines() == ["[[1.0, 2.0, 2.0]]", "[]"]
+        assert "compiling kernels, once after install: fill" in first.stderr
+        assert "[1/1] fill" in first.stderr and "kernels compiled and cached in" in first.stderr
+        second = _python(code, env)
+        assert second.returncode == 0 and second.stdout == first.stdout and "compiling" not in second.stderr
+
+
+class TestWarmupCommand:
+    def test_reports_progress_and_total(self):
+        from pcdof.cli.warmup import command
+
+        result = CliRunner().invoke(command, ["--stages", "fill"])
+        assert result.exit_code == 0, result.output
+        assert "[1/1] fill" in result.output and "ready in " in result.output and "fill " in result.output
+
+    def test_unknown_stage_is_one_line(self):
+        from pcdof.cli import main
+
+        result = CliRunner().invoke(main, ["warmup", "--stages", "fill,paint"])
+        assert result.exit_code != 0 and "stages must be among" in result.output
+
+
+class TestRenderCommand:
+    def test_imports_no_heavy_module_and_compiles_nothing_when_warm(self, tmp_path):
+        """``pcdof render`` of the bundled sample: none of the 3D/plotting/cluster libraries is imported,
+        and with the kernels cached (warmed first) no kernel is compiled, only loaded."""
+        out = tmp_path / "out.png"
+        warm = _python("from pcdof import kernels; kernels.warmup()")
+        assert warm.returncode == 0, warm.stderr
+        proc = _python(f"""
+            import sys
+            from numba.core import dispatcher
+            compiled = []  # kernels compiled from scratch (a cache miss), not loaded
+            core = dispatcher._FunctionCompiler._compile_core
+            dispatcher._FunctionCompiler._compile_core = lambda self, *a: compiled.append(self.py_func.__name__) or core(self, *a)
+            from pcdof.cli import main
+            try:
+                main(["-q", "render", {os.path.join(SAMPLE, "color.png")!r}, {os.path.join(SAMPLE, "depth.png")!r},
+                      "--calib", {os.path.join(SAMPLE, "calib.json")!r}, "-o", {str(out)!r}])
+            except SystemExit as exc:
+                assert not exc.code, exc.code
+            print(sorted(n for n in sys.modules if n.split(".")[0] in {HEAVY!r}))
+            print(compiled)
+        """)
+        assert proc.returncode == 0, proc.stderr
+        heavy, compiled = proc.stdout.splitlines()[-2:]
+        assert heavy == "[]" and compiled == "[]" and out.exists()

@@ -677,10 +677,82 @@ def _reduced_grid(lin, radius, member, hidden, reach_px, s) -> _Grid:
         extended = bool((grown & ~present).any())
         m_s = np.where(grown, m_s + hid_s, 0).astype(np.float32)
         present = grown
-    # block averaging and bilinear upsampling widen the blur by about s^2 in variance: take it off
-    r_s = (np.sqrt(np.maximum(r * r - s * s, 0.25 * r * r)) / s).astype(np.float32)
+    # the block mean and the upsampling widen the blur by resample_variance_px2(s) per axis; a disc of
+    # radius r has r^2 / 4: take it off the radius (at most down to half of it)
+    r_s = (np.sqrt(np.maximum(r * r - 4 * resample_variance_px2(s), 0.25 * r * r)) / s).astype(np.float32)
     return _Grid(np.ascontiguousarray(lin_s, np.float32), r_s, np.ascontiguousarray(present),
                  np.ascontiguousarray(m_s, np.float32), extended)
+
+
+def resample_variance_px2(s: int) -> float:
+    """Variance per axis (px^2) that computing a layer on the 1/s grid adds to its blur: five boxes of s
+    pixels, (s^2 - 1) / 12 each. One is the s x s block mean of :func:`_reduce_cells`, one the scatter's
+    anti-aliasing integrating each footprint over cells of s pixels instead of over pixels, three are
+    :func:`upsample_cells`."""
+    return 5.0 * (s * s - 1) / 12.0
+
+
+def upsample_weights(s: int) -> np.ndarray:
+    """(s, 3) float32: the weights of the cells i - 1, i, i + 1 for the pixel i s + p of a 1/s grid (row p).
+
+    The discrete quadratic B-spline of one cell: three boxes of s pixels convolved (3 s - 2 taps), centred
+    on the cell's pixels. Every row sums to 1 (each box does), and the weights are positive.
+    """
+    s = int(s)
+    kernel = np.ones(s)  # the cell spread over its s pixels, then two boxes of s pixels
+    for _ in range(2):
+        kernel = np.convolve(kernel, np.ones(s) / s)
+    # the kernel of cell i covers pixels i s - (s - 1) .. i s + 2 s - 2: pixel i s + p takes tap p + s - 1 of
+    # cell i, p + 2 s - 1 of cell i - 1 (a pixel s further from that cell's start) and p - 1 of cell i + 1
+    padded = np.concatenate([np.zeros(1), kernel, np.zeros(2)])  # padded[t + 1] = kernel[t], 0 outside
+    p = np.arange(s)
+    return np.stack([padded[p + 2 * s], padded[p + s], padded[p]], axis=1).astype(np.float32)
+
+
+@njit(parallel=True, cache=True)
+def _upsample_b2(buf, weights, h, w):
+    """Separable: the rows of the 1/s grid at full height, then the columns at full width."""
+    hs, ws, nc = buf.shape
+    s = weights.shape[0]
+    rows = np.empty((h, ws, nc), np.float32)
+    out = np.empty((h, w, nc), np.float32)
+    for y in prange(h):
+        i, p = y // s, y % s
+        a, b, c = max(i - 1, 0), min(i, hs - 1), min(i + 1, hs - 1)
+        wa, wb, wc = weights[p, 0], weights[p, 1], weights[p, 2]
+        for x in range(ws):
+            for k in range(nc):
+                rows[y, x, k] = wa * buf[a, x, k] + wb * buf[b, x, k] + wc * buf[c, x, k]
+    for y in prange(h):
+        for x in range(w):
+            i, p = x // s, x % s
+            a, b, c = max(i - 1, 0), min(i, ws - 1), min(i + 1, ws - 1)
+            wa, wb, wc = weights[p, 0], weights[p, 1], weights[p, 2]
+            for k in range(nc):
+                out[y, x, k] = wa * rows[y, a, k] + wb * rows[y, b, k] + wc * rows[y, c, k]
+    return out
+
+
+def upsample_cells(buf: np.ndarray, s: int, h: int, w: int) -> np.ndarray:
+    """A layer computed on the 1/s grid, (hs, ws, C) float32, at full resolution: (h, w, C) float32, h <= hs s.
+
+    Each pixel is a positive combination of the 3 x 3 cells around it (:func:`upsample_weights`,
+    separable; a constant grid stays constant; cells beyond the grid repeat its border). The discrete
+    quadratic B-spline is smooth: bilinear interpolation is continuous only, and the creases it leaves
+    at every cell centre made a reduced layer sharper (by the Laplacian) the larger s was, so that
+    opening the aperture sharpened the render where a layer moved to the next coarser grid. At s = 2
+    the two are the same filter.
+
+    References
+    ----------
+    M. Unser, "Splines: a perfect fit for signal and image processing", IEEE Signal Processing Magazine
+    16(6), 1999 (the B-spline of degree n as n + 1 boxes convolved).
+    """
+    hs, ws, nc = buf.shape
+    if s < 1 or not (0 < h <= hs * s and 0 < w <= ws * s):
+        raise InputError(f"upsample_cells needs s >= 1 and 0 < (h, w) <= (hs s, ws s) = {(hs * s, ws * s)}; "
+                         f"got s={s}, (h, w)={(h, w)}")
+    return _upsample_b2(np.ascontiguousarray(buf, np.float32), upsample_weights(s), int(h), int(w))
 
 
 def _convolved_cells(grid: _Grid, fast, s):
@@ -740,8 +812,7 @@ def _scatter_layer(lin, radius, member, s, aperture: _Aperture, hidden=None, rea
     if nc < 3:
         buf = np.ascontiguousarray(buf[:, :, list(range(nc)) + [3]])
     if s > 1:
-        up = cv2.resize(buf, (ws * s, hs * s), interpolation=cv2.INTER_LINEAR)
-        buf = np.ascontiguousarray(up.reshape(hs * s, ws * s, nc + 1)[:h, :w])
+        buf = upsample_cells(buf, s, h, w)
     return buf, grid.extended, len(groups), n_scattered
 
 
@@ -1169,5 +1240,8 @@ def warmup() -> None:
     depth[:, 56:] = 50.0  # far behind: a large blur, uniform tiles, reduced resolution
     color = (np.indices((h, w)).sum(axis=0) % 7 * 36).astype(np.uint8)[:, :, None].repeat(3, axis=2)
     lens = ThinLens(50.0, 1.4, 2.0)
+    # a plan that reduces from 2 px cells, so that this small blur takes the reduced path whatever the tiers'
+    # thresholds
+    plan = RenderPlan(threads=plan_render().threads, reduce_min_coc_px=2.0)
     for image in (color, color.astype(np.uint16) * 257):
-        render_image(image, depth, lens, fx=300.0, quality="balanced")
+        render_image(image, depth, lens, fx=300.0, quality="balanced", plan=plan)

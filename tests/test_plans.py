@@ -31,7 +31,8 @@ class TestPlanRender:
             assert plan.reduce_min_coc_px == threshold
             assert plan.threads == numba.get_num_threads()
         assert plan_render(quality="exact").scale(200.0) == 1
-        assert [plan_render(quality="balanced").scale(c) for c in (4.0, 8.0, 16.0, 45.0)] == [1, 2, 4, 8]
+        m = QUALITIES["balanced"]  # a layer from CoC 2 m px runs at 1/2, from 4 m at 1/4, ...
+        assert [plan_render(quality="balanced").scale(c) for c in (m, 2 * m, 4 * m, 8 * m)] == [1, 2, 4, 8]
 
     def test_plan_is_recorded_in_the_info(self):
         lin, coc = scene()

@@ -8,6 +8,7 @@ by design get float-rounding tolerances; approximations by design get the bound 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 import zlib
@@ -24,6 +25,7 @@ from pcdof import renderer
 from pcdof.camera import Intrinsics, Rig
 from pcdof.color import decode_to_linear
 from pcdof.lens import PaperLens, ThinLens
+from pcdof.plans import plan_render
 from pcdof.reference import coc as ref_coc
 from pcdof.reference import fill as ref_fill
 from pcdof.reference import register as ref_register
@@ -479,10 +481,30 @@ def test_tiled_and_reduced_resolution_paths_approximate_reference(scene, quality
     out, info = _render_fast(lin, coc, quality=quality, extend_behind=False)
     ref = ref_render.render_layers_linear(lin, coc, extend_behind_layers=False)
     assert psnr(out, ref) > RENDER_MIN_PSNR_DB[quality], (psnr(out, ref), info["layers"])
-    if quality != "exact" and scene != "random":  # |c| < 12 in "random": too small to reduce
-        assert any(layer["scale"] > 1 for layer in info["layers"])  # the reduced path ran
+    # each layer at the scale the tier's plan gives its lower CoC edge
+    plan = plan_render(quality=quality)
+    assert all(layer["scale"] == plan.scale(layer["coc_px"][0]) for layer in info["layers"] if layer["blurred"])
     if scene == "large" and quality == "exact":
         assert sum(layer.get("kernels", 0) for layer in info["layers"]) > 0  # the convolution path ran
+
+
+#: reduced-resolution layers: PSNR (dB, peak 1) against the reference, per threshold
+#: (``RenderPlan.reduce_min_coc_px``: a layer runs at 1/s from CoC 2 s times this)
+REDUCED_MIN_PSNR_DB = {8.0: 50.0, 4.0: 44.0, 2.0: 36.0}
+
+
+@pytest.mark.parametrize("threshold", list(REDUCED_MIN_PSNR_DB))
+@pytest.mark.parametrize("scene", ["box", "ramp", "large"])
+def test_reduced_resolution_layers_approximate_reference(scene, threshold):
+    """Every reduction factor, whatever the tiers' thresholds: 1/2 .. 1/16 of the resolution."""
+    h, w = 64, 80
+    rng = np.random.default_rng(20 + SCENES.index(scene))
+    lin, coc = _texture(rng, h, w), _coc_scene(scene, h, w, rng)
+    plan = dataclasses.replace(plan_render(), reduce_min_coc_px=threshold)
+    out, info = _render_fast(lin, coc, plan=plan, extend_behind=False)
+    ref = ref_render.render_layers_linear(lin, coc, extend_behind_layers=False)
+    assert psnr(out, ref) > REDUCED_MIN_PSNR_DB[threshold], (psnr(out, ref), info["layers"])
+    assert any(layer["scale"] > 1 for layer in info["layers"])  # the reduced path ran
 
 
 @pytest.mark.parametrize("quality", list(RENDER_MIN_PSNR_DB))

@@ -1,5 +1,6 @@
 """Renderer tests against analytic answers and an independent OpenCV disc convolution."""
 
+import dataclasses
 import math
 
 import cv2
@@ -9,6 +10,7 @@ import pytest
 from pcdof.color import decode_to_linear, linear_to_srgb, srgb_to_linear
 from pcdof.errors import InputError, LensError
 from pcdof.lens import PaperLens, ThinLens
+from pcdof.plans import plan_render
 from pcdof.renderer import render_image, render_layers_linear
 
 FX = 500.0
@@ -120,8 +122,8 @@ class TestPhysical:
         # while the background right next to it is blurred (stripes averaged)
         assert 0.2 < out[40, 20, 0] < 0.8
 
-    @pytest.mark.parametrize("quality", ["exact", "balanced"])
-    def test_blurred_foreground_spreads_over_sharp_background(self, quality):
+    @pytest.mark.parametrize("reduce_min_coc_px", [math.inf, 4.0])  # full resolution; the foreground at 1/2
+    def test_blurred_foreground_spreads_over_sharp_background(self, reduce_min_coc_px):
         h, w = 80, 120
         lin = np.zeros((h, w, 3), np.float32)
         lin[..., 2] = 1.0  # blue background, in focus at 3 m
@@ -132,13 +134,14 @@ class TestPhysical:
         coc = lens.signed_coc_px(depth, FX)
         c = float(-coc.min())
         assert c > 10
-        out, info = render_layers_linear(lin, coc, quality=quality)
+        plan = dataclasses.replace(plan_render(), reduce_min_coc_px=reduce_min_coc_px)
+        out, info = render_layers_linear(lin, coc, plan=plan)
         # red light reaches outside the silhouette, up to about c/2, and fades with distance
         outside = out[40, 40 - int(c / 4), 0]
         assert outside > 0.1
-        # a layer computed at 1/s resolution is upsampled bilinearly: its edge may soften by s pixels
+        # a layer computed at 1/s resolution is upsampled from its cells: its edge may soften by s pixels
         s = max(layer["scale"] for layer in info["layers"])
-        assert (s == 1) == (quality == "exact")
+        assert (s == 1) == (reduce_min_coc_px == math.inf)
         assert out[40, 40 - int(c / 2) - 2 - s * (s > 1), 0] < 1e-6
         # the background far from the foreground is untouched
         np.testing.assert_allclose(out[5, 5], [0, 0, 1], atol=1e-6)
@@ -146,20 +149,22 @@ class TestPhysical:
         profile = out[40, 40 - int(c / 2): 40 + int(c / 2), 0]
         assert np.all(np.diff(profile) >= -1e-5)
 
-    @pytest.mark.parametrize("quality, min_psnr_db", [("high", 50), ("balanced", 42), ("fast", 33)])
-    def test_reduced_resolution_layers_approximate_the_exact_scatter(self, quality, min_psnr_db):
+    # (4.0, 41): 41.8 dB with the B-spline upsampling (44.4 bilinear); no tier reduces from 4 px any more
+    @pytest.mark.parametrize("reduce_min_coc_px, min_psnr_db", [(8.0, 50), (4.0, 41), (2.0, 33)])
+    def test_reduced_resolution_layers_approximate_the_exact_scatter(self, reduce_min_coc_px, min_psnr_db):
         h, w = 120, 140
         lin = cv2.GaussianBlur(texture(h, w, seed=5), (0, 0), 2)  # natural images are not white noise
         coc = np.full((h, w), 40.0, np.float32)
         exact, _ = render_layers_linear(lin, coc, quality="exact")
-        fast, info = render_layers_linear(lin, coc, quality=quality)
+        plan = dataclasses.replace(plan_render(), reduce_min_coc_px=reduce_min_coc_px)
+        fast, info = render_layers_linear(lin, coc, plan=plan)
         assert info["layers"][0]["scale"] > 1  # the reduced path really ran
         m = 25
         assert psnr(fast[m:-m, m:-m], exact[m:-m, m:-m]) > min_psnr_db
         # a single bright pixel keeps its energy at reduced resolution too
         img = np.zeros((h, w, 1), np.float32)
         img[60, 70] = 1.0
-        out, _ = render_layers_linear(img, coc, quality=quality)
+        out, _ = render_layers_linear(img, coc, plan=plan)
         assert out.sum() == pytest.approx(1.0, rel=1e-3)
 
     def test_light_is_conserved_on_a_plane(self):

@@ -28,7 +28,8 @@ from pcdof.errors import CalibrationError, InputError, LensError, PcdofError
 from pcdof.lens import MAX_COC_PX, PaperLens, ThinLens
 from pcdof.pipeline import render_from_depth, run
 from pcdof.register import register_depth
-from pcdof.renderer import QUALITIES, render_image, render_layers_linear
+from pcdof.plans import plan_render
+from pcdof.renderer import LAYER_EDGES_PX, QUALITIES, render_image, render_layers_linear
 
 
 def _load_stress_script():
@@ -223,21 +224,44 @@ class TestApertureMonotonic:
         for a, b in zip(energies, energies[1:]):
             assert b <= a * 1.02 + 1e-9, (sorted(cocs), energies)
 
-    @pytest.mark.xfail(strict=True, reason="known defect of the reduced-resolution tiers: resampling a layer "
-                       "is not monotonic in sharpness (balanced 10 -> 11 px +22 %, fast 11 -> 12 px +4 % Laplacian "
-                       "energy on this texture); their calibration is open work")
-    @pytest.mark.parametrize("quality, cocs", [("balanced", (10.0, 11.0)), ("fast", (11.0, 12.0))])
-    def test_reduced_tiers(self, quality, cocs):
+    @staticmethod
+    def _energies(quality, cocs, *, side, cell, seed):
         fx, z, focus = 40.0, 1.0, 2.0
-        rng = np.random.default_rng(1)
-        tex = texture(rng, self.H, self.W)
-        frame = RGBDFrame(tex, np.full((self.H, self.W), z, np.float32), registered_rig(self.H, self.W, fx))
+        tex = texture(np.random.default_rng(seed), side, side, cell=cell)
+        frame = RGBDFrame(tex, np.full((side, side), z, np.float32), registered_rig(side, side, fx))
         energies = []
         for c in cocs:
             n = 50e-3 * fx * abs(1 / focus - 1 / z) / c
             out = run_quiet(frame, ThinLens(50.0, n, focus, 0), method="physical", quality=quality).image
             energies.append(laplacian_energy(out, 7))
+        return energies
+
+    @pytest.mark.parametrize("quality", list(QUALITIES))
+    @pytest.mark.parametrize("cocs", [(10.0, 11.0), (11.0, 12.0)])
+    def test_every_tier_on_the_reduced_tiers_old_failures(self, quality, cocs):
+        """balanced 10 -> 11 px sharpened by 22 % and fast 11 -> 12 px by 4 % with bilinear upsampling."""
+        energies = self._energies(quality, cocs, side=self.H, cell=2, seed=1)
         assert energies[1] <= energies[0] * 1.02 + 1e-9, energies
+
+    @pytest.mark.parametrize("quality", [q for q in QUALITIES if q != "exact"])
+    @pytest.mark.parametrize("seed", [0, 1])
+    def test_reduced_tiers_where_a_layer_moves_to_a_coarser_grid(self, quality, seed):
+        """Across every CoC at which the tier's plan halves a layer's resolution (up to 64 px), and a little
+        beyond, the render never gets sharper.
+
+        The texture's blocks are 2 cells of the coarser grid, as the full-resolution property's are 2 px:
+        on a grid that sees 1-cell noise the scatter itself is not monotone (the exact render of 1-px noise
+        gains 45 % Laplacian energy from 7.5 to 7.9 px: the anti-aliased disc's edge pattern), whatever
+        the resampling."""
+        plan = plan_render(quality=quality)
+        edges = [float(e) for e in LAYER_EDGES_PX[:-1] if e <= 64 and plan.scale(e) > 1
+                 and plan.scale(e) > plan.scale(float(LAYER_EDGES_PX[list(LAYER_EDGES_PX).index(e) - 1]))]
+        assert edges, plan  # every reduced tier halves some layer below 64 px
+        for e in edges:
+            cocs = (e - 0.5, e - 0.1, e + 0.1, e + 0.5, e + 1.0)
+            energies = self._energies(quality, cocs, side=128, cell=2 * plan.scale(e), seed=seed)
+            for a, b in zip(energies, energies[1:]):
+                assert b <= a * 1.02 + 1e-9, (quality, e, cocs, energies)
 
     @PROPERTY
     @given(seed=seeds, sigmas=st.lists(st.floats(0.3, 6.0), min_size=2, max_size=4, unique=True),

@@ -1,0 +1,189 @@
+"""Calibrating the quality tiers: the reduced-resolution error against ``exact``, per threshold.
+
+A quality tier is one number, ``RenderPlan.reduce_min_coc_px`` = m: a blur layer runs on the 1/s
+grid (s = 2, 4, ...) when its CoC in cells of that grid, lo / s, is at least m (so every reduced
+layer has between m and 2m cells of blur). This part renders the wide benchmark's cases
+(:mod:`pcdof.bench.wide`) once at full resolution and once per threshold of :data:`LADDER` from the
+same registered and filled depth, and measures what each threshold costs against the ray-traced
+ground truth:
+
+* per case, the PSNR change from ``exact`` (whole frame and depth-edge band);
+* the error-vs-CoC curve per reduction factor: the pixels of each layer run at 1/s, grouped by their
+  CoC in cells (c / s), their squared error pooled over all cases, against ``exact``'s on the same pixels.
+
+:func:`choose_thresholds` then picks each tier's threshold by the rule stated there. Tune on
+:data:`pcdof.bench.wide.TUNING_SEEDS`, report on :data:`pcdof.bench.wide.REPORT_SEEDS`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import InputError
+
+#: thresholds measured (CoC in cells of the reduced grid), half-octave steps
+LADDER = (2.0, 2.83, 4.0, 5.66, 8.0, 11.3, 16.0)
+#: largest PSNR loss to exact (dB) a tier may have on any case (the issue: balanced 0.1, fast 0.5)
+TOLERANCE_DB = {"high": 0.05, "balanced": 0.1, "fast": 0.5}
+#: share of the tolerance the worst tuning case may use: the reported seeds are other scenes
+MARGIN = 0.5
+#: CoC-in-cells buckets of the curve (lower edges; the last is open)
+CELL_BUCKETS = (1.0, 1.41, 2.0, 2.83, 4.0, 5.66, 8.0, 11.3, 16.0, 22.6)
+
+
+def _psnr(sse: float, n: int) -> float:
+    return float("nan") if n == 0 else (float("inf") if sse == 0 else float(-10 * np.log10(sse / n)))
+
+
+def _layer_scale(coc_abs: np.ndarray, m: float) -> np.ndarray:
+    """Resolution divisor of each pixel's layer (1 in focus and at full resolution) under threshold *m*."""
+    from ..plans import RenderPlan
+    from ..renderer import LAYER_EDGES_PX
+
+    plan = RenderPlan(threads=1, reduce_min_coc_px=m)
+    k = np.searchsorted(LAYER_EDGES_PX, coc_abs, side="right")  # layer k: edges[k-1] <= c < edges[k]
+    lo = np.where(k > 0, LAYER_EDGES_PX[np.maximum(k - 1, 0)], 0.0)
+    scales = {float(v): plan.scale(float(v)) for v in np.unique(lo)}
+    return np.vectorize(lambda v: scales[float(v)], otypes=[np.int64])(lo) if scales else np.ones_like(k)
+
+
+def _case_curve(err_t, err_x, coc_abs, m) -> dict:
+    """{(s, cell bucket): (sse tier, sse exact, pixels)} of the reduced pixels of one case."""
+    s = _layer_scale(coc_abs, m)
+    out = {}
+    cells = coc_abs / s
+    for sv in np.unique(s[s > 1]):
+        for i, lo in enumerate(CELL_BUCKETS):
+            hi = CELL_BUCKETS[i + 1] if i + 1 < len(CELL_BUCKETS) else np.inf
+            sel = (s == sv) & (cells >= lo) & (cells < hi)
+            if sel.any():
+                out[(int(sv), lo)] = (float(err_t[sel].sum()), float(err_x[sel].sum()), int(sel.sum()))
+    return out
+
+
+def _renders(sf, lens, ladder):
+    """(filled depth's exact render, {m: render}, |CoC| of the filled depth) of one case, measured input."""
+    from ..camera import RGBDFrame
+    from ..pipeline import run
+    from ..plans import plan_render
+    from ..renderer import render_image
+
+    depth = run(RGBDFrame(sf.color, sf.depth_m, sf.rig), lens, quality="exact").depth_filled_m
+    fx, exact = sf.rig.color.fx, plan_render(quality="exact")
+    out = {}
+    for m in (math.inf, *ladder):
+        out[m] = render_image(sf.color, depth, lens, fx=fx, max_range_m=sf.rig.max_range_m, quality="exact",
+                              plan=replace(exact, reduce_min_coc_px=m))[0]
+    return out.pop(math.inf), out, np.abs(lens.signed_coc_px(depth, fx))
+
+
+def run_tiers(*, kinds=None, seeds=(0, 1, 2, 3, 4), blurs=(16, 64), reference_width_px=640, size=(256, 192),
+              depth_size=(256, 212), ladder=LADDER, cache_dir=None, progress: bool = True) -> dict:
+    """Render every wide case at ``exact`` and at each threshold of *ladder*; see the module docstring.
+
+    Parameters are those of :func:`pcdof.bench.wide.run_wide` (*ladder*: thresholds, CoC in cells > 0).
+
+    Returns
+    -------
+    dict: "cases" (list of {scene, seed, focus, blur_px, psnr_exact, psnr_edge_exact, "delta" {m: dB},
+    "delta_edge" {m: dB}}), "curve" (list of {threshold, scale, cells, pixels, delta_db}: the PSNR change
+    of the reduced pixels from exact's on the same pixels, pooled over the cases)
+    """
+    from tqdm.auto import tqdm
+
+    from ..color import linear_to_srgb
+    from ..metrics import depth_edge_band
+    from ..synth.wide import generate_wide, lens_for_blur
+    from .wide import _check, _encode, _ground_truth, scaled_blurs, wide_cases
+
+    ladder = tuple(float(m) for m in ladder)
+    if not ladder or any(not (math.isfinite(m) and m > 0) for m in ladder):
+        raise InputError(f"ladder must be numbers > 0; got {ladder!r}")
+    px = scaled_blurs(_check(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
+    kinds, seeds, blurs = _check(kinds, seeds, px)
+    cases, curve = [], {}
+    todo = wide_cases(kinds, seeds, blurs)
+    frames = {}
+    for kind, seed, focus, blur in tqdm(todo, desc="tiers bench", unit="case", disable=not progress):
+        if (kind, seed) not in frames:
+            frames = {(kind, seed): generate_wide(kind, seed=seed, color_size=size, depth_size=depth_size)}
+        sf, spec = frames[(kind, seed)]
+        lens = lens_for_blur(sf.depth_color_m, sf.rig.color.fx, spec.focus_m[focus], blur)
+        gt_lin = _ground_truth(sf, lens, cache_dir=cache_dir,
+                               key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2])
+        gt = linear_to_srgb(np.clip(gt_lin, 0, 1))
+        band = depth_edge_band(sf.depth_color_m, max(3, int(round(blur / 2))))
+        exact, reduced, coc_abs = _renders(sf, lens, ladder)
+        err_x = np.mean((_encode(exact) - gt) ** 2, axis=2)
+        row = {"scene": kind, "seed": seed, "focus": focus, "blur_px": blur,
+               "psnr_exact": _psnr(float(err_x.sum()), err_x.size),
+               "psnr_edge_exact": _psnr(float(err_x[band].sum()), int(band.sum())), "delta": {}, "delta_edge": {}}
+        for m, img in reduced.items():
+            err_t = np.mean((_encode(img) - gt) ** 2, axis=2)
+            row["delta"][m] = _psnr(float(err_t.sum()), err_t.size) - row["psnr_exact"]
+            row["delta_edge"][m] = _psnr(float(err_t[band].sum()), int(band.sum())) - row["psnr_edge_exact"]
+            for key, (st, sx, n) in _case_curve(err_t, err_x, coc_abs, m).items():
+                acc = curve.setdefault((m, *key), [0.0, 0.0, 0])
+                acc[0] += st
+                acc[1] += sx
+                acc[2] += n
+        cases.append(row)
+    points = [{"threshold": m, "scale": s, "cells": c, "pixels": n, "delta_db": _psnr(st, n) - _psnr(sx, n)}
+              for (m, s, c), (st, sx, n) in sorted(curve.items())]
+    return {"cases": cases, "curve": points, "ladder": list(ladder)}
+
+
+def worst_loss(result: dict) -> dict:
+    """{threshold: (worst whole-frame change, worst edge-band change, cases losing more than 0.1 dB)}, dB."""
+    out = {}
+    for m in result["ladder"]:
+        d = [c["delta"][m] for c in result["cases"]]
+        e = [c["delta_edge"][m] for c in result["cases"]]
+        out[m] = (float(min(d)), float(min(e)), int(sum(x < -0.1 for x in d)))
+    return out
+
+
+def choose_thresholds(result: dict, tolerance_db=None, margin: float = MARGIN) -> dict:
+    """Each tier's threshold: the smallest of the ladder whose worst case, on the whole frame and in the
+    depth-edge band, loses at most *margin* x the tier's tolerance to exact (inf when none does).
+
+    The smallest threshold is the fastest (a layer's cost falls with the cube of its reduction), and
+    the margin keeps room for scenes the tuning seeds do not have."""
+    tolerance_db = TOLERANCE_DB if tolerance_db is None else tolerance_db
+    worst = worst_loss(result)
+    out = {}
+    for tier, tol in tolerance_db.items():
+        ok = [m for m in sorted(worst) if min(worst[m][0], worst[m][1]) >= -margin * tol]
+        out[tier] = ok[0] if ok else math.inf
+    return out
+
+
+def loss_table(result: dict) -> str:
+    """Markdown: per threshold, the worst case's change from exact (whole / edge band) and the mean."""
+    worst = worst_loss(result)
+    lines = ["| threshold (CoC in cells) | worst case dB | worst edge band dB | mean dB | cases losing > 0.1 dB |",
+             "|---|---|---|---|---|"]
+    for m, (w, e, n) in worst.items():
+        mean = float(np.mean([c["delta"][m] for c in result["cases"]]))
+        lines.append(f"| {m:g} | {w:+.3f} | {e:+.3f} | {mean:+.3f} | {n} of {len(result['cases'])} |")
+    return "\n".join(lines)
+
+
+def curve_table(result: dict) -> str:
+    """Markdown: the error-vs-CoC curve, PSNR change of the reduced pixels (dB) per scale and CoC in cells."""
+    pts = result["curve"]
+    cells = sorted({p["cells"] for p in pts})
+    scales = sorted({p["scale"] for p in pts})
+    lines = ["| scale | " + " | ".join(f"{c:g}+ cells" for c in cells) + " |", "|---|" + "---|" * len(cells)]
+    for s in scales:
+        cell = {}
+        for p in pts:
+            if p["scale"] == s and p["pixels"]:
+                # several thresholds may run the same (scale, cells) bucket: pool them
+                acc = cell.setdefault(p["cells"], [])
+                acc.append(p["delta_db"])
+        lines.append(f"| 1/{s} | " + " | ".join(f"{np.mean(cell[c]):+.3f}" if c in cell else "" for c in cells) + " |")
+    return "\n".join(lines)

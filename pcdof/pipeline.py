@@ -141,7 +141,7 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
         if clipped == 0:
             rec.skipped, rec.reason = True, "nothing clipped"
             return color, linear
-        rec.reason = f"{how} (gain {gain:g}): {clipped} clipped pixels"
+        rec.reason = f"{how}{f' (gain {gain:g})' if how in ('gain', 'rim') else ''}: {clipped} clipped pixels"
         rec.detail = {"method": how, "gain": gain, "clipped_pixels": clipped}
         return reconstruct_highlights(lin, method=how, gain=gain, clip_level=clip_level, coc_px=coc_px), True
 

@@ -367,30 +367,34 @@ def _triangle(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _triangle_coefs(u0, v0, w0, u1, v1, w1, u2, v2, w2, keep):
-    """A triangle's three edge functions and its 1/z plane, each as float32 (a, b, c) of a x + b y + c.
+def _triangle_coefs(x0, y0, w0, x1, y1, w1, x2, y2, w2, tol, keep):
+    """A triangle's three edge functions and its 1/z plane, each as (a, b, c) of a x + b y + c (float32).
 
-    The edge functions are the doubled signed areas of (p, next corner, corner after), signed so
-    that they are >= 0 inside and widened by :data:`_ROW_EDGE_EPS_PX` pixels (a pixel centre on an
-    edge shared by two triangles is drawn by both, whatever the float32 rounding of either). A
-    triangle that is not kept, or is degenerate, gets an edge that is negative everywhere.
+    Corners relative to the drawing origin, float32. Edge k is the doubled signed area of (p, next
+    corner, corner after corner k), signed so that it is >= 0 inside and widened by *tol* (a pixel
+    centre on an edge shared by two triangles is drawn by both, whatever the rounding of either).
+    The plane interpolates 1/z (affine in the image for a planar triangle: perspective-correct). A triangle that is not kept, or is degenerate, gets an edge that is
+    negative everywhere.
     """
-    area, gx, gy = _plane(u0, v0, w0, u1, v1, w1, u2, v2, w2)
-    sg = 1.0 if area > 0.0 else -1.0
-    a0, b0 = (v1 - v2) * sg, (u2 - u1) * sg
-    a1, b1 = (v2 - v0) * sg, (u0 - u2) * sg
-    a2, b2 = (v0 - v1) * sg, (u1 - u0) * sg
-    c0 = (u1 * v2 - u2 * v1) * sg + _ROW_EDGE_EPS_PX * (abs(a0) + abs(b0))
-    c1 = (u2 * v0 - u0 * v2) * sg + _ROW_EDGE_EPS_PX * (abs(a1) + abs(b1))
-    c2 = (u0 * v1 - u1 * v0) * sg + _ROW_EDGE_EPS_PX * (abs(a2) + abs(b2))
-    if area == 0.0 or not keep:
-        a0, b0, c0 = 0.0, 0.0, -1.0
-    f = np.float32
-    return (f(a0), f(b0), f(c0), f(a1), f(b1), f(c1), f(a2), f(b2), f(c2), f(gx), f(gy), f(w0 - gx * u0 - gy * v0))
+    a0, b0, c0 = y1 - y2, x2 - x1, x1 * y2 - x2 * y1
+    a1, b1, c1 = y2 - y0, x0 - x2, x2 * y0 - x0 * y2
+    a2, b2, c2 = y0 - y1, x1 - x0, x0 * y1 - x1 * y0
+    area = b2 * a1 - b1 * a2
+    one = np.float32(1.0)
+    inv = one / area
+    dw1, dw2 = w1 - w0, w2 - w0  # the plane through corner 0: its small differences keep float32's precision
+    gx = (dw1 * a1 + dw2 * a2) * inv
+    gy = (dw1 * b1 + dw2 * b2) * inv
+    gc = w0 - gx * x0 - gy * y0
+    sg = one if area > 0.0 else -one
+    live = keep & (area != 0.0)
+    zero = np.float32(0.0)
+    return (a0 * sg if live else zero, b0 * sg if live else zero, c0 * sg + tol if live else -one,
+            a1 * sg, b1 * sg, c1 * sg + tol, a2 * sg, b2 * sg, c2 * sg + tol, gx, gy, gc)
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _quad_rows(buf, xs, top, ya, yb, p0, p1, p2, p3, keep_t, keep_s):
+def _quad_rows(buf, xs, top, ya, yb, tol, p0, p1, p2, p3, keep_t, keep_s):
     """Draw triangles t = (p0, p1, p2) and s = (p0, p2, p3) on the pixels x = xs..xs + 15 of rows ya..yb.
 
     Each corner p is (u, v, 1/z); *keep_t*, *keep_s* say which triangles are drawn. For quads whose
@@ -400,12 +404,12 @@ def _quad_rows(buf, xs, top, ya, yb, p0, p1, p2, p3, keep_t, keep_s):
     the compiler vectorises, and merges them into the row by max (a centre outside both triangles
     gives 0, which leaves the buffer unchanged; the row belongs to this band alone).
     """
-    ox = np.float64(xs)
-    oy = np.float64(top)
-    t = _triangle_coefs(p0[0] - ox, p0[1] - oy, p0[2], p1[0] - ox, p1[1] - oy, p1[2], p2[0] - ox, p2[1] - oy, p2[2],
-                        keep_t)
-    s = _triangle_coefs(p0[0] - ox, p0[1] - oy, p0[2], p2[0] - ox, p2[1] - oy, p2[2], p3[0] - ox, p3[1] - oy, p3[2],
-                        keep_s)
+    ox = np.float32(xs)
+    oy = np.float32(top)
+    x0, y0, x1, y1, x2, y2, x3, y3 = p0[0] - ox, p0[1] - oy, p1[0] - ox, p1[1] - oy, p2[0] - ox, p2[1] - oy, p3[0] - ox, \
+        p3[1] - oy
+    t = _triangle_coefs(x0, y0, p0[2], x1, y1, p1[2], x2, y2, p2[2], tol, keep_t)
+    s = _triangle_coefs(x0, y0, p0[2], x2, y2, p2[2], x3, y3, p3[2], tol, keep_s)
     zero = np.float32(0.0)
     for y in range(ya, yb + 1):
         yy = np.float32(y - top)
@@ -426,10 +430,11 @@ def _quad(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, code, use
     Boxes at most :data:`_ROW_PX` pixels wide take :func:`_quad_rows` (when *use_rows*); otherwise
     each kept triangle is drawn by :func:`_triangle` (centre by centre, or by scanlines).
     """
+    umin = min(min(ua, ub), min(uc, ud))
+    umax = max(max(ua, ub), max(uc, ud))
     vmin = min(min(va, vb), min(vc, vd))
     vmax = max(max(va, vb), max(vc, vd))
-    xa, xb, ya, yb = _box(min(min(ua, ub), min(uc, ud)), max(max(ua, ub), max(uc, ud)), vmin, vmax,
-                          buf.shape[1], y0, y1)
+    xa, xb, ya, yb = _box(umin, umax, vmin, vmax, buf.shape[1], y0, y1)
     if xa > xb or ya > yb:
         return
     W = buf.shape[1]
@@ -438,17 +443,21 @@ def _quad(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, code, use
         # diagonal a-d: (a, b, d) and (a, d, c); diagonal b-c: (c, a, b) and (c, b, d); selected, not branched.
         # The origin depends on the quad alone, not on the band: bands change no bit.
         a, b, c, d = (ua, va, wa), (ub, vb, wb), (uc, vc, wc), (ud, vd, wd)
-        _quad_rows(buf, min(xa, W - _ROW_PX), int(np.ceil(vmin)), ya, yb, a if diag_ad else c, b if diag_ad else a,
+        # widening of the edges: _ROW_EDGE_EPS_PX times a bound on every edge's |a| + |b|
+        tol = np.float32(_ROW_EDGE_EPS_PX) * (umax - umin + vmax - vmin)
+        _quad_rows(buf, min(xa, W - _ROW_PX), int(np.ceil(vmin)), ya, yb, tol, a if diag_ad else c, b if diag_ad else a,
                    d if diag_ad else b, c if diag_ad else d, (code & 5) != 0, (code & 10) != 0)
         return
+    f = np.float64
+    a, b, c, d = (f(ua), f(va), f(wa)), (f(ub), f(vb), f(wb)), (f(uc), f(vc), f(wc)), (f(ud), f(vd), f(wd))
     if code & 1:
-        _triangle(buf, y0, y1, ua, va, wa, ub, vb, wb, ud, vd, wd)
+        _triangle(buf, y0, y1, a[0], a[1], a[2], b[0], b[1], b[2], d[0], d[1], d[2])
     if code & 2:
-        _triangle(buf, y0, y1, ua, va, wa, ud, vd, wd, uc, vc, wc)
+        _triangle(buf, y0, y1, a[0], a[1], a[2], d[0], d[1], d[2], c[0], c[1], c[2])
     if code & 4:
-        _triangle(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc)
+        _triangle(buf, y0, y1, a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2])
     if code & 8:
-        _triangle(buf, y0, y1, ub, vb, wb, ud, vd, wd, uc, vc, wc)
+        _triangle(buf, y0, y1, b[0], b[1], b[2], d[0], d[1], d[2], c[0], c[1], c[2])
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
@@ -526,18 +535,18 @@ def _rasterise(counter, n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_
                 code = codes[i + 1, j + 1]
                 if code == 0:
                     continue
-                ua = np.float64(U[i, j])
-                va = np.float64(V[i, j])
-                wa = np.float64(IZ[i, j])
-                ub = np.float64(U[i, j + 1])
-                vb = np.float64(V[i, j + 1])
-                wb = np.float64(IZ[i, j + 1])
-                uc = np.float64(U[i + 1, j])
-                vc = np.float64(V[i + 1, j])
-                wc = np.float64(IZ[i + 1, j])
-                ud = np.float64(U[i + 1, j + 1])
-                vd = np.float64(V[i + 1, j + 1])
-                wd = np.float64(IZ[i + 1, j + 1])
+                ua = U[i, j]
+                va = V[i, j]
+                wa = IZ[i, j]
+                ub = U[i, j + 1]
+                vb = V[i, j + 1]
+                wb = IZ[i, j + 1]
+                uc = U[i + 1, j]
+                vc = V[i + 1, j]
+                wc = IZ[i + 1, j]
+                ud = U[i + 1, j + 1]
+                vd = V[i + 1, j + 1]
+                wd = IZ[i + 1, j + 1]
                 _quad(out, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, code, use_block)
         for i in range(h):
             if row_hi[i] < y0 - 1 or row_lo[i] > y1 + 1:

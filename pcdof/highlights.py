@@ -18,17 +18,21 @@ Assumptions (what the estimates rely on)
 * A clipped blob (8-connected pixels with a clipped channel) is one light source or one specular
   glint with one radiance per channel.
 * ``prior`` (what ``auto`` runs): the radiance of a clipped channel is log-uniform between the clip
-  level and :data:`PRIOR_MAX` times diffuse white (an assumption about scenes; the bound is chosen
-  on the wide benchmark's tuning seeds, below). The blob is blurred by the disc of its circle of
-  confusion (the median over its pixels, from the render's own CoC map) and shown clipped at
-  white, sRGB-encoded; the level chosen per blob and channel minimises the expected sum of squared
-  differences of that display from the truth, over the prior (:func:`expected_best_level`, a
-  32-point quadrature). A blob that is not blurred (CoC below 1 px), or whose blurred light shows
-  white whatever its radiance, keeps its value; the more thinly its light is spread, the higher
-  the level. The blob's edge pixels (with a 4-neighbour outside it) are partly covered by the
-  source: given that they clipped, their expected value is (L + clip) / 2 (coverage even over the
-  part of (0, 1) that clips), and they are raised to that instead of L. Overlapping footprints,
-  occlusion by nearer layers and the renderer's exact kernel are not modelled.
+  level and :data:`PRIOR_MAX` times diffuse white, and a light's channels differ by at most a factor
+  :data:`MAX_CHANNEL_RATIO` (its colour's saturation), so where most of a blob's pixels clipped in a
+  channel have another channel measured (below the clip level), the prior ends at that ratio times
+  their median measured value: a barely clipped, strongly coloured surface is not a lamp (both
+  bounds are assumptions about scenes, chosen on the wide benchmark's tuning seeds, below). The
+  blob is blurred by the disc of its circle of confusion (the median over its pixels, from the
+  render's own CoC map, clamped like the renderer's) and shown clipped at white, sRGB-encoded; the
+  level chosen per blob and channel minimises the expected sum of squared differences of that
+  display from the truth, over the prior (:func:`expected_best_level`, a 32-point quadrature). A
+  blob that is not blurred (CoC below 1 px), or whose blurred light shows white whatever its
+  radiance, keeps its value; the more thinly its light is spread, the higher the level. The blob's
+  edge pixels (with a 4-neighbour outside it) are partly covered by the source: given that they
+  clipped, their expected value is (L + clip) / 2 (coverage even over the part of (0, 1) that
+  clips), and they are raised to that instead of L. Overlapping footprints, occlusion by nearer
+  layers and the renderer's exact kernel are not modelled.
 * ``prior-rim``: ``prior`` times the likelihood of the blob's edge counts under the ``rim`` model
   (:func:`rim_likelihood`).
 * ``rim``: the source is sharp in the input and sampled by a box pixel filter, so a pixel on its
@@ -50,18 +54,23 @@ measured input, the setting with the largest mean change from ``off`` per case a
 every case loses at most 0.25 dB to ``off``, overall and in the depth-edge band. Mean change / worst
 case / worst edge band (dB), tuning seeds:
 
-* gain 2 +1.34 / -0.09 / -0.11; gain 3 +1.94 / -0.39 / -0.56; gain 4 +2.21 / -1.00 / -1.39
-* rim +1.86 / -0.26 / -0.38
-* prior, max 8 +1.42 / -0.02 / -0.02; 12 +1.69 / -0.05 / -0.06; **16 +1.86 / -0.13 / -0.19**;
-  20 +1.97 / -0.30 / -0.43; 24 +2.05 / -0.41 / -0.58; 32 +2.16 / -0.92 / -1.21
-* prior-rim, max 8 +1.69 / 0.00 / 0.00; 12 +1.77 / -0.15 / -0.22; 16 +1.81 / -0.33 / -0.47
+* gain 2 +1.34 / -0.12 / -0.16; gain 3 +1.94 / -0.39 / -0.56; gain 4 +2.19 / -1.00 / -1.39
+* rim +1.87 / -0.26 / -0.38
+* prior, no channel-ratio bound, max 8 +1.43 / -0.02 / -0.02; 12 +1.70 / -0.05 / -0.06;
+  16 +1.86 / -0.13 / -0.19; 20 +1.97 / -0.58 / -0.75; 24 +2.04 / -0.95 / -1.22; 32 +2.15 / -1.67 / -2.10
+* prior, channel ratio 4 (or 8), max 16 **+1.87 / -0.13 / -0.19**; 24 +2.05 / -0.95 / -1.22;
+  32 +2.16 / -1.67 / -2.10
+* prior-rim, max 8 +1.68 / 0.00 / 0.00; 12 +1.77 / -0.15 / -0.22; 16 +1.80 / -0.33 / -0.47
 
-The rule picks ``prior`` with a bound of 16, now ``auto`` and the default. The losses of the larger
-bounds and gains are blobs of low radiance (2-4 x white) raised several times too high; the 8-bit
-input does not say which blobs those are. What an exact per-blob level would give (the true
-median radiance of each clipped channel of each blob, edge pixels as above), pcdof exact with
-true depth on the tuning seeds: 33.31 dB against 33.95 from the unclipped linear colour, 30.10 with
-``off`` and 31.92 with ``auto``: the model of a blob leaves 0.6 dB, the unknown level 1.4 dB.
+The rule picks ``prior`` with a bound of 16 and a channel ratio of 4, now ``auto`` and the default.
+Few of these blobs have a measured channel, so the ratio bound barely moves this table; on the
+``dof`` benchmark's portrait (a foreground surface barely above white in red only, true 1.03, CoC
+6 px) it keeps the blob at 1.46 instead of 3.8. The losses of the larger bounds and gains are blobs
+of low radiance (2-4 x white) raised several times too high; the 8-bit input does not say which
+blobs those are. What an exact per-blob level would give (the true median radiance of each clipped
+channel of each blob, edge pixels as above), pcdof exact with true depth on the tuning seeds: 33.31
+dB against 33.95 from the unclipped linear colour, 30.10 with ``off`` and 31.92 with ``auto``: the
+model of a blob leaves 0.6 dB, the unknown level 1.4 dB.
 
 The estimate is a guess about light the input never recorded: ``off`` stays available.
 """
@@ -87,6 +96,9 @@ MAX_GAIN = 64.0
 MIN_EDGE = 6
 #: upper bound of the ``prior`` method's log-uniform radiance prior (multiples of diffuse white)
 PRIOR_MAX = 16.0
+#: the most one channel of a light may exceed another (its colour's saturation): a clipped channel's
+#: radiance is at most this times the blob's measured (unclipped) channels, where it has them
+MAX_CHANNEL_RATIO = 4.0
 #: radiance levels of the prior's quadrature (log-spaced midpoints), and the most pixels of a blob's
 #: footprint its expected loss is summed over (an even subsample beyond that)
 PRIOR_SAMPLES = 32
@@ -98,10 +110,11 @@ def needs_reconstruction(color: np.ndarray, *, linear: bool) -> bool:
     return not linear and np.asarray(color).dtype in (np.uint8, np.uint16)
 
 
-def _number(name, v, lo, *, strict=False):
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
-            or v < lo or (strict and v == lo):
-        raise InputError(f"{name} must be a finite number {'>' if strict else '>='} {lo:g}; got {v!r}")
+def _number(name, v, lo, *, strict=False, inf=False):
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or math.isnan(v) \
+            or (math.isinf(v) and not (inf and v > 0)) or v < lo or (strict and v == lo):
+        raise InputError(f"{name} must be a {'' if inf else 'finite '}number {'>' if strict else '>='} {lo:g}"
+                         f"{' or inf' if inf else ''}; got {v!r}")
     return float(v)
 
 
@@ -291,21 +304,38 @@ def _edge(mask):
     return mask & ~cv2.erode(mask.astype(np.uint8), cross, borderType=cv2.BORDER_REPLICATE).astype(bool)
 
 
-def _prior_block(block, clipped_ch, clipped, coc, levels, clip_level, use_rim):
-    """One blob's window with its clipped channels raised (:func:`reconstruct_prior`). (h, w, 3) float32."""
+def channel_bound(block, clipped_ch, c: int, max_ratio: float) -> float:
+    """Upper bound on the radiance of clipped channel *c* of one blob from its other, measured channels:
+    *max_ratio* times their median largest unclipped value, over the blob's pixels clipped in *c* that have
+    one (inf when fewer than half of them do: mostly every channel clipped)."""
+    m = clipped_ch[..., c]
+    others = [o for o in range(3) if o != c]
+    measured = np.where(clipped_ch[..., others], 0.0, block[..., others]).max(axis=-1)
+    has = m & ~clipped_ch[..., others].all(axis=-1)
+    if 2 * np.count_nonzero(has) <= np.count_nonzero(m):
+        return math.inf
+    return float(max_ratio * np.median(measured[has]))
+
+
+def _prior_block(block, clipped_ch, clipped, coc, prior, use_rim):
+    """One blob's window with its clipped channels raised (:func:`reconstruct_prior`; *prior*: (clip level,
+    prior max, channel ratio)). (h, w, 3) float32."""
     out = block.copy()
     d = float(np.median(coc)) if coc.size else 0.0
     if d < 1.0:
         return out  # no blur: the output stays at white whatever the radiance
     kern = disc_kernel(d)
+    clip_level, prior_max, max_ratio = prior
 
     def blur(a, border=cv2.BORDER_CONSTANT):
         return cv2.filter2D(a.astype(np.float32), -1, kern, borderType=border).ravel().astype(np.float64)
 
     for c in range(3):
         m = clipped_ch[..., c]
-        if not m.any():
+        top = min(prior_max, channel_bound(block, clipped_ch, c, max_ratio))
+        if not m.any() or top <= clip_level:
             continue
+        levels = prior_levels(clip_level, top)
         chan, edge = block[..., c], _edge(m)
         keep = float(chan[m].max())
         # an edge pixel is partly covered: given that it clipped, its coverage is even over (p, 1), so its
@@ -323,7 +353,7 @@ def _prior_block(block, clipped_ch, clipped, coc, levels, clip_level, use_rim):
 
 
 def reconstruct_prior(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, prior_max: float = PRIOR_MAX,
-                      use_rim: bool = False, **_) -> np.ndarray:
+                      max_channel_ratio: float = MAX_CHANNEL_RATIO, use_rim: bool = False, **_) -> np.ndarray:
     """Each clipped channel of each blob raised to the level of least expected output error.
 
     The blob's true radiance is unknown (at least *clip_level*); under a log-uniform prior up to
@@ -334,23 +364,24 @@ def reconstruct_prior(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, pri
     """
     img = _check(linear_rgb, clip_level, 1.0)
     coc = _check_coc(coc_px, img.shape)
-    prior_max = _number("prior_max", prior_max, clip_level)
-    levels = prior_levels(clip_level, prior_max)
+    prior = (clip_level, _number("prior_max", prior_max, clip_level),
+             _number("max_channel_ratio", max_channel_ratio, 1.0, inf=True))
     out = img.copy()
 
     def pad(mask, sl):
         return math.ceil(float(np.median(coc[sl][mask])) / 2) + 1
 
     for win, mask, clipped_ch, clipped in _blobs(img, clip_level, pad):
-        raised = _prior_block(img[win], clipped_ch, clipped, coc[win][mask], levels, clip_level, use_rim)
+        raised = _prior_block(img[win], clipped_ch, clipped, coc[win][mask], prior, use_rim)
         out[win] = np.where(clipped_ch, raised, out[win])
     return out
 
 
 def reconstruct_prior_rim(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, prior_max: float = PRIOR_MAX,
-                          **_) -> np.ndarray:
+                          max_channel_ratio: float = MAX_CHANNEL_RATIO, **_) -> np.ndarray:
     """:func:`reconstruct_prior` with the prior narrowed by each channel's edge (:func:`rim_likelihood`)."""
-    return reconstruct_prior(linear_rgb, coc_px=coc_px, clip_level=clip_level, prior_max=prior_max, use_rim=True)
+    return reconstruct_prior(linear_rgb, coc_px=coc_px, clip_level=clip_level, prior_max=prior_max,
+                             max_channel_ratio=max_channel_ratio, use_rim=True)
 
 
 def reconstruct_off(linear_rgb, *, clip_level: float = CLIP_LEVEL, **_) -> np.ndarray:
@@ -367,7 +398,8 @@ NEEDS_COC = frozenset(m for m, f in HIGHLIGHT_METHODS.items() if f in (reconstru
 
 
 def reconstruct_highlights(linear_rgb, *, method: str = "auto", gain: float = DEFAULT_GAIN,
-                           clip_level: float = CLIP_LEVEL, coc_px=None, prior_max: float = PRIOR_MAX) -> np.ndarray:
+                           clip_level: float = CLIP_LEVEL, coc_px=None, prior_max: float = PRIOR_MAX,
+                           max_channel_ratio: float = MAX_CHANNEL_RATIO) -> np.ndarray:
     """Estimate the radiance of clipped pixels of a linear image (pure: the input is not modified).
 
     Only clipped channels change (an unclipped channel is a measurement), and only upwards.
@@ -382,6 +414,8 @@ def reconstruct_highlights(linear_rgb, *, method: str = "auto", gain: float = DE
         :data:`pcdof.lens.MAX_COC_PX` like the renderer's) of each pixel in the render; needed by the
         methods of :data:`NEEDS_COC`
     prior_max : float >= clip_level, upper bound of the ``prior`` method's radiance prior
+    max_channel_ratio : float >= 1 or inf (no bound), the most one channel of a light may exceed
+        another (``prior``, ``prior-rim``)
 
     Returns
     -------
@@ -398,8 +432,9 @@ def reconstruct_highlights(linear_rgb, *, method: str = "auto", gain: float = DE
     _number("clip_level", clip_level, 0.0, strict=True)
     _number("gain", gain, 1.0)
     _number("prior_max", prior_max, clip_level)
+    _number("max_channel_ratio", max_channel_ratio, 1.0, inf=True)
     return HIGHLIGHT_METHODS[method](linear_rgb, gain=gain, clip_level=clip_level, coc_px=coc_px,
-                                     prior_max=prior_max)
+                                     prior_max=prior_max, max_channel_ratio=max_channel_ratio)
 
 
 def parse_highlights(value) -> tuple[str, float]:

@@ -94,6 +94,8 @@ def test_linear_input_needs_no_reconstruction():
     ({"method": "prior", "coc_px": np.full((4, 4), "a")}, "coc_px"),
     ({"method": "prior", "coc_px": np.zeros((4, 4)), "prior_max": 0.5}, "prior_max"),
     ({"method": "auto", "coc_px": np.zeros((4, 4)), "prior_max": float("inf")}, "prior_max"),
+    ({"method": "auto", "coc_px": np.zeros((4, 4)), "max_channel_ratio": 0.5}, "max_channel_ratio"),
+    ({"method": "auto", "coc_px": np.zeros((4, 4)), "max_channel_ratio": float("nan")}, "max_channel_ratio"),
 ])
 def test_bad_options_name_the_argument(kwargs, match):
     with pytest.raises(InputError, match=match):

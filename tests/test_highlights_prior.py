@@ -120,9 +120,24 @@ class TestReconstructPrior:
         """A red lamp: only its red channel clipped, green and blue stay exactly as measured."""
         clipped, _ = _disc_source(30.0, 3.0)
         clipped[..., 1:] *= 0.4
-        out = reconstruct_highlights(clipped, method="prior", coc_px=np.full(clipped.shape[:2], 20.0))
+        out = reconstruct_highlights(clipped, method="prior", coc_px=np.full(clipped.shape[:2], 20.0),
+                                     max_channel_ratio=np.inf)
         np.testing.assert_array_equal(out[..., 1:], clipped[..., 1:])
         assert out[24, 24, 0] > 2.0
+
+    @pytest.mark.parametrize("ratio", [1.5, 3.0, 4.0])
+    def test_measured_channels_bound_the_clipped_one(self, ratio):
+        """Red clipped, green and blue measured at 0.4 and 0.3: red is at most ratio x 0.4 (the light's colour
+        saturation bound), and is raised up to that bound when the blur spreads it thinly."""
+        clipped, _ = _disc_source(30.0, 3.0, bg=0.02)
+        clipped[..., 1] *= 0.4
+        clipped[..., 2] *= 0.3
+        red = clipped[..., 0] >= CLIP_LEVEL
+        out = reconstruct_highlights(clipped, method="prior", coc_px=np.full(clipped.shape[:2], 30.0),
+                                     max_channel_ratio=ratio)
+        top = ratio * float(np.median(clipped[..., 1][red]))
+        assert out[..., 0][red].max() <= max(top, 1.0) + 1e-6  # (a bound below the clipped value raises nothing)
+        assert out[24, 24, 0] > 1.0 if top > 1.05 else out[24, 24, 0] == clipped[24, 24, 0]
 
     def test_rim_likelihood_follows_the_radiance(self):
         """The edge of a box-filtered disc: the most likely level rises with the true radiance and lies within a

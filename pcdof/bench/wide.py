@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 import os
 from dataclasses import dataclass, replace
 
@@ -479,8 +480,11 @@ def tier_table(rows: list[dict], ref: str = "pcdof-exact") -> str:
 
 #: highlight settings compared on the tuning seeds
 HIGHLIGHT_CANDIDATES = ({"method": "off"}, *({"method": "gain", "gain": g} for g in (2.0, 3.0, 4.0)), {"method": "rim"},
-                        *({"method": "prior", "prior_max": m} for m in (8.0, 12.0, 16.0, 20.0, 24.0, 32.0)),
-                        *({"method": "prior-rim", "prior_max": m} for m in (8.0, 12.0, 16.0)))
+                        *({"method": "prior", "prior_max": m, "max_channel_ratio": math.inf}
+                          for m in (8.0, 12.0, 16.0, 20.0, 24.0, 32.0)),
+                        *({"method": "prior", "prior_max": m, "max_channel_ratio": r}
+                          for r in (4.0, 8.0) for m in (16.0, 24.0, 32.0)),
+                        *({"method": "prior-rim", "prior_max": m, "max_channel_ratio": math.inf} for m in (8.0, 12.0, 16.0)))
 #: the rule that picks the default from the tuning table, stated before it is run: the largest mean
 #: change from off per case (balanced, measured input) among the settings whose every case loses at
 #: most this much to off, overall and in the edge band (dB); off when none does
@@ -488,8 +492,8 @@ DEFAULT_RULE_MAX_LOSS_DB = 0.25
 
 
 def _label(cand: dict) -> str:
-    return cand["method"] + "".join(f" {v:g}" if k == "gain" else f" max {v:g}" if k == "prior_max"
-                                    else f" {k} {v}" for k, v in cand.items() if k != "method")
+    names = {"gain": "", "prior_max": "max ", "max_channel_ratio": "ratio "}
+    return cand["method"] + "".join(f" {names.get(k, k + ' ')}{v:g}" for k, v in cand.items() if k != "method")
 
 
 def tune_highlights(*, kinds=None, seeds=TUNING_SEEDS, blurs=BLURS_PX, reference_width_px=REFERENCE_WIDTH_PX,

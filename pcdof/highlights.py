@@ -103,6 +103,8 @@ MAX_CHANNEL_RATIO = 4.0
 #: footprint its expected loss is summed over (an even subsample beyond that)
 PRIOR_SAMPLES = 32
 MAX_FOOTPRINT_PX = 1024
+#: widest blur kernel (px) the expected loss is computed with; wider blurs shrink the blob's window
+MAX_KERNEL_PX = 32.0
 
 
 def needs_reconstruction(color: np.ndarray, *, linear: bool) -> bool:
@@ -317,6 +319,28 @@ def channel_bound(block, clipped_ch, c: int, max_ratio: float) -> float:
     return float(max_ratio * np.median(measured[has]))
 
 
+def _footprint(chan, m, edge, keep: float, d: float):
+    """One clipped channel of a blob blurred by a disc of diameter *d*: (base, k, weight) at the output pixels
+    it reaches (:func:`expected_best_level`'s arguments; the raised value is L inside, (L + keep) / 2 on
+    the *edge*). A blur wider than :data:`MAX_KERNEL_PX` is computed on the window shrunk by d /
+    MAX_KERNEL_PX (area-averaged, each sample standing for that many more pixels)."""
+    scale = max(1.0, d / MAX_KERNEL_PX)
+    layers = np.stack([np.where(m, 0.0, chan), m & ~edge, edge], axis=-1).astype(np.float32)
+    if scale > 1.0:
+        h, w = chan.shape
+        size = (max(1, round(w / scale)), max(1, round(h / scale)))
+        layers = cv2.resize(layers, size, interpolation=cv2.INTER_AREA).reshape(size[1], size[0], 3)
+    kern = disc_kernel(d / scale)
+    rest = cv2.filter2D(layers[..., 0], -1, kern, borderType=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
+    inner, k_edge = (cv2.filter2D(layers[..., i], -1, kern, borderType=cv2.BORDER_CONSTANT).ravel().astype(np.float64)
+                     for i in (1, 2))
+    base, k = rest + keep / 2 * k_edge, inner + k_edge / 2
+    sel = np.flatnonzero(k > 1e-6)
+    step = max(1, int(math.ceil(sel.size / MAX_FOOTPRINT_PX)))
+    sel = sel[::step]
+    return base[sel], k[sel], np.full(sel.size, step * scale * scale)
+
+
 def _prior_block(block, clipped_ch, clipped, coc, prior, use_rim):
     """One blob's window with its clipped channels raised (:func:`reconstruct_prior`; *prior*: (clip level,
     prior max, channel ratio)). (h, w, 3) float32."""
@@ -324,12 +348,7 @@ def _prior_block(block, clipped_ch, clipped, coc, prior, use_rim):
     d = float(np.median(coc)) if coc.size else 0.0
     if d < 1.0:
         return out  # no blur: the output stays at white whatever the radiance
-    kern = disc_kernel(d)
     clip_level, prior_max, max_ratio = prior
-
-    def blur(a, border=cv2.BORDER_CONSTANT):
-        return cv2.filter2D(a.astype(np.float32), -1, kern, borderType=border).ravel().astype(np.float64)
-
     for c in range(3):
         m = clipped_ch[..., c]
         top = min(prior_max, channel_bound(block, clipped_ch, c, max_ratio))
@@ -340,14 +359,8 @@ def _prior_block(block, clipped_ch, clipped, coc, prior, use_rim):
         keep = float(chan[m].max())
         # an edge pixel is partly covered: given that it clipped, its coverage is even over (p, 1), so its
         # expected value is (L + clip) / 2 (see the module notes); the interior is L
-        k_edge = blur(edge)
-        base = blur(np.where(m, 0.0, chan), cv2.BORDER_REPLICATE) + keep / 2 * k_edge
-        k = blur(m & ~edge) + k_edge / 2
-        sel = np.flatnonzero(k > 1e-6)
-        step = max(1, int(math.ceil(sel.size / MAX_FOOTPRINT_PX)))
-        sel = sel[::step]
         lw = rim_likelihood(chan, m, clipped, levels, clip_level) if use_rim else None
-        level = expected_best_level(base[sel], k[sel], np.full(sel.size, float(step)), levels, keep, lw)
+        level = expected_best_level(*_footprint(chan, m, edge, keep, d), levels, keep, lw)
         out[..., c] = np.where(m, np.maximum(chan, np.where(edge, (level + keep) / 2, level)), chan)
     return out
 

@@ -86,6 +86,25 @@ class TestReconstructPrior:
         assert got[0] == got[1] == 1.0
         assert all(a <= b * grid_step for a, b in zip(got, got[1:])) and got[-1] > 1.5 * got[2], got
 
+    @pytest.mark.parametrize("d", [40.0, 90.0, 200.0])
+    def test_wide_blur_on_a_shrunk_window_matches_the_full_one(self, d, monkeypatch):
+        """A blur wider than MAX_KERNEL_PX is weighed on a shrunk window: the same levels within one step of the
+        prior's grid as the full-resolution footprint."""
+        import pcdof.highlights as hl
+
+        rng = np.random.default_rng(int(d))
+        img = rng.uniform(0.0, 0.3, (120, 150, 3)).astype(np.float32)
+        for y, x, r in ((30, 40, 1), (80, 100, 4), (60, 20, 0)):
+            img[y - r: y + r + 1, x - r: x + r + 1, : 1 + r % 3] = 1.0
+        coc = np.full(img.shape[:2], d)
+        small = reconstruct_highlights(img, method="prior", coc_px=coc, prior_max=64.0, max_channel_ratio=np.inf)
+        monkeypatch.setattr(hl, "MAX_KERNEL_PX", 1e9)
+        full = reconstruct_highlights(img, method="prior", coc_px=coc, prior_max=64.0, max_channel_ratio=np.inf)
+        raised = full > 1.0
+        assert raised.any() and np.array_equal(raised, small > 1.0)
+        ratio = small[raised] / full[raised]
+        assert np.all(np.abs(np.log(ratio)) <= np.log(64.0) / 32 + 1e-6), ratio
+
     def test_in_focus_blobs_are_not_raised(self):
         clipped, _ = _disc_source(20.0, 5.0)
         out = reconstruct_highlights(clipped, method="prior", coc_px=np.full(clipped.shape[:2], 0.6))

@@ -27,9 +27,10 @@ TILE_PX = 16
 #: quality name -> smallest CoC (pixels, at the reduced resolution) a blur layer may be computed at.
 #: Layers whose CoC exceeds twice this run at 1/2, 1/4, ... resolution (cost falls with the cube of
 #: the factor); "exact" computes every layer at full resolution. Chosen from the measured error-vs-blur
-#: curve (:mod:`pcdof.bench.tiers`): each tier's threshold is the smallest whose worst case on the
-#: tuning scenes loses at most half its tolerance to exact (balanced 0.1 dB, fast 0.5 dB, high 0.05 dB).
-QUALITIES = {"exact": math.inf, "high": 32.0, "balanced": 16.0, "fast": 8.0}
+#: curve (:mod:`pcdof.bench.tiers`, :func:`~pcdof.bench.tiers.choose_thresholds`): each tier's threshold is
+#: the smallest of the half-octave ladder whose worst tuning case, at 256x192 and at 512x384, loses at most
+#: the tier's tolerance to exact (high 0.05 dB, balanced 0.1 dB, fast 0.5 dB; whole frame and edge band).
+QUALITIES = {"exact": math.inf, "high": 22.6, "balanced": 16.0, "fast": 8.0}
 #: Uniform tiles take the convolution path only in layers whose footprint radius on the layer's grid
 #: is at least this (pixels): smaller footprints span so few rows that the scatter is cheaper.
 UNIFORM_MIN_RADIUS_PX = 2.0

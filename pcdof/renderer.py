@@ -692,67 +692,34 @@ def resample_variance_px2(s: int) -> float:
     return 5.0 * (s * s - 1) / 12.0
 
 
-def upsample_weights(s: int) -> np.ndarray:
-    """(s, 3) float32: the weights of the cells i - 1, i, i + 1 for the pixel i s + p of a 1/s grid (row p).
-
-    The discrete quadratic B-spline of one cell: three boxes of s pixels convolved (3 s - 2 taps), centred
-    on the cell's pixels. Every row sums to 1 (each box does), and the weights are positive.
-    """
-    s = int(s)
-    kernel = np.ones(s)  # the cell spread over its s pixels, then two boxes of s pixels
-    for _ in range(2):
-        kernel = np.convolve(kernel, np.ones(s) / s)
-    # the kernel of cell i covers pixels i s - (s - 1) .. i s + 2 s - 2: pixel i s + p takes tap p + s - 1 of
-    # cell i, p + 2 s - 1 of cell i - 1 (a pixel s further from that cell's start) and p - 1 of cell i + 1
-    padded = np.concatenate([np.zeros(1), kernel, np.zeros(2)])  # padded[t + 1] = kernel[t], 0 outside
-    p = np.arange(s)
-    return np.stack([padded[p + 2 * s], padded[p + s], padded[p]], axis=1).astype(np.float32)
-
-
-@njit(parallel=True, cache=True)
-def _upsample_b2(buf, weights, h, w):
-    """Separable: the rows of the 1/s grid at full height, then the columns at full width."""
-    hs, ws, nc = buf.shape
-    s = weights.shape[0]
-    rows = np.empty((h, ws, nc), np.float32)
-    out = np.empty((h, w, nc), np.float32)
-    for y in prange(h):
-        i, p = y // s, y % s
-        a, b, c = max(i - 1, 0), min(i, hs - 1), min(i + 1, hs - 1)
-        wa, wb, wc = weights[p, 0], weights[p, 1], weights[p, 2]
-        for x in range(ws):
-            for k in range(nc):
-                rows[y, x, k] = wa * buf[a, x, k] + wb * buf[b, x, k] + wc * buf[c, x, k]
-    for y in prange(h):
-        for x in range(w):
-            i, p = x // s, x % s
-            a, b, c = max(i - 1, 0), min(i, ws - 1), min(i + 1, ws - 1)
-            wa, wb, wc = weights[p, 0], weights[p, 1], weights[p, 2]
-            for k in range(nc):
-                out[y, x, k] = wa * rows[y, a, k] + wb * rows[y, b, k] + wc * rows[y, c, k]
-    return out
-
-
 def upsample_cells(buf: np.ndarray, s: int, h: int, w: int) -> np.ndarray:
     """A layer computed on the 1/s grid, (hs, ws, C) float32, at full resolution: (h, w, C) float32, h <= hs s.
 
-    Each pixel is a positive combination of the 3 x 3 cells around it (:func:`upsample_weights`,
-    separable; a constant grid stays constant; cells beyond the grid repeat its border). The discrete
-    quadratic B-spline is smooth: bilinear interpolation is continuous only, and the creases it leaves
-    at every cell centre made a reduced layer sharper (by the Laplacian) the larger s was, so that
-    opening the aperture sharpened the render where a layer moved to the next coarser grid. At s = 2
-    the two are the same filter.
+    The discrete quadratic B-spline of one cell: each cell spread over its s x s pixels, then two boxes of
+    s pixels (3 s - 2 taps per axis, positive, summing to 1, centred on the cell). For s a power of two this
+    is bilinear doubling repeated log2(s) times: doubling with the half-pixel kernel [1, 3, 3, 1] / 4 is
+    three boxes of two pixels, and boxes of 2 and of 2 upsampled make a box of 4 (Chaikin's subdivision),
+    so OpenCV's fast resize does it. Edges repeat the border (at each doubling). Bilinear interpolation
+    by s in one step is continuous only: the creases it leaves at every cell centre made a reduced layer
+    sharper (by the Laplacian) the larger s was, so that opening the aperture sharpened the render where
+    a layer moved to the next coarser grid. At s = 2 the two are the same filter.
 
     References
     ----------
     M. Unser, "Splines: a perfect fit for signal and image processing", IEEE Signal Processing Magazine
-    16(6), 1999 (the B-spline of degree n as n + 1 boxes convolved).
+    16(6), 1999 (the B-spline of degree n as n + 1 boxes convolved); G. Chaikin, "An algorithm for high
+    speed curve generation", Computer Graphics and Image Processing 3, 1974.
     """
     hs, ws, nc = buf.shape
-    if s < 1 or not (0 < h <= hs * s and 0 < w <= ws * s):
-        raise InputError(f"upsample_cells needs s >= 1 and 0 < (h, w) <= (hs s, ws s) = {(hs * s, ws * s)}; "
-                         f"got s={s}, (h, w)={(h, w)}")
-    return _upsample_b2(np.ascontiguousarray(buf, np.float32), upsample_weights(s), int(h), int(w))
+    if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 1 or s & (s - 1) \
+            or not (0 < h <= hs * s and 0 < w <= ws * s):
+        raise InputError(f"upsample_cells needs s a power of two and 0 < (h, w) <= (hs s, ws s) = "
+                         f"{(hs * s, ws * s)}; got s={s!r}, (h, w)={(h, w)}")
+    out = np.ascontiguousarray(buf, np.float32)
+    while out.shape[0] < hs * s:
+        out = cv2.resize(out, (2 * out.shape[1], 2 * out.shape[0]), interpolation=cv2.INTER_LINEAR)
+        out = out.reshape(out.shape[0], out.shape[1], nc)  # OpenCV drops a channel axis of length 1
+    return np.ascontiguousarray(out[:h, :w])
 
 
 def _convolved_cells(grid: _Grid, fast, s):

@@ -75,8 +75,8 @@ MAX_PRIMITIVE_PX = 512
 _MIN_Z_M = 1e-6
 # Edge-function tolerance: pixels on a shared edge are drawn by both triangles (no cracks).
 _EDGE_EPS = 1e-9
-# The same for the float32 edge functions of the row kernel, as a distance in colour pixels.
-_ROW_EDGE_EPS_PX = 1e-4
+# The same as a distance in colour pixels, for the row kernel (float32 edge functions) and the scanlines.
+_EDGE_EPS_PX = 1e-4
 # Pixels per row of the row kernel: 16 float32 lanes, one AVX-512 vector (two AVX2 ones); the trip count
 # the compiler vectorises (at 8 it unrolls the loop into scalar code instead).
 _ROW_PX = 16
@@ -311,7 +311,9 @@ def _scan(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
     """Draw a triangle by scanlines: 1/z is incremented along each row; buf keeps the largest 1/z.
 
     Each edge's crossing of a row is evaluated from the edge's upper corner with the edge's own
-    slope, so two triangles sharing an edge get bit-identical spans (no cracks).
+    slope, so two triangles sharing an edge get bit-identical spans, and spans reach
+    :data:`_EDGE_EPS_PX` beyond the edges, so a centre on an edge whose other side is not drawn
+    (a dropped triangle) is not lost to rounding.
     """
     area, gx, gy = _plane(u0, v0, w0, u1, v1, w1, u2, v2, w2)
     if abs(area) < 1e-9:
@@ -332,16 +334,17 @@ def _scan(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
     s_ab = (ub - ua) / (vb - va) if vb > va else 0.0
     s_bc = (uc - ub) / (vc - vb) if vc > vb else 0.0
     W = buf.shape[1]
-    ya = max(int(np.ceil(va)), y0)
-    yb = min(int(np.floor(vc)), y1 - 1)
+    eps = _EDGE_EPS_PX  # centres this close outside an edge are drawn too: no cracks from rounding
+    ya = max(int(np.ceil(va - eps)), y0)
+    yb = min(int(np.floor(vc + eps)), y1 - 1)
     for y in range(ya, yb + 1):
         # branch-free on purpose: rows are few per triangle, mispredictions would dominate
         x_long = ua + (y - va) * s_ac
         x_upper = ua + (y - va) * s_ab
         x_lower = ub + (y - vb) * s_bc  # = ub when the lower edge is flat (s_bc = 0)
         x_short = x_upper if y < vb else x_lower
-        xa = max(int(np.ceil(min(x_long, x_short))), 0)
-        xb = min(int(np.floor(max(x_long, x_short))), W - 1)
+        xa = max(int(np.ceil(min(x_long, x_short) - eps)), 0)
+        xb = min(int(np.floor(max(x_long, x_short) + eps)), W - 1)
         iz = w0 + gx * (xa - u0) + gy * (y - v0)
         for x in range(xa, xb + 1):
             if iz > buf[y, x]:
@@ -443,8 +446,8 @@ def _quad(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, code, use
         # diagonal a-d: (a, b, d) and (a, d, c); diagonal b-c: (c, a, b) and (c, b, d); selected, not branched.
         # The origin depends on the quad alone, not on the band: bands change no bit.
         a, b, c, d = (ua, va, wa), (ub, vb, wb), (uc, vc, wc), (ud, vd, wd)
-        # widening of the edges: _ROW_EDGE_EPS_PX times a bound on every edge's |a| + |b|
-        tol = np.float32(_ROW_EDGE_EPS_PX) * (umax - umin + vmax - vmin)
+        # widening of the edges: _EDGE_EPS_PX times a bound on every edge's |a| + |b|
+        tol = np.float32(_EDGE_EPS_PX) * (umax - umin + vmax - vmin)
         _quad_rows(buf, min(xa, W - _ROW_PX), int(np.ceil(vmin)), ya, yb, tol, a if diag_ad else c, b if diag_ad else a,
                    d if diag_ad else b, c if diag_ad else d, (code & 5) != 0, (code & 10) != 0)
         return

@@ -970,9 +970,9 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", parallel: boo
 
 
 def warmup() -> None:
-    """Compile (or load from numba's cache) the fill kernels on a tiny input, for both colour paths
-    (uint8, and float64 for every other dtype: see :func:`_color_for_kernel`)."""
+    """Compile (or load from numba's cache) the fill kernels on a tiny input, for 8-bit colour (what
+    cameras and image files give). The other colour path (float64, for every other dtype: see
+    :func:`_color_for_kernel`) compiles when first used, once: a first frame does not wait for it."""
     d = np.array([[1.0, 0.0, 2.0], [1.0, 0.0, 2.0]], np.float32)
-    for color in (np.zeros((2, 3, 3), np.uint8), np.zeros((2, 3, 3), np.float32)):
-        fill_joint_bilateral(d, color, parallel=False)
+    fill_joint_bilateral(d, np.zeros((2, 3, 3), np.uint8), parallel=False)
     fill_nearest_background(d, None, parallel=False)

@@ -15,9 +15,12 @@ z-depth of the colour camera:
   max(5 cm, 3 %) *behind* the true surface (a background seen through a foreground);
   **fattening** is the same in front (a foreground spilled over its background).
 * **time**: wall time, the median of a block of repeated calls, best of three blocks (robust
-  to bursts of load from other processes). Each method is timed alone in a fresh process, one
-  after another: OpenMP thread pools left spinning by one library (numba's, Open3D's) slow
-  the next library's calls in the same process several-fold. The first call (rays of a new
+  to bursts of load from other processes). The methods take turns: each round times one block
+  of every method on the same input, the order reversed every other round, so load from
+  elsewhere falls on the contenders alike and their ratio is measured side by side. Each
+  method runs in a fresh process of its own that waits idle while the others are timed:
+  OpenMP thread pools left spinning by one library (numba's, Open3D's) slow the next
+  library's calls in the same process several-fold. The first call (rays of a new
   calibration, library initialisation) is reported separately; pcdof's JIT warm-up
   (:func:`pcdof.register.warmup`) is excluded and reported once. The fastest single call is
   reported too (Open3D's time per call is bimodal on some machines).
@@ -36,6 +39,7 @@ and, when :mod:`pcdof.synth` is available, its scenes on its own (distortion-fre
 
 from __future__ import annotations
 
+import functools
 import math
 import statistics
 import time
@@ -353,12 +357,8 @@ def _cases(sizes, *, quick: bool, synth_scenes) -> list[_Case]:
     return cases
 
 
-def _time_method(name: str, jobs: list, repeats: int, rounds: int) -> tuple[float, list]:
-    """Time one method on every job (depth_m, rig); returns (warm-up ms, [(first, time, fastest) ms, ...]).
-
-    A job's time is the smallest of *rounds* block medians (a block = *repeats* calls), so a burst
-    of load from other processes during one block does not decide the result.
-    """
+def _start_method(name: str, jobs: list) -> tuple[float, list]:
+    """Warm *name* up on every job (depth_m, rig): (pcdof's JIT warm-up ms or 0, [first call ms, ...])."""
     fn = METHODS[name]
     warmup_ms = 0.0
     if name == "pcdof":
@@ -367,56 +367,111 @@ def _time_method(name: str, jobs: list, repeats: int, rounds: int) -> tuple[floa
         t0 = time.perf_counter()
         warmup()
         warmup_ms = (time.perf_counter() - t0) * 1e3
-    out = []
+    firsts = []
     for depth, rig in jobs:
         t0 = time.perf_counter()
         fn(depth, rig)
-        first = (time.perf_counter() - t0) * 1e3
-        blocks, fastest = [], math.inf
-        for _ in range(rounds):
-            ts = []
-            for _ in range(repeats):
-                t0 = time.perf_counter()
-                fn(depth, rig)
-                ts.append((time.perf_counter() - t0) * 1e3)
-            blocks.append(statistics.median(ts))
-            fastest = min(fastest, min(ts))
-        out.append((first, min(blocks), fastest))
-    return warmup_ms, out
+        firsts.append((time.perf_counter() - t0) * 1e3)
+    return warmup_ms, firsts
 
 
-def _time_isolated(name: str, jobs: list, repeats: int, rounds: int) -> tuple[float, list]:
-    """:func:`_time_method` in a fresh process of its own.
+def _time_block(name: str, jobs: list, k: int, repeats: int) -> tuple[float, float]:
+    """One block of *repeats* calls of *name* on job *k*: (median ms, fastest ms)."""
+    fn = METHODS[name]
+    depth, rig = jobs[k]
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn(depth, rig)
+        ts.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(ts), min(ts)
 
-    Methods are timed one after another, each alone in its process: OpenMP thread pools of one
-    library (numba's, Open3D's) left spinning after a call otherwise slow the next library's
-    calls in the same process several-fold.
+
+def _serve(name: str, jobs: list, conn) -> None:
+    """A method's timing process: warm up, then time the blocks asked for until told to stop (None)."""
+    conn.send(_start_method(name, jobs))
+    while (msg := conn.recv()) is not None:
+        conn.send(_time_block(name, jobs, *msg))
+
+
+def _time_all(names: list, jobs: list, repeats: int, rounds: int, *, isolate: bool = True) -> dict:
+    """Time every method on every job, the methods taking turns; {name: (warm-up ms, [(first, time, fastest) ms])}.
+
+    For each job, each of *rounds* rounds runs one block of *repeats* calls of every method, in
+    turn (the order reversed every other round), so a burst of load from other processes falls on
+    the contenders alike; a job's time is its smallest block median (the fastest call is kept too).
+    With *isolate* each method runs in a fresh process of its own, which waits idle while the others
+    are timed: OpenMP thread pools of one library (numba's, Open3D's) left spinning after a call
+    otherwise slow the next library's calls in the same process several-fold.
+    """
+    if not isolate:
+        starts = {n: _start_method(n, jobs) for n in names}
+        block = {n: functools.partial(_time_block, n, jobs) for n in names}
+        return _collect(names, starts, block, len(jobs), repeats, rounds)
+    conns = _spawn(names, jobs)
+    try:
+        starts = {n: conns[n][0].recv() for n in names}
+
+        def remote(n, k, reps):
+            conns[n][0].send((k, reps))
+            return conns[n][0].recv()
+
+        block = {n: functools.partial(remote, n) for n in names}
+        return _collect(names, starts, block, len(jobs), repeats, rounds)
+    finally:
+        for conn, proc in conns.values():
+            conn.send(None)
+            proc.join()
+
+
+def _collect(names, starts, block, n_jobs: int, repeats: int, rounds: int) -> dict:
+    """The rounds of :func:`_time_all`, each method's block taken by ``block[name](job, repeats)``."""
+    times = {n: [] for n in names}
+    for k in range(n_jobs):
+        best = {n: (math.inf, math.inf) for n in names}
+        for r in range(rounds):
+            for n in (names if r % 2 == 0 else names[::-1]):
+                med, fastest = block[n](k, repeats)
+                best[n] = (min(best[n][0], med), min(best[n][1], fastest))
+        for n in names:
+            times[n].append((starts[n][1][k], *best[n]))
+    return {n: (starts[n][0], times[n]) for n in names}
+
+
+def _spawn(names: list, jobs: list) -> dict:
+    """One fresh process per method running :func:`_serve`: {name: (connection, process)}.
+
+    A peer runs with its libraries' own OpenMP settings, not the spin count pcdof sets on import:
+    the spawned process inherits this environment, and libgomp's default spin count is 300000.
     """
     import multiprocessing
     import os
-    from concurrent.futures import ProcessPoolExecutor
 
     import pcdof
 
-    # a peer runs with its libraries' own OpenMP settings, not the spin count pcdof sets on import:
-    # the spawned process inherits this environment, and libgomp's default spin count is 300000
+    ctx = multiprocessing.get_context("spawn")
+    conns = {}
     restore = os.environ.get("GOMP_SPINCOUNT")
-    if name != "pcdof" and pcdof.SPINCOUNT_SET:
-        os.environ["GOMP_SPINCOUNT"] = "300000"
     try:
-        with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
-            return pool.submit(_time_method, name, jobs, repeats, rounds).result()
+        for n in names:
+            if pcdof.SPINCOUNT_SET:
+                os.environ["GOMP_SPINCOUNT"] = "10000" if n == "pcdof" else "300000"
+            here, there = ctx.Pipe()
+            proc = ctx.Process(target=_serve, args=(n, jobs, there), daemon=True)
+            proc.start()
+            conns[n] = (here, proc)
     finally:
         if restore is not None:
             os.environ["GOMP_SPINCOUNT"] = restore
+    return conns
 
 
 def run_registration_bench(*, sizes=DEFAULT_SIZES, repeats: int = 10, quick: bool = False, progress: bool = True,
                            noisy: bool = True, synth_scenes=None, isolate: bool = True) -> list[dict]:
     """Run every registration method on every case; one row per (case, depth, method).
 
-    Accuracy is scored in this process; times are taken per method in a fresh process
-    (``isolate=True``, see :func:`_time_isolated`), one method at a time.
+    Accuracy is scored in this process; times are taken with the methods taking turns, each in a
+    fresh process of its own (``isolate=True``, see :func:`_time_all`).
 
     Parameters
     ----------
@@ -452,12 +507,13 @@ def run_registration_bench(*, sizes=DEFAULT_SIZES, repeats: int = 10, quick: boo
                 "color_size": f"{case.rig.color.width}x{case.rig.color.height}",
                 "depth": kind, "method": name, **score(fn(depth, case.rig), case.depth_color_m, measured),
             })
-    timer = _time_isolated if isolate else _time_method
     arrays = [(depth, case.rig) for case, _, depth in jobs]
-    for name in tqdm(list(METHODS), desc="registration timing", disable=not progress):
-        warmup_ms, times = timer(name, arrays, repeats, rounds)
+    names = list(METHODS)
+    timed = _time_all(names, arrays, repeats, rounds, isolate=isolate)
+    for name in names:
+        warmup_ms, times = timed[name]
         for k, (first, best, fastest) in enumerate(times):
-            row = rows[k * len(METHODS) + list(METHODS).index(name)]
+            row = rows[k * len(METHODS) + names.index(name)]
             row["time_ms"], row["min_ms"], row["first_ms"] = best, fastest, first
             if name == "pcdof":
                 row["warmup_ms"] = warmup_ms

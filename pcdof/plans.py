@@ -30,7 +30,7 @@ TILE_PX = 16
 #: curve (:mod:`pcdof.bench.tiers`, :func:`~pcdof.bench.tiers.choose_thresholds`): each tier's threshold is
 #: the smallest of the half-octave ladder whose worst tuning case, at 256x192 and at 512x384, loses at most
 #: the tier's tolerance to exact (high 0.05 dB, balanced 0.1 dB, fast 0.5 dB; whole frame and edge band).
-QUALITIES = {"exact": math.inf, "high": 22.6, "balanced": 16.0, "fast": 8.0}
+QUALITIES = {"exact": math.inf, "high": 11.3, "balanced": 8.0, "fast": 5.66}
 #: Uniform tiles take the convolution path only in layers whose footprint radius on the layer's grid
 #: is at least this (pixels): smaller footprints span so few rows that the scatter is cheaper.
 UNIFORM_MIN_RADIUS_PX = 2.0

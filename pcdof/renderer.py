@@ -379,9 +379,9 @@ def _classify_layers(raw, max_coc, edges):
 
 
 @njit(parallel=True, cache=True)
-def _reduce_cells(lin, radius, member, hidden, has_hidden, s):
-    """Block means over s x s cells (zero-padded): member-weighted colour and radius, member share
-    and hidden share. Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s, hid_s) as float32.
+def _reduce_cells(lin, radius, member, s):
+    """Block means over s x s cells (zero-padded): member-weighted colour and radius, and member share.
+    Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s) as float32.
 
     Rows of cells run in parallel; each cell is summed in local accumulators, its pixels in raster order."""
     h, w, nc = lin.shape
@@ -389,7 +389,6 @@ def _reduce_cells(lin, radius, member, hidden, has_hidden, s):
     lin_s = np.zeros((hs, ws, nc), np.float32)
     r_s = np.zeros((hs, ws), np.float32)
     m_s = np.zeros((hs, ws), np.float32)
-    hid_s = np.zeros((hs, ws), np.float32)
     inv_area = 1.0 / (s * s)
     for cy in prange(hs):
         acc = np.empty(nc, np.float32)
@@ -398,7 +397,6 @@ def _reduce_cells(lin, radius, member, hidden, has_hidden, s):
             x0, x1 = cx * s, min(w, (cx + 1) * s)
             m = np.float32(0.0)
             r = np.float32(0.0)
-            hid = np.float32(0.0)
             acc[:] = 0.0
             for y in range(y0, y1):
                 for x in range(x0, x1):
@@ -407,16 +405,13 @@ def _reduce_cells(lin, radius, member, hidden, has_hidden, s):
                         r += radius[y, x]
                         for c in range(nc):
                             acc[c] += lin[y, x, c]
-                    elif has_hidden and hidden[y, x]:
-                        hid += np.float32(1.0)
             if m > 0:
                 inv = 1.0 / m
                 r_s[cy, cx] = r * inv
                 for c in range(nc):
                     lin_s[cy, cx, c] = acc[c] * inv
             m_s[cy, cx] = m * inv_area
-            hid_s[cy, cx] = hid * inv_area
-    return lin_s, r_s, m_s, hid_s
+    return lin_s, r_s, m_s
 
 
 def _extend_behind(lin, radius, member, hidden, reach_px):
@@ -652,35 +647,37 @@ class _Grid:
     extended: bool
 
 
-def _full_grid(lin, radius, member, hidden, reach_px) -> _Grid:
-    """The layer's sources at full resolution, extended behind *hidden* (or None) up to *reach_px*."""
+def _extended(lin, radius, member, hidden, reach_px):
+    """(lin, radius, member, extended): the layer extended behind *hidden* (or None) up to *reach_px*, at full
+    resolution, and whether that added any pixel."""
     n_members = int(np.count_nonzero(member))
     if hidden is not None:
         lin, radius, member = _extend_behind(lin, radius, member, hidden, reach_px)
-    extended = int(np.count_nonzero(member)) > n_members
+    return lin, radius, member, int(np.count_nonzero(member)) > n_members
+
+
+def _full_grid(lin, radius, member, hidden, reach_px) -> _Grid:
+    """The layer's sources at full resolution, extended behind *hidden* (or None) up to *reach_px*."""
+    lin, radius, member, extended = _extended(lin, radius, member, hidden, reach_px)
     return _Grid(np.ascontiguousarray(lin, np.float32), np.ascontiguousarray(radius, np.float32),
                  np.ascontiguousarray(member), member.astype(np.float32), extended)
 
 
 def _reduced_grid(lin, radius, member, hidden, reach_px, s) -> _Grid:
-    """The layer's sources as s x s cell means, extended behind *hidden* (or None) on the 1/s grid
-    (s^2 times less work), with the footprint radius narrowed for the spread of the reduction."""
-    lin_s, r, m_s, hid_s = _reduce_cells(np.ascontiguousarray(lin, np.float32),
-                                         np.ascontiguousarray(radius, np.float32), np.ascontiguousarray(member),
-                                         np.ascontiguousarray(member if hidden is None else hidden),
-                                         hidden is not None, s)
-    present = m_s > 0
-    extended = False
-    if hidden is not None:
-        # a cell's hidden share is continued with the layer's nearest cell (its own, if present)
-        lin_s, r, grown = _extend_behind(lin_s, r, present, hid_s > 0, int(math.ceil(reach_px / s)))
-        extended = bool((grown & ~present).any())
-        m_s = np.where(grown, m_s + hid_s, 0).astype(np.float32)
-        present = grown
+    """The layer's sources as s x s cell means (s^2 times less work to scatter), extended behind *hidden*
+    (or None) first, at full resolution, with the footprint radius narrowed for the spread of the reduction.
+
+    The extension is decided pixel by pixel, as at full resolution: continued cell by cell, a hidden cell took
+    the mean of the layer's pixels in its nearest cell, which lost the layer's light behind a small bright
+    source next to it (a lamp beside a wall, behind a blurred foreground; 0.17 dB against exact on such a
+    wide-benchmark case, 0.03 dB extended per pixel)."""
+    lin, radius, member, extended = _extended(lin, radius, member, hidden, reach_px)
+    lin_s, r, m_s = _reduce_cells(np.ascontiguousarray(lin, np.float32), np.ascontiguousarray(radius, np.float32),
+                                  np.ascontiguousarray(member), s)
     # the block mean and the upsampling widen the blur by resample_variance_px2(s) per axis; a disc of
     # radius r has r^2 / 4: take it off the radius (at most down to half of it)
     r_s = (np.sqrt(np.maximum(r * r - 4 * resample_variance_px2(s), 0.25 * r * r)) / s).astype(np.float32)
-    return _Grid(np.ascontiguousarray(lin_s, np.float32), r_s, np.ascontiguousarray(present),
+    return _Grid(np.ascontiguousarray(lin_s, np.float32), r_s, np.ascontiguousarray(m_s > 0),
                  np.ascontiguousarray(m_s, np.float32), extended)
 
 
@@ -986,7 +983,7 @@ def _blur_layer(frame: _Frame, canvas: _Canvas, li: int, key: int, n_members: in
     lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
     plan = frame.plan
     s = plan.scale(lo)
-    hidden = _hidden(frame, canvas, li, box, bbox, ext_reach, s) if extend else None
+    hidden = _hidden(frame, canvas, li, box, bbox, ext_reach) if extend else None
     # uniform tiles: everything within the layer's reach (plus the reduced grid's spread) in this layer
     uniform = np.zeros_like(frame.tiles.copy)
     if plan.convolve_uniform and lo / (2 * s) >= plan.uniform_min_radius_px:

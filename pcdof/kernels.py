@@ -93,14 +93,27 @@ def cold_stages(stages=tuple(STAGES)) -> list[str]:
             and any(not any(_in_cache(d) for d in _cached_dispatchers(m)) for m in modules)]
 
 
-def estimate_seconds(stages, workers: int | None = None) -> float:
-    """Wall seconds to compile *stages* on *workers* cores (default: this machine's), from
-    :data:`COMPILE_CPU_S`: the longest stage, or the work shared among the cores if that is longer."""
-    cpu = [COMPILE_CPU_S[s] for s in check_stages(stages)]
-    if not cpu:
-        return 0.0
-    workers = max(1, min(len(cpu), workers or os.cpu_count() or 1))
-    return max(max(cpu), sum(cpu) / workers)
+def estimate_seconds(stages, workers: int | None = None, load: float | None = None) -> float:
+    """Wall seconds to compile *stages* side by side on *workers* cores (default: this machine's) while
+    other work keeps *load* processes busy (default: the 1-minute load average), from :data:`COMPILE_CPU_S`.
+
+    Each stage is one process and every busy process gets an equal share of the cores (at most one core):
+    the stages run at that share until the shortest is done, then the others at their larger share, and
+    so on.
+    """
+    left = sorted(COMPILE_CPU_S[s] for s in check_stages(stages))
+    workers = max(1, workers or os.cpu_count() or 1)
+    if load is None:
+        try:
+            load = os.getloadavg()[0]
+        except (AttributeError, OSError):  # not on this platform
+            load = 0.0
+    wall = done = 0.0
+    for i, cpu in enumerate(left):
+        share = min(1.0, workers / (len(left) - i + max(0.0, float(load))))
+        wall += (cpu - done) / share
+        done = cpu
+    return wall
 
 
 def _warm_stage(stage: str) -> float:

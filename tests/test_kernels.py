@@ -86,16 +86,22 @@ class TestStages:
             kernels.check_stages(["render", "paint"])
         assert isinstance(err.value, PcdofError) and "paint" in str(err.value)
 
-    def test_estimate_is_the_longest_stage_or_the_shared_work(self):
+    def test_estimate_shares_the_cores(self):
+        """Processor sharing in closed form: each stage a process, the cores shared equally (at most one each)."""
         cpu = kernels.COMPILE_CPU_S
-        assert kernels.estimate_seconds([]) == 0.0
-        assert kernels.estimate_seconds(["fill"], workers=8) == cpu["fill"]
-        both = ["fill", "render"]
-        assert kernels.estimate_seconds(both, workers=1) == pytest.approx(cpu["fill"] + cpu["render"])
-        assert kernels.estimate_seconds(both, workers=2) == max(cpu["fill"], cpu["render"])
         three = list(kernels.STAGES)
-        assert kernels.estimate_seconds(three, workers=2) == pytest.approx(
-            max(max(cpu.values()), sum(cpu.values()) / 2))
+        a, _, c = sorted(cpu[s] for s in three)
+        assert kernels.estimate_seconds([], workers=2, load=0) == 0.0
+        assert kernels.estimate_seconds(["fill"], workers=8, load=0) == pytest.approx(cpu["fill"])
+        assert kernels.estimate_seconds(["fill", "render"], workers=1, load=0) == pytest.approx(
+            cpu["fill"] + cpu["render"])  # one core: all the work, one after the other
+        assert kernels.estimate_seconds(three, workers=4, load=0) == pytest.approx(c)  # a core each
+        # 2 cores: all three at 2/3 of a core until the shortest is done, then a core each
+        assert kernels.estimate_seconds(three, workers=2, load=0) == pytest.approx(a / (2 / 3) + (c - a))
+        # one stage on one core beside 3 busy processes gets a quarter of it
+        assert kernels.estimate_seconds(["render"], workers=1, load=3) == pytest.approx(4 * cpu["render"])
+        loads = [kernels.estimate_seconds(three, workers=2, load=x) for x in (0.0, 0.5, 2.0, 6.0)]
+        assert loads == sorted(loads) and loads[0] < loads[-1]
 
     def test_warm_stages_are_checked_once_and_silently(self, monkeypatch):
         import io

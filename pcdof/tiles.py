@@ -181,3 +181,11 @@ def classify_tiles(signed_coc, *, tile_px: int = TILE_PX, sharp_px: float = 1.0)
     sharp = (lo > -sharp_px) & (hi < sharp_px)
     copy = sharp & ~_reached_from_front(front_r, int(tile_px))
     return TileMap(coc.shape, int(tile_px), lo, hi, copy)
+
+
+def warmup() -> None:
+    """Compile (or load from numba's cache) the tile kernels on a tiny CoC map: classification and the
+    uniform-tile window, which a frame needs only when it has uniform blur."""
+    coc = np.zeros((8, 8), np.float32)
+    coc[:, 4:] = -6.0
+    classify_tiles(coc, tile_px=4).uniform(2.0, 8.0, -1, 3.0)

@@ -197,3 +197,29 @@ class TestRenderCommand:
         assert proc.returncode == 0, proc.stderr
         heavy, compiled = proc.stdout.splitlines()[-2:]
         assert heavy == "[]" and compiled == "[]" and out.exists()
+
+
+class TestWarmupCoversTheFrame:
+    @pytest.mark.slow
+    def test_nothing_compiles_after_warmup(self, tmp_path):
+        """Into an empty cache: after ``warmup()`` a render of the bundled sample (colour 8-bit, uniform blur
+        tiles, blurred foreground) compiles no kernel, it only loads them: the first frame after an install
+        never pays for a kernel the warm-up left out."""
+        env = {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+        warm = _python("from pcdof import kernels; kernels.warmup(processes=True)", env)
+        assert warm.returncode == 0, warm.stderr
+        proc = _python(f"""
+            from numba.core import dispatcher
+            compiled = []
+            core = dispatcher._FunctionCompiler._compile_core
+            dispatcher._FunctionCompiler._compile_core = lambda self, *a: compiled.append(self.py_func.__module__ + "." + self.py_func.__qualname__) or core(self, *a)
+            from pcdof.cli import main
+            try:
+                main(["-q", "render", {os.path.join(SAMPLE, "color.png")!r}, {os.path.join(SAMPLE, "depth.png")!r},
+                      "--calib", {os.path.join(SAMPLE, "calib.json")!r}, "-o", {str(tmp_path / "out.png")!r}])
+            except SystemExit as exc:
+                assert not exc.code, exc.code
+            print([n for n in compiled if n.startswith("pcdof.")])  # numba's own helpers compile with them
+        """, env)
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.splitlines()[-1] == "[]"

@@ -168,33 +168,56 @@ def _project_row(depth_row, rx, ry, rz, t, cam, d, tilt, has_dist, r2_max, foot_
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     tx, ty, tz = t[0], t[1], t[2]
     lens = unpack(d, tilt)
+    n = depth_row.shape[0]
+    # Loops with few enough arrays each that the compiler vectorises them (one loop writing all three
+    # planes through the lens model would need more run-time overlap checks than it makes); IZ > 0
+    # decides validity for the others, so the planes agree on which pixels are projected.
+    for j in range(n):
+        z, x, y, iz, ok = _project_pixel(depth_row[j], rx[j], ry[j], rz[j], tx, ty, tz, r2_max)
+        IZ[j] = np.float32(iz if ok else 0.0)
+    if has_dist:
+        for j in range(n):
+            z, x, y, iz, ok = _project_pixel(depth_row[j], rx[j], ry[j], rz[j], tx, ty, tz, r2_max)
+            xd, yd = distort_point(x, y, lens)
+            U[j] = np.float32(fx * xd + cx if IZ[j] > 0.0 else 0.0)
+        for j in range(n):
+            z, x, y, iz, ok = _project_pixel(depth_row[j], rx[j], ry[j], rz[j], tx, ty, tz, r2_max)
+            xd, yd = distort_point(x, y, lens)
+            V[j] = np.float32(fy * yd + cy if IZ[j] > 0.0 else 0.0)
+    else:  # a loop of its own: in one loop with the distortion the compiler evaluates it for every pixel
+        for j in range(n):
+            z, x, y, iz, ok = _project_pixel(depth_row[j], rx[j], ry[j], rz[j], tx, ty, tz, r2_max)
+            U[j] = np.float32(fx * x + cx if IZ[j] > 0.0 else 0.0)
+            V[j] = np.float32(fy * y + cy if IZ[j] > 0.0 else 0.0)
     lo = np.inf
     hi = -np.inf
-    for j in range(depth_row.shape[0]):
-        z = np.float64(depth_row[j])
-        known = (z > 0.0) & (z < np.inf)  # 0, negative, NaN and inf are unknown
-        z = z if known else 0.0
-        Z = z * np.float64(rz[j]) + tz
-        ok = known & (Z > _MIN_Z_M)  # also false for NaN rays (no inverse of the depth distortion)
-        iz = 1.0 / (Z if ok else 1.0)
-        x = (z * np.float64(rx[j]) + tx) * iz
-        y = (z * np.float64(ry[j]) + ty) * iz
-        r2 = x * x + y * y
-        ok = ok & (not (r2 > r2_max))
-        if has_dist:
-            xd, yd = distort_point(x, y, lens)
-        else:
-            xd = x
-            yd = y
-        u = fx * xd + cx
-        v = fy * yd + cy
-        U[j] = np.float32(u if ok else 0.0)
-        V[j] = np.float32(v if ok else 0.0)
-        IZ[j] = np.float32(iz if ok else 0.0)
-        half = foot_v * z * iz + 1.0
+    for j in range(n):
+        iz = np.float64(IZ[j])
+        ok = iz > 0.0
+        half = foot_v * np.float64(depth_row[j]) * iz + 1.0
+        v = np.float64(V[j])
         lo = min(lo, v - half if ok else np.inf)
         hi = max(hi, v + half if ok else -np.inf)
     return lo, hi
+
+
+@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
+def _project_pixel(depth, rx, ry, rz, tx, ty, tz, r2_max):
+    """A depth pixel in the colour camera: (z, x/z, y/z, 1/z, projected?), before the lens distortion.
+
+    0, negative, NaN and inf depths are unknown; points on or behind the colour camera, rays
+    without inverse (NaN) and points beyond the lens model's valid radius are not projected.
+    """
+    z = np.float64(depth)
+    known = (z > 0.0) & (z < np.inf)
+    z = z if known else 0.0
+    Z = z * np.float64(rz) + tz
+    ok = known & (Z > _MIN_Z_M)  # also false for NaN rays (no inverse of the depth distortion)
+    iz = 1.0 / (Z if ok else 1.0)
+    x = (z * np.float64(rx) + tx) * iz
+    y = (z * np.float64(ry) + ty) * iz
+    ok = ok & (not (x * x + y * y > r2_max))
+    return z, x, y, iz, ok
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
@@ -370,14 +393,15 @@ def _triangle(buf, y0, y1, u0, v0, w0, u1, v1, w1, u2, v2, w2):
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _triangle_coefs(x0, y0, w0, x1, y1, w1, x2, y2, w2, tol, keep):
+def _triangle_coefs(x0, y0, w0, x1, y1, w1, x2, y2, w2, keep):
     """A triangle's three edge functions and its 1/z plane, each as (a, b, c) of a x + b y + c (float32).
 
     Corners relative to the drawing origin, float32. Edge k is the doubled signed area of (p, next
-    corner, corner after corner k), signed so that it is >= 0 inside and widened by *tol* (a pixel
-    centre on an edge shared by two triangles is drawn by both, whatever the rounding of either).
-    The plane interpolates 1/z (affine in the image for a planar triangle: perspective-correct). A triangle that is not kept, or is degenerate, gets an edge that is
-    negative everywhere.
+    corner, corner after corner k), signed so that it is >= 0 inside and widened by
+    :data:`_EDGE_EPS_PX` pixels (a centre on an edge shared by two triangles is drawn by both,
+    whatever the rounding of either). The plane interpolates 1/z (affine in the image for a planar
+    triangle: perspective-correct). A triangle that is not kept, or is degenerate, gets an edge
+    that is negative everywhere.
     """
     a0, b0, c0 = y1 - y2, x2 - x1, x1 * y2 - x2 * y1
     a1, b1, c1 = y2 - y0, x0 - x2, x2 * y0 - x0 * y2
@@ -390,6 +414,9 @@ def _triangle_coefs(x0, y0, w0, x1, y1, w1, x2, y2, w2, tol, keep):
     gy = (dw1 * b1 + dw2 * b2) * inv
     gc = w0 - gx * x0 - gy * y0
     sg = one if area > 0.0 else -one
+    # widening: _EDGE_EPS_PX times the triangle's width + height (half the sum of its edges' |a| and
+    # |b|), which bounds every edge's |a| + |b|
+    tol = np.float32(0.5 * _EDGE_EPS_PX) * (abs(a0) + abs(a1) + abs(a2) + abs(b0) + abs(b1) + abs(b2))
     live = keep & (area != 0.0)
     zero = np.float32(0.0)
     return (a0 * sg if live else zero, b0 * sg if live else zero, c0 * sg + tol if live else -one,
@@ -397,7 +424,7 @@ def _triangle_coefs(x0, y0, w0, x1, y1, w1, x2, y2, w2, tol, keep):
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _quad_rows(buf, xs, top, ya, yb, tol, p0, p1, p2, p3, keep_t, keep_s):
+def _quad_rows(buf, xs, top, ya, yb, p0, p1, p2, p3, keep_t, keep_s):
     """Draw triangles t = (p0, p1, p2) and s = (p0, p2, p3) on the pixels x = xs..xs + 15 of rows ya..yb.
 
     Each corner p is (u, v, 1/z); *keep_t*, *keep_s* say which triangles are drawn. For quads whose
@@ -411,8 +438,8 @@ def _quad_rows(buf, xs, top, ya, yb, tol, p0, p1, p2, p3, keep_t, keep_s):
     oy = np.float32(top)
     x0, y0, x1, y1, x2, y2, x3, y3 = p0[0] - ox, p0[1] - oy, p1[0] - ox, p1[1] - oy, p2[0] - ox, p2[1] - oy, p3[0] - ox, \
         p3[1] - oy
-    t = _triangle_coefs(x0, y0, p0[2], x1, y1, p1[2], x2, y2, p2[2], tol, keep_t)
-    s = _triangle_coefs(x0, y0, p0[2], x2, y2, p2[2], x3, y3, p3[2], tol, keep_s)
+    t = _triangle_coefs(x0, y0, p0[2], x1, y1, p1[2], x2, y2, p2[2], keep_t)
+    s = _triangle_coefs(x0, y0, p0[2], x2, y2, p2[2], x3, y3, p3[2], keep_s)
     zero = np.float32(0.0)
     for y in range(ya, yb + 1):
         yy = np.float32(y - top)
@@ -446,9 +473,7 @@ def _quad(buf, y0, y1, ua, va, wa, ub, vb, wb, uc, vc, wc, ud, vd, wd, code, use
         # diagonal a-d: (a, b, d) and (a, d, c); diagonal b-c: (c, a, b) and (c, b, d); selected, not branched.
         # The origin depends on the quad alone, not on the band: bands change no bit.
         a, b, c, d = (ua, va, wa), (ub, vb, wb), (uc, vc, wc), (ud, vd, wd)
-        # widening of the edges: _EDGE_EPS_PX times a bound on every edge's |a| + |b|
-        tol = np.float32(_EDGE_EPS_PX) * (umax - umin + vmax - vmin)
-        _quad_rows(buf, min(xa, W - _ROW_PX), int(np.ceil(vmin)), ya, yb, tol, a if diag_ad else c, b if diag_ad else a,
+        _quad_rows(buf, min(xa, W - _ROW_PX), int(np.ceil(vmin)), ya, yb, a if diag_ad else c, b if diag_ad else a,
                    d if diag_ad else b, c if diag_ad else d, (code & 5) != 0, (code & 10) != 0)
         return
     f = np.float64

@@ -39,7 +39,7 @@ def _plan(rig, rows: bool):
 
 
 @pytest.mark.parametrize("rows", [True, False], ids=["row-kernel", "per-triangle"])
-@pytest.mark.parametrize("scale", [1, 2, 3, 5, 8, 15, 16, 23])
+@pytest.mark.parametrize("scale", [2, 3, 5, 8, 15, 16, 23])
 def test_plane_on_pixel_centres_has_no_cracks(scale, rows):
     # a 3-D plane: 1/z affine in the image, so interpolating 1/z is exact; every quad corner lies within
     # float32 rounding of a colour pixel centre, so every centre inside the mesh sits on an edge or a corner
@@ -48,9 +48,11 @@ def test_plane_on_pixel_centres_has_no_cracks(scale, rows):
     ii, jj = np.mgrid[0:h, 0:w]
     depth = (1.0 / (0.5 + 0.004 * jj - 0.003 * ii)).astype(np.float32)
     out = reproject_depth(depth, rig, plan=_plan(rig, rows))
-    yy, xx = np.mgrid[0:scale * (h - 1) + 1, 0:scale * (w - 1) + 1]
+    # the centres inside the mesh; those on its outer boundary may fall either way (the edge pixels'
+    # footprints cover them, up to rounding at the footprints' own edges)
+    yy, xx = np.mgrid[1:scale * (h - 1), 1:scale * (w - 1)]
     expected = 1.0 / (0.5 + 0.004 * xx / scale - 0.003 * yy / scale)
-    inside = out[:yy.shape[0], :xx.shape[1]]
+    inside = out[1:scale * (h - 1), 1:scale * (w - 1)]
     assert np.count_nonzero(inside == 0) == 0, np.argwhere(inside == 0)[:5]
     np.testing.assert_allclose(inside, expected, rtol=2e-6)
 

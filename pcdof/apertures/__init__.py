@@ -81,7 +81,9 @@ class Aperture:
         return _map_points(np.ascontiguousarray(uv, np.float64).reshape(-1, 2), fn, params)
 
 
-@njit(cache=True)
+# not cached on disk: its argument *fn* is a dispatcher, whose numba type is new in every process, so a
+# cached entry could never be found again and each process would add one to the index
+@njit(cache=False)
 def _map_points(uv, fn, params):
     out = np.empty(uv.shape, np.float64)
     for i in range(uv.shape[0]):

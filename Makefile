@@ -40,6 +40,8 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
+	@echo "compiling pcdof's kernels once, so that the first render starts at once (about half a minute on 2 cores)"
+	-$(VENV)/bin/pcdof warmup
 	@touch $(STAMP)
 
 demo: setup

@@ -1209,3 +1209,5 @@ def warmup() -> None:
     plan = RenderPlan(threads=plan_render().threads, reduce_min_coc_px=2.0)
     for image in (color, color.astype(np.uint16) * 257):
         render_image(image, depth, lens, fx=300.0, quality="balanced", plan=plan)
+    # and one at full resolution, whose far layer's uniform tiles take the convolution path
+    render_image(color, depth, lens, fx=300.0, quality="exact")

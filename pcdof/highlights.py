@@ -120,26 +120,41 @@ def _number(name, v, lo, *, strict=False, inf=False):
     return float(v)
 
 
-def _check(linear_rgb, clip_level, gain):
+def _check(linear_rgb, clip_level, gain, *, copy=True):
     img = np.asarray(linear_rgb)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype.kind != "f":
         raise InputError(f"linear_rgb must be an (H, W, 3) float array; got {img.shape} {img.dtype}")
     _number("clip_level", clip_level, 0.0, strict=True)
     _number("gain", gain, 1.0)
-    return img.astype(np.float32, copy=True)
+    return img.astype(np.float32, copy=copy)
 
 
 def _check_coc(coc_px, shape):
+    """*coc_px* validated, as given (converted where a blob needs it: :func:`_coc_at`)."""
     if coc_px is None:
         raise InputError("coc_px must be an (H, W) array of circle-of-confusion diameters (px) for method 'prior'; "
                          "got None")
     coc = np.asarray(coc_px)
     if coc.shape != tuple(shape[:2]) or coc.dtype.kind not in "fiu":
         raise InputError(f"coc_px must be an (H, W) = {tuple(shape[:2])} number array; got {coc.shape} {coc.dtype}")
-    coc = np.abs(coc.astype(np.float32))
-    if np.isnan(coc).any():
+    if coc.dtype.kind == "f" and np.isnan(coc).any():
         raise InputError("coc_px must not hold NaN")
-    return np.minimum(coc, MAX_COC_PX)  # the renderer clamps the blur there too
+    return coc
+
+
+def _coc_at(coc, ys, xs):
+    """CoC diameters (px) at the given pixels: float32, unsigned, clamped like the renderer's."""
+    return np.minimum(np.abs(coc[ys, xs].astype(np.float32)), MAX_COC_PX)
+
+
+def clipped_mask(linear_rgb: np.ndarray, clip_level: float = CLIP_LEVEL) -> np.ndarray:
+    """Pixels with a channel at or above *clip_level*: (H, W) bool from (H, W, 3) linear light."""
+    img = np.asarray(linear_rgb)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise InputError(f"linear_rgb must be an (H, W, 3) array; got {img.shape}")
+    _number("clip_level", clip_level, 0.0, strict=True)
+    m = img >= clip_level
+    return m[..., 0] | m[..., 1] | m[..., 2]  # ten times faster than numpy's any() over a length-3 last axis
 
 
 def _hue(img, mask):
@@ -148,19 +163,43 @@ def _hue(img, mask):
     return c / c.max() if c.max() > 0 else np.ones(3, np.float32)
 
 
-def _blobs(img, clip_level, pad):
-    """Each clipped blob (8-connected pixels with a clipped channel): (window slices, blob mask in the
-    window, per-channel clipped mask in the window, every clipped pixel in the window). *pad(blob mask in
-    its bounding box, the box's slices) -> px* widens the window beyond the box."""
-    clipped = (img >= clip_level).any(axis=2)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(clipped.astype(np.uint8), connectivity=8)
+def _components(clipped):
+    """The 8-connected blobs of *clipped* (H, W) bool: (labels (H, W) int32, boxes (n, 4) int [y0, y1, x0, x1)
+    of blobs 1..n, pixels: per blob its (y, x) int arrays in raster order)."""
+    u8 = clipped.view(np.uint8)
+    # no stats from OpenCV: they include the background label, a pass over every pixel of the frame
+    n, labels = cv2.connectedComponents(u8, connectivity=8)
+    if n <= 1:
+        return labels, np.zeros((0, 4), np.int64), []
+    xy = cv2.findNonZero(u8).reshape(-1, 2)
+    lab = labels[xy[:, 1], xy[:, 0]]
+    order = np.argsort(lab, kind="stable")
+    ys, xs = xy[order, 1].astype(np.int64), xy[order, 0].astype(np.int64)
+    ends = np.cumsum(np.bincount(lab, minlength=n))[1:]
+    starts = ends - np.bincount(lab, minlength=n)[1:]
+    boxes = np.stack([np.minimum.reduceat(ys, starts), np.maximum.reduceat(ys, starts) + 1,
+                      np.minimum.reduceat(xs, starts), np.maximum.reduceat(xs, starts) + 1], axis=1)
+    return labels, boxes, [(ys[a:b], xs[a:b]) for a, b in zip(starts, ends)]
+
+
+def _blobs(img, clip_level, coc=None):
+    """Each clipped blob (8-connected pixels with a clipped channel): (window slices, blob mask in the window,
+    per-channel clipped mask in the window, every clipped pixel in the window, blur d). The window is the
+    blob's box widened by 3 px; with *coc*, by ceil(d / 2) + 1 px, d its median CoC (px), and a blob with
+    d < 1 (not blurred) is left out."""
+    clipped = clipped_mask(img, clip_level)
+    labels, boxes, pixels = _components(clipped)
     h, w = clipped.shape
-    for b in range(1, n):
-        x, y, bw, bh = (int(v) for v in stats[b, :4])
-        p = int(pad(labels[y:y + bh, x:x + bw] == b, (slice(y, y + bh), slice(x, x + bw))))
-        win = (slice(max(y - p, 0), min(y + bh + p, h)), slice(max(x - p, 0), min(x + bw + p, w)))
+    for b, ((y0, y1, x0, x1), (ys, xs)) in enumerate(zip(boxes.tolist(), pixels), start=1):
+        d, p = 0.0, 3
+        if coc is not None:
+            d = float(np.median(_coc_at(coc, ys, xs)))
+            if d < 1.0:
+                continue
+            p = math.ceil(d / 2) + 1
+        win = (slice(max(y0 - p, 0), min(y1 + p, h)), slice(max(x0 - p, 0), min(x1 + p, w)))
         mask = labels[win] == b
-        yield win, mask, mask[..., None] & (img[win] >= clip_level), clipped[win]
+        yield win, mask, mask[..., None] & (img[win] >= clip_level), clipped[win], d
 
 
 def _fill(img, clip_level, levels_for_blob):
@@ -168,7 +207,7 @@ def _fill(img, clip_level, levels_for_blob):
     values and stay. *levels_for_blob(block, mask, ring) -> level*."""
     out = img.copy()
     kernel = np.ones((3, 3), np.uint8)
-    for win, mask, clipped_ch, clipped in _blobs(img, clip_level, lambda m, s: 3):
+    for win, mask, clipped_ch, clipped, _ in _blobs(img, clip_level):
         block = img[win]
         grown = cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
         ring = grown & ~mask & ~clipped
@@ -341,13 +380,10 @@ def _footprint(chan, m, edge, keep: float, d: float):
     return base[sel], k[sel], np.full(sel.size, step * scale * scale)
 
 
-def _prior_block(block, clipped_ch, clipped, coc, prior, use_rim):
-    """One blob's window with its clipped channels raised (:func:`reconstruct_prior`; *prior*: (clip level,
-    prior max, channel ratio)). (h, w, 3) float32."""
+def _prior_block(block, clipped_ch, clipped, d, prior, use_rim):
+    """One blob's window with its clipped channels raised (:func:`reconstruct_prior`; *d*: its blur (px), at
+    least 1; *prior*: (clip level, prior max, channel ratio)). (h, w, 3) float32."""
     out = block.copy()
-    d = float(np.median(coc)) if coc.size else 0.0
-    if d < 1.0:
-        return out  # no blur: the output stays at white whatever the radiance
     clip_level, prior_max, max_ratio = prior
     for c in range(3):
         m = clipped_ch[..., c]
@@ -375,18 +411,14 @@ def reconstruct_prior(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, pri
     A blob that is not blurred, or whose blurred light stays above white in every plausible case,
     is not raised. (H, W, 3) float32, linear.
     """
-    img = _check(linear_rgb, clip_level, 1.0)
+    img = _check(linear_rgb, clip_level, 1.0, copy=False)  # read only; the output is a copy
     coc = _check_coc(coc_px, img.shape)
     prior = (clip_level, _number("prior_max", prior_max, clip_level),
              _number("max_channel_ratio", max_channel_ratio, 1.0, inf=True))
     out = img.copy()
-
-    def pad(mask, sl):
-        return math.ceil(float(np.median(coc[sl][mask])) / 2) + 1
-
-    for win, mask, clipped_ch, clipped in _blobs(img, clip_level, pad):
-        raised = _prior_block(img[win], clipped_ch, clipped, coc[win][mask], prior, use_rim)
-        out[win] = np.where(clipped_ch, raised, out[win])
+    # a blob that is not blurred (d < 1) is left out: its output stays at white whatever the radiance
+    for win, mask, clipped_ch, clipped, d in _blobs(img, clip_level, coc):
+        np.copyto(out[win], _prior_block(img[win], clipped_ch, clipped, d, prior, use_rim), where=clipped_ch)
     return out
 
 

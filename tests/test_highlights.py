@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pcdof.errors import InputError
-from pcdof.highlights import (CLIP_LEVEL, HIGHLIGHT_METHODS, needs_reconstruction, reconstruct_highlights,
-                              rim_level)
+from pcdof.highlights import (CLIP_LEVEL, HIGHLIGHT_METHODS, _components, clipped_mask, needs_reconstruction,
+                              reconstruct_highlights, rim_level)
 
 
 def _box_filtered_disc(level, radius=3.3, bg=0.1, size=24, k=8):
@@ -107,3 +110,46 @@ def test_bad_image_is_rejected():
         reconstruct_highlights(np.zeros((4, 4), np.float32))
     with pytest.raises(InputError, match="linear_rgb"):
         reconstruct_highlights(np.zeros((4, 4, 3), np.uint8))
+
+
+# ------------------------------------------------------------------------------- clipped pixels and their blobs
+PROPERTY = settings(deadline=None, derandomize=True, max_examples=40, database=None)
+
+
+class TestClippedMask:
+    @PROPERTY
+    @given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 40), st.sampled_from(["float32", "float64"]))
+    def test_matches_any_over_the_channels(self, seed, h, w, dtype):
+        rng = np.random.default_rng(seed)
+        img = rng.choice(np.array([0.2, np.nextafter(CLIP_LEVEL, 0), CLIP_LEVEL, 1.0, np.inf, np.nan]), (h, w, 3))
+        img = img.astype(dtype)
+        got = clipped_mask(img, CLIP_LEVEL)
+        assert got.shape == (h, w) and got.dtype == bool
+        np.testing.assert_array_equal(got, (img >= CLIP_LEVEL).any(axis=2))
+
+    @pytest.mark.parametrize("img, clip, match", [(np.zeros((4, 4)), CLIP_LEVEL, "linear_rgb"),
+                                                  (np.zeros((4, 4, 4)), CLIP_LEVEL, "linear_rgb"),
+                                                  (np.zeros((4, 4, 3)), 0.0, "clip_level"),
+                                                  (np.zeros((4, 4, 3)), float("nan"), "clip_level")])
+    def test_bad_input_is_rejected(self, img, clip, match):
+        with pytest.raises(InputError, match=match):
+            clipped_mask(img, clip)
+
+
+class TestComponents:
+    @PROPERTY
+    @given(st.integers(0, 2**32 - 1), st.integers(1, 50), st.integers(1, 50), st.floats(0.0, 1.0))
+    def test_boxes_and_pixels_match_opencvs_stats(self, seed, h, w, share):
+        """Each blob's box and pixels against cv2.connectedComponentsWithStats (which labels the same way)."""
+        rng = np.random.default_rng(seed)
+        clipped = rng.random((h, w)) < share
+        labels, boxes, pixels = _components(clipped)
+        n, want_labels, stats, _ = cv2.connectedComponentsWithStats(clipped.astype(np.uint8), connectivity=8)
+        np.testing.assert_array_equal(labels, want_labels)
+        assert len(boxes) == len(pixels) == n - 1
+        for b in range(1, n):
+            x, y, bw, bh = stats[b, :4]
+            assert boxes[b - 1].tolist() == [y, y + bh, x, x + bw]
+            ys, xs = np.nonzero(want_labels == b)  # raster order
+            np.testing.assert_array_equal(pixels[b - 1][0], ys)
+            np.testing.assert_array_equal(pixels[b - 1][1], xs)

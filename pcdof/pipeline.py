@@ -122,7 +122,7 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
     Returns (colour to render, linear flag): linear float32 light when something was reconstructed,
     else *color* and *linear* unchanged (skipped: off, the paper method, linear input, nothing clipped).
     """
-    from .highlights import needs_reconstruction, parse_highlights, reconstruct_highlights
+    from .highlights import clipped_mask, needs_reconstruction, parse_highlights, reconstruct_highlights
 
     with _Timer(trace, "highlights") as rec:
         how, gain = parse_highlights(highlights)
@@ -137,7 +137,7 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
         top = float(np.iinfo(color.dtype).max)
         clip_level = float(srgb_to_linear(np.float32((top - 0.5) / top)))
         lin = decode_to_linear(color)
-        clipped = int(np.count_nonzero((lin >= clip_level).any(axis=-1))) if lin.ndim == 3 else 0
+        clipped = int(np.count_nonzero(clipped_mask(lin, clip_level))) if lin.ndim == 3 else 0
         if clipped == 0:
             rec.skipped, rec.reason = True, "nothing clipped"
             return color, linear

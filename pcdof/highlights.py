@@ -77,6 +77,7 @@ The estimate is a guess about light the input never recorded: ``off`` stays avai
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -153,8 +154,15 @@ def clipped_mask(linear_rgb: np.ndarray, clip_level: float = CLIP_LEVEL) -> np.n
     if img.ndim != 3 or img.shape[2] != 3:
         raise InputError(f"linear_rgb must be an (H, W, 3) array; got {img.shape}")
     _number("clip_level", clip_level, 0.0, strict=True)
-    m = img >= clip_level
-    return m[..., 0] | m[..., 1] | m[..., 2]  # ten times faster than numpy's any() over a length-3 last axis
+    if img.dtype not in (np.float32, np.float64) or img.size == 0:
+        m = img >= clip_level
+        return m[..., 0] | m[..., 1] | m[..., 2]  # ten times faster than numpy's any() over the last axis
+    # OpenCV, twice as fast again: the channels compared as one row (0 / 255), then any channel by a grey
+    # conversion, > 0 exactly where a channel is 255 (its smallest weight, blue's 0.114, still gives 29). The
+    # level in the image's dtype, as numpy compares a float32 array with a Python float
+    flat = np.ascontiguousarray(img).reshape(img.shape[0], -1)
+    codes = cv2.compare(flat, float(img.dtype.type(clip_level)), cv2.CMP_GE).reshape(img.shape)
+    return cv2.cvtColor(codes, cv2.COLOR_RGB2GRAY) > 0
 
 
 def _hue(img, mask):
@@ -266,9 +274,17 @@ def disc_kernel(diameter_px: float, *, supersample: int = 4) -> np.ndarray:
     r = float(diameter_px) / 2
     n = 2 * int(math.ceil(r - 0.5)) + 1 if r > 0.5 else 1
     sub = (np.arange(n * supersample) + 0.5) / supersample - n / 2
-    x, y = np.meshgrid(sub, sub)
-    k = (x ** 2 + y ** 2 <= max(r, 0.5) ** 2).reshape(n, supersample, n, supersample).mean(axis=(1, 3))
+    inside = sub[:, None] ** 2 + sub[None, :] ** 2 <= max(r, 0.5) ** 2
+    k = inside.reshape(n, supersample, n, supersample).mean(axis=(1, 3))
     return (k / k.sum()).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=256)
+def _disc(diameter_px: float) -> np.ndarray:
+    """:func:`disc_kernel`, read-only and kept: a blob's channels, and blobs at one depth, share their kernel."""
+    k = disc_kernel(diameter_px)
+    k.flags.writeable = False
+    return k
 
 
 def _display(linear):
@@ -301,16 +317,29 @@ def expected_best_level(base, k, weight, levels, keep: float, level_weights=None
     differences of :func:`_display` from the truth; ties go to the lowest, so a blob whose output
     stays white (or unchanged) whatever its radiance is not raised.
     """
-    cands = np.concatenate(([keep], levels))
-    shown = _display(base[None, :] + cands[:, None] * k[None, :])  # (1 + T, N): row 0 keep, rows 1.. the truths
-    # einsum, not a BLAS product: one thread, and the same sums on every machine
-    a2 = np.einsum("cn,cn,n->c", shown, shown, weight)
-    cross = np.einsum("cn,tn->ct", shown * weight, shown[1:])  # (1 + T, T)
-    loss = a2[:, None] - 2 * cross + a2[None, 1:]
+    base, k, weight = (np.asarray(a, np.float64).ravel() for a in (base, k, weight))
+    levels = np.asarray(levels, np.float64).ravel()
     p = np.full(len(levels), 1.0 / len(levels)) if level_weights is None else level_weights / level_weights.sum()
-    expected = loss @ p
+    return _chosen_levels([(base, k, weight, np.concatenate(([keep], levels)), np.asarray(p, np.float64))])[0]
+
+
+def _best_levels(base, k, weight, starts, cands, probs) -> np.ndarray:
+    """:func:`expected_best_level` of J footprints at once: *base*, *k*, *weight* (N,) float64 hold their
+    samples one after another (footprint j: samples starts[j]:starts[j + 1], none empty); *cands* (J, 1 + T):
+    keep, then the levels; *probs* (J, T), rows summing to 1. Returns (J,) float64, the chosen candidates."""
+    seg = np.repeat(np.arange(len(cands)), np.diff(starts))
+    shown = _display(base + cands.T[:, seg] * k)  # (1 + T, N): row 0 keep, rows 1.. the truths
+    ws = shown * weight
+    # E_t sum_n w (s_c - s_t)^2 = a2_c - 2 sum_n w s_c E_t[s_t] + E_t[a2_t]: the square is linear in the
+    # truths once expanded, so no table of every candidate against every truth (T times the work). einsum and
+    # reduceat, not a BLAS product: one thread, and the same sums on every machine
+    mean_shown = np.einsum("tn,tn->n", probs.T[:, seg], shown[1:])
+    first = starts[:-1]
+    a2 = np.add.reduceat(ws * shown, first, axis=1)  # (1 + T, J)
+    expected = a2 - 2 * np.add.reduceat(ws * mean_shown, first, axis=1) + np.einsum("jt,tj->j", probs, a2[1:])
     # the first candidate within rounding of the least (the expanded square leaves ~1e-12 noise)
-    return float(cands[int(np.argmax(expected <= expected.min() + 1e-7 * max(float(weight.sum()), 1.0)))])
+    near = expected <= expected.min(axis=0) + 1e-7 * np.maximum(np.add.reduceat(weight, first), 1.0)
+    return cands[np.arange(len(cands)), np.argmax(near, axis=0)]
 
 
 def rim_likelihood(chan, mask, clipped, levels, clip_level: float) -> np.ndarray:
@@ -369,7 +398,7 @@ def _footprint(chan, m, edge, keep: float, d: float):
         h, w = chan.shape
         size = (max(1, round(w / scale)), max(1, round(h / scale)))
         layers = cv2.resize(layers, size, interpolation=cv2.INTER_AREA).reshape(size[1], size[0], 3)
-    kern = disc_kernel(d / scale)
+    kern = _disc(d / scale)
     rest = cv2.filter2D(layers[..., 0], -1, kern, borderType=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
     inner, k_edge = (cv2.filter2D(layers[..., i], -1, kern, borderType=cv2.BORDER_CONSTANT).ravel().astype(np.float64)
                      for i in (1, 2))
@@ -380,25 +409,54 @@ def _footprint(chan, m, edge, keep: float, d: float):
     return base[sel], k[sel], np.full(sel.size, step * scale * scale)
 
 
-def _prior_block(block, clipped_ch, clipped, d, prior, use_rim):
-    """One blob's window with its clipped channels raised (:func:`reconstruct_prior`; *d*: its blur (px), at
-    least 1; *prior*: (clip level, prior max, channel ratio)). (h, w, 3) float32."""
-    out = block.copy()
+def _prior_channels(block, clipped_ch, clipped, d, prior, use_rim):
+    """The clipped channels of one blob's window to raise (:func:`reconstruct_prior`; *d*: its blur (px), at
+    least 1; *prior*: (clip level, prior max, channel ratio)): (channel, its clipped mask, edge mask, keep,
+    problem) each, the problem (base, k, weight, candidates (1 + T,), probabilities (T,)) of :func:`_best_levels`."""
     clip_level, prior_max, max_ratio = prior
     for c in range(3):
         m = clipped_ch[..., c]
+        if not m.any():
+            continue
         top = min(prior_max, channel_bound(block, clipped_ch, c, max_ratio))
-        if not m.any() or top <= clip_level:
+        if top <= clip_level:
             continue
         levels = prior_levels(clip_level, top)
         chan, edge = block[..., c], _edge(m)
         keep = float(chan[m].max())
         # an edge pixel is partly covered: given that it clipped, its coverage is even over (p, 1), so its
         # expected value is (L + clip) / 2 (see the module notes); the interior is L
-        lw = rim_likelihood(chan, m, clipped, levels, clip_level) if use_rim else None
-        level = expected_best_level(*_footprint(chan, m, edge, keep, d), levels, keep, lw)
-        out[..., c] = np.where(m, np.maximum(chan, np.where(edge, (level + keep) / 2, level)), chan)
-    return out
+        lw = rim_likelihood(chan, m, clipped, levels, clip_level) if use_rim else np.ones(len(levels))
+        yield c, m, edge, keep, (*_footprint(chan, m, edge, keep, d), np.concatenate(([keep], levels)), lw / lw.sum())
+
+
+def _batches(items, sizes, cap: int):
+    """*items* in consecutive lists whose *sizes* add up to at most *cap* (or one item larger than that)."""
+    batch, n = [], 0
+    for item, size in zip(items, sizes):
+        if batch and n + size > cap:
+            yield batch
+            batch, n = [], 0
+        batch.append(item)
+        n += size
+    if batch:
+        yield batch
+
+
+def _chosen_levels(problems, max_samples: int = 1 << 15) -> list:
+    """The chosen candidate of each (base, k, weight, candidates, probabilities) problem: :func:`_best_levels`
+    in batches of about *max_samples* samples, so its (1 + T, N) tables stay a few MB."""
+    chosen = [float(p[3][0]) for p in problems]  # keep: a footprint of no samples is not raised
+    for t in sorted({len(p[3]) for p in problems}):  # (one level grid size in a batch; every blob's is T)
+        todo = [i for i, p in enumerate(problems) if p[0].size and len(p[3]) == t]
+        for batch in _batches(todo, [problems[i][0].size for i in todo], max_samples):
+            base, k, weight = (np.concatenate([problems[i][j] for i in batch]) for j in range(3))
+            starts = np.cumsum([0] + [problems[i][0].size for i in batch])
+            levels = _best_levels(base, k, weight, starts, np.array([problems[i][3] for i in batch]),
+                                  np.array([problems[i][4] for i in batch]))
+            for i, level in zip(batch, levels.tolist()):
+                chosen[i] = level
+    return chosen
 
 
 def reconstruct_prior(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, prior_max: float = PRIOR_MAX,
@@ -415,10 +473,16 @@ def reconstruct_prior(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, pri
     coc = _check_coc(coc_px, img.shape)
     prior = (clip_level, _number("prior_max", prior_max, clip_level),
              _number("max_channel_ratio", max_channel_ratio, 1.0, inf=True))
-    out = img.copy()
     # a blob that is not blurred (d < 1) is left out: its output stays at white whatever the radiance
-    for win, mask, clipped_ch, clipped, d in _blobs(img, clip_level, coc):
-        np.copyto(out[win], _prior_block(img[win], clipped_ch, clipped, d, prior, use_rim), where=clipped_ch)
+    raised, problems = [], []
+    for win, _, clipped_ch, clipped, d in _blobs(img, clip_level, coc):
+        for c, m, edge, keep, problem in _prior_channels(img[win], clipped_ch, clipped, d, prior, use_rim):
+            raised.append((win, c, m, edge, keep))
+            problems.append(problem)
+    out = img.copy()
+    for (win, c, m, edge, keep), level in zip(raised, _chosen_levels(problems)):
+        chan = img[win][..., c]
+        out[win][..., c][m] = np.maximum(chan, np.where(edge, (level + keep) / 2, level))[m]
     return out
 
 

@@ -118,14 +118,18 @@ PROPERTY = settings(deadline=None, derandomize=True, max_examples=40, database=N
 
 class TestClippedMask:
     @PROPERTY
-    @given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 40), st.sampled_from(["float32", "float64"]))
-    def test_matches_any_over_the_channels(self, seed, h, w, dtype):
+    @given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(1, 40),
+           st.sampled_from(["float16", "float32", "float64"]), st.sampled_from([CLIP_LEVEL, 0.5, 1.0, 1e-3]))
+    def test_matches_any_over_the_channels(self, seed, h, w, dtype, clip):
+        """Against numpy, values on either side of the level in float64 and in the image's dtype too."""
         rng = np.random.default_rng(seed)
-        img = rng.choice(np.array([0.2, np.nextafter(CLIP_LEVEL, 0), CLIP_LEVEL, 1.0, np.inf, np.nan]), (h, w, 3))
-        img = img.astype(dtype)
-        got = clipped_mask(img, CLIP_LEVEL)
+        near = [np.nextafter(np.dtype(t).type(clip), np.dtype(t).type(to)) for t in (dtype, "float64") for to in (0, 9)]
+        values = np.array([0.0, -1.0, clip, *near, 2.0, np.inf, -np.inf, np.nan], np.float64)
+        img = rng.choice(values, (h, w, 3)).astype(dtype)
+        img = img if rng.random() < 0.5 else np.asfortranarray(img)
+        got = clipped_mask(img, clip)
         assert got.shape == (h, w) and got.dtype == bool
-        np.testing.assert_array_equal(got, (img >= CLIP_LEVEL).any(axis=2))
+        np.testing.assert_array_equal(got, (img >= clip).any(axis=2))
 
     @pytest.mark.parametrize("img, clip, match", [(np.zeros((4, 4)), CLIP_LEVEL, "linear_rgb"),
                                                   (np.zeros((4, 4, 4)), CLIP_LEVEL, "linear_rgb"),

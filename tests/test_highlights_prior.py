@@ -9,8 +9,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pcdof.camera import Intrinsics, RGBDFrame, Rig
-from pcdof.highlights import (CLIP_LEVEL, HIGHLIGHT_METHODS, _display, disc_kernel, expected_best_level, prior_levels,
-                              reconstruct_highlights, rim_likelihood)
+from pcdof.highlights import (CLIP_LEVEL, HIGHLIGHT_METHODS, _chosen_levels, _display, disc_kernel,
+                              expected_best_level, prior_levels, reconstruct_highlights, rim_likelihood)
 from pcdof.lens import ThinLens
 from pcdof.pipeline import run
 
@@ -51,6 +51,29 @@ class TestExpectedBestLevel:
         losses = [_brute_loss(base, k, weight, levels, probs, c) for c in (1.0, *levels)]
         assert got in (1.0, *levels)
         assert _brute_loss(base, k, weight, levels, probs, got) <= min(losses) + 1e-6
+
+    @PROPERTY
+    @given(st.integers(0, 2**32 - 1), st.integers(1, 9), st.sampled_from([1, 7, 64, 1 << 15]))
+    def test_batches_choose_what_each_footprint_alone_chooses(self, seed, j, max_samples):
+        """Footprints solved together, in batches of any size, against the table of every candidate against every
+        truth (the expanded square, candidate by candidate): the same choice, or one as good within 1e-9."""
+        rng = np.random.default_rng(seed)
+        problems, t = [], int(rng.integers(1, 33))
+        for i in range(j):
+            n, t = int(rng.integers(0, 40)), t if i % 4 else int(rng.integers(1, 33))  # level grids of 1 or 2 sizes
+            base, k = rng.uniform(0, 1.2, n) * (rng.random(n) < 0.8), rng.uniform(0, 1, n) ** 3
+            levels = np.sort(rng.uniform(1.0, 30.0, t))
+            probs = rng.uniform(0.1, 1, t) if rng.random() < 0.5 else np.ones(t)
+            problems.append((base, k, rng.integers(1, 5, n).astype(float), np.concatenate(([1.0], levels)),
+                             probs / probs.sum()))
+        got = _chosen_levels(problems, max_samples=max_samples)
+        for (base, k, weight, cands, probs), level in zip(problems, got):
+            shown = _display(base[None, :] + cands[:, None] * k[None, :])
+            table = np.array([[np.sum(weight * (a - b) ** 2) for b in shown[1:]] for a in shown]) @ probs
+            assert level in cands
+            assert table[list(cands).index(level)] <= table.min() + 1e-7 * max(weight.sum(), 1.0) + 1e-9
+            assert level == cands[np.argmax(table <= table.min() + 1e-7 * max(weight.sum(), 1.0))] \
+                or abs(table[list(cands).index(level)] - table.min() - 1e-7 * max(weight.sum(), 1.0)) < 1e-9
 
     def test_a_known_radiance_is_chosen(self):
         """With the truth known (one level), the choice is the truth wherever the output depends on it."""

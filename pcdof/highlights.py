@@ -138,7 +138,7 @@ def _check_coc(coc_px, shape):
     coc = np.asarray(coc_px)
     if coc.shape != tuple(shape[:2]) or coc.dtype.kind not in "fiu":
         raise InputError(f"coc_px must be an (H, W) = {tuple(shape[:2])} number array; got {coc.shape} {coc.dtype}")
-    if coc.dtype.kind == "f" and np.isnan(coc).any():
+    if coc.dtype.kind == "f" and coc.size and np.isnan(coc.min()):  # (min is NaN where any value is)
         raise InputError("coc_px must not hold NaN")
     return coc
 
@@ -443,9 +443,10 @@ def _batches(items, sizes, cap: int):
         yield batch
 
 
-def _chosen_levels(problems, max_samples: int = 1 << 15) -> list:
+def _chosen_levels(problems, max_samples: int = 4096) -> list:
     """The chosen candidate of each (base, k, weight, candidates, probabilities) problem: :func:`_best_levels`
-    in batches of about *max_samples* samples, so its (1 + T, N) tables stay a few MB."""
+    in batches of about *max_samples* samples, so its (1 + T, N) tables stay about 1 MB (larger ones were
+    slower: fresh memory)."""
     chosen = [float(p[3][0]) for p in problems]  # keep: a footprint of no samples is not raised
     for t in sorted({len(p[3]) for p in problems}):  # (one level grid size in a batch; every blob's is T)
         todo = [i for i, p in enumerate(problems) if p[0].size and len(p[3]) == t]

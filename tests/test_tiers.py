@@ -142,3 +142,24 @@ class TestBenchTiers:
             assert case["delta"][1e6] == 0.0 and case["delta_edge"][1e6] == 0.0  # nothing reduced: bit for bit
         assert min(c["delta"][1.0] for c in res["cases"]) < 0.0  # everything at 1/2 or less is not free
         assert {p["threshold"] for p in res["curve"]} == {1.0} and all(p["scale"] >= 2 for p in res["curve"])
+
+
+def test_cli_tiers_part(tmp_path):
+    """`pcdof bench --only tiers` runs the calibration on the tuning seeds and reports the rule's thresholds."""
+    import json
+
+    from click.testing import CliRunner
+
+    from pcdof.cli import main
+
+    out = tmp_path / "bench"
+    result = CliRunner().invoke(main, ["bench", "--quick", "--only", "tiers", "-o", str(out)], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "report.json").read_text())
+    cases = report["tiers"]["result"]["cases"]
+    assert len(cases) == 3 and {c["seed"] for c in cases} == {0}  # a tuning seed, never a reported one
+    chosen = report["tiers"]["chosen"]
+    assert set(chosen) == {"high", "balanced", "fast"}
+    assert chosen["fast"] <= chosen["balanced"] <= chosen["high"]  # a looser tolerance never needs a larger threshold
+    md = (out / "report.md").read_text()
+    assert "Quality tiers: thresholds from the measured curve" in md and "wide" not in report

@@ -13,12 +13,13 @@ from ..errors import InputError
 from ..versions import library_versions
 from ._common import check_output_file, check_output_folder, handle_errors, make_output_folder
 
-#: every part; "wide-tune" (choosing the highlight default on the tuning seeds) and "hidden" (what the hidden
-#: background costs) run only when named
-PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune", "hidden")
+#: every part; "wide-tune" (choosing the highlight default on the tuning seeds), "tiers" (the quality tiers'
+#: thresholds from the error-vs-blur curve, on the tuning seeds) and "hidden" (what the hidden background
+#: costs) run only when named
+PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune", "tiers", "hidden")
 DEFAULT_PARTS = ("dof", "wide", "speed", "registration", "fill")
 #: the order the parts run in (the report's sections follow it)
-RUN_ORDER = ("dof", "wide", "wide-tune", "hidden", "speed", "registration", "fill")
+RUN_ORDER = ("dof", "wide", "wide-tune", "tiers", "hidden", "speed", "registration", "fill")
 #: the stages each side of the speed table sums
 PCDOF_STAGES, PAPER_STAGES = ("register", "fill", "coc", "render"), ("register", "fill", "render")
 
@@ -120,6 +121,7 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes, see
     steps = {"dof": lambda: _dof_part(report, md, run),
              "wide": lambda: _wide_part(report, md, output, run["seeds"], run["wide_kw"], wide_highlights),
              "wide-tune": lambda: _wide_tune_part(report, md, output, run["seeds"], run["wide_kw"]),
+             "tiers": lambda: _tiers_part(report, md, output, run["seeds"], run["wide_kw"]),
              "hidden": lambda: _hidden_part(report, md, output, run["seeds"], run["wide_kw"]),
              "speed": lambda: _speed_part(report, md, run), "registration": lambda: _registration_part(report, md, run),
              "fill": lambda: _fill_part(report, md, run)}
@@ -150,7 +152,7 @@ def _settings(output, parts, quick, size, depth_size, repeats, samples, scenes, 
     check_output_folder(output, "output")
     for name in _output_files(parts):
         check_output_file(os.path.join(output, name), "output")
-    if any(p in parts for p in ("dof", "wide", "wide-tune", "hidden")):
+    if any(p in parts for p in ("dof", "wide", "wide-tune", "tiers", "hidden")):
         check_output_folder(os.path.join(output, "cache"), "output")
     wide_kw = {"kinds": None, "blurs": wide_blurs, "size": wide_size, "depth_size": depth_size,
                "reference_width_px": None if absolute_blurs else wide.REFERENCE_WIDTH_PX}
@@ -301,6 +303,22 @@ def _wide_tune_part(report, md, output, seeds, kw) -> None:
     md += ["## Highlight settings on the tuning seeds\n",
            f"Tuning seeds {', '.join(map(str, seed_list))}, never reported elsewhere.\n", table, ""]
     click.echo(table)
+
+
+def _tiers_part(report, md, output, seeds, kw) -> None:
+    from ..bench import tiers, wide
+
+    seed_list = wide.TUNING_SEEDS[:seeds]
+    result = tiers.run_tiers(seeds=seed_list, cache_dir=os.path.join(output, "cache"), **kw)
+    chosen = tiers.choose_thresholds(result)
+    report["tiers"] = {"result": result, "chosen": chosen}
+    tables = ["### Worst case per threshold against exact\n", tiers.loss_table(result), "",
+              "### Error-vs-CoC curve (PSNR change of the reduced pixels, dB)\n", tiers.curve_table(result), "",
+              "Thresholds by the rule of `pcdof.bench.tiers.choose_thresholds` (CoC in cells): "
+              + ", ".join(f"{k} {v:g}" for k, v in chosen.items()), ""]
+    md += ["## Quality tiers: thresholds from the measured curve\n",
+           f"Tuning seeds {', '.join(map(str, seed_list))}, never reported elsewhere.\n", *tables]
+    click.echo("\n".join(tables))
 
 
 def _hidden_part(report, md, output, seeds, kw) -> None:

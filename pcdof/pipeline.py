@@ -133,14 +133,15 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
             return color, linear
         from .color import decode_to_linear, srgb_to_linear
 
-        # clipped: a channel within half a code of the encoding's top (255 of uint8, 65535 of uint16)
+        # clipped: a channel within half a code of the encoding's top (255 of uint8, 65535 of uint16); counted on
+        # the codes (decoding is monotonic), so a frame with nothing clipped is not decoded here
         top = float(np.iinfo(color.dtype).max)
-        clip_level = float(srgb_to_linear(np.float32((top - 0.5) / top)))
-        lin = decode_to_linear(color)
-        clipped = int(np.count_nonzero(clipped_mask(lin, clip_level))) if lin.ndim == 3 else 0
+        clipped = int(np.count_nonzero(clipped_mask(color, top - 0.5))) if color.ndim == 3 else 0
         if clipped == 0:
             rec.skipped, rec.reason = True, "nothing clipped"
             return color, linear
+        clip_level = float(srgb_to_linear(np.float32((top - 0.5) / top)))
+        lin = decode_to_linear(color)
         rec.reason = f"{how}{f' (gain {gain:g})' if how in ('gain', 'rim') else ''}: {clipped} clipped pixels"
         rec.detail = {"method": how, "gain": gain, "clipped_pixels": clipped}
         return reconstruct_highlights(lin, method=how, gain=gain, clip_level=clip_level, coc_px=coc_px), True

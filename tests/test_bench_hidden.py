@@ -168,6 +168,21 @@ class TestTraceLayers:
             hidden.trace_layers(square_frame.scene, square_frame.rig.color, GROUPS, pixel_samples=bad)
 
 
+def _square_renders(sf, focus_z, **render_kw):
+    """(frame, lens, oracle, plain render, ray-traced truth) of the square frame focused at *focus_z*, the
+    farther surface blurring 12 px; *render_kw* go to both renders."""
+    from pcdof.synth.render import render_ground_truth
+    from pcdof.synth.wide import lens_for_blur
+
+    lens = lens_for_blur(sf.depth_color_m, sf.rig.color.fx, focus_z, 12.0)
+    layers = hidden.trace_layers(sf.scene, sf.rig.color, GROUPS, pixel_samples=sf.pixel_samples)
+    oracle = hidden.render_oracle(layers, lens, sf.rig.color.fx, **render_kw)
+    whole = hidden.HiddenLayer("all", sf.color_linear, np.ones(sf.depth_color_m.shape, np.float32), sf.depth_color_m)
+    plain = hidden.render_oracle([whole], lens, sf.rig.color.fx, **render_kw)
+    truth = render_ground_truth(sf, lens, seed=1, target_psnr_db=45.0).image
+    return sf, lens, oracle, plain, truth
+
+
 class TestOracleOnTheSquare:
     """Focused on the wall, the square blurs over it: a real lens sees the wall behind the square's
     soft edge. The oracle, given that wall, must come closer to the ray-traced truth there than the
@@ -176,17 +191,7 @@ class TestOracleOnTheSquare:
     @pytest.fixture(scope="class")
     @classmethod
     def renders(cls, square_frame):
-        from pcdof.synth.render import render_ground_truth
-        from pcdof.synth.wide import lens_for_blur
-
-        sf = square_frame
-        lens = lens_for_blur(sf.depth_color_m, sf.rig.color.fx, WALL_Z, 12.0)  # the square blurs 12 px
-        layers = hidden.trace_layers(sf.scene, sf.rig.color, GROUPS, pixel_samples=sf.pixel_samples)
-        oracle = hidden.render_oracle(layers, lens, sf.rig.color.fx)
-        plain = hidden.render_oracle([hidden.HiddenLayer("all", sf.color_linear, np.ones((48, 64), np.float32),
-                                                          sf.depth_color_m)], lens, sf.rig.color.fx)
-        truth = render_ground_truth(sf, lens, seed=1, target_psnr_db=45.0).image
-        return sf, lens, oracle, plain, truth
+        return _square_renders(square_frame, WALL_Z)  # the square blurs 12 px
 
     def _bands(self, sf, lens):
         intr = sf.rig.color
@@ -239,18 +244,7 @@ class TestOracleFocusedOnTheSquare:
     @pytest.fixture(scope="class")
     @classmethod
     def renders(cls, square_frame):
-        from pcdof.synth.render import render_ground_truth
-        from pcdof.synth.wide import lens_for_blur
-
-        sf = square_frame
-        lens = lens_for_blur(sf.depth_color_m, sf.rig.color.fx, SQUARE_Z, 12.0)  # the wall blurs 12 px
-        layers = hidden.trace_layers(sf.scene, sf.rig.color, GROUPS, pixel_samples=sf.pixel_samples)
-        oracle = hidden.render_oracle(layers, lens, sf.rig.color.fx, convolve_uniform=False)
-        plain = hidden.render_oracle([hidden.HiddenLayer("all", sf.color_linear, np.ones((48, 64), np.float32),
-                                                          sf.depth_color_m)], lens, sf.rig.color.fx,
-                                     convolve_uniform=False)
-        truth = render_ground_truth(sf, lens, seed=1, target_psnr_db=45.0).image
-        return sf, lens, oracle, plain, truth
+        return _square_renders(square_frame, SQUARE_Z, convolve_uniform=False)  # the wall blurs 12 px
 
     def test_closer_to_the_truth_at_the_edge_and_equal_far_from_it(self, renders):
         sf, lens, oracle, plain, truth = renders

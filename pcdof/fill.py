@@ -529,9 +529,15 @@ def _combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
                 if m == 0:
                     kind[h] = LOST
                     continue
-                r_near[h] = r[:m].min()
-                iv_min = iv[:m].min()
-                iv_max = iv[:m].max()
+                # plain loops, not r[:m].min(): numba's array reductions inside prange cost compile time
+                r_min = r[0]
+                iv_min = iv[0]
+                iv_max = iv[0]
+                for i in range(1, m):
+                    r_min = min(r_min, r[i])
+                    iv_min = min(iv_min, iv[i])
+                    iv_max = max(iv_max, iv[i])
+                r_near[h] = r_min
                 if 1.0 / iv_min - 1.0 / iv_max <= rules.edge_ratio / iv_min:
                     # one surface (the common case inside a surface): no sorting, no colour
                     sw = 0.0

@@ -347,8 +347,14 @@ def _classify_layers(raw, max_coc, edges):
                 box[b, k, 1] = max(box[b, k, 1], y)
                 box[b, k, 2] = min(box[b, k, 2], x)
                 box[b, k, 3] = max(box[b, k, 3], x)
-    present = count.sum(axis=0) > 0
-    n_layers = int(present.sum())
+    # plain loops, not count.sum(axis=0): numba's axis reductions cost seconds of compiling
+    present = np.zeros(n_keys, np.bool_)
+    n_layers = 0
+    for k in range(n_keys):
+        for b in range(n_bands):
+            if count[b, k] > 0:
+                present[k] = True
+        n_layers += int(present[k])
     lookup = np.full(n_keys, -1, np.int32)
     keys = np.empty(n_layers, np.int64)
     total = np.zeros(n_layers, np.int64)

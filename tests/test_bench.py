@@ -23,7 +23,7 @@ def quick_report(tmp_path_factory):
 
 def test_every_part_is_reported(quick_report):
     out, report = quick_report
-    for part in ("dof", "wide", "wide_budget", "speed", "cost", "registration", "fill"):
+    for part in ("dof", "wide", "wide_budget", "speed", "threads", "startup", "cost", "registration", "fill"):
         assert report.get(part), f"{part} missing from report.json"
     md = (out / "report.md").read_text()
     for heading in ("Depth of field against the ray-traced ground truth", "Speed",
@@ -103,6 +103,7 @@ def test_bad_options_fail_before_any_work(tmp_path, monkeypatch, args, flag):
         raise AssertionError("benchmark work started before the options were checked")
 
     for module, name in ((dof, "run_dof_bench"), (speed, "pipeline_vs_paper"), (speed, "cost_follows_work"),
+                         (speed, "thread_scaling"), (speed, "startup"),
                          (registration, "run_registration_bench"), (fill, "run_fill_bench")):
         monkeypatch.setattr(module, name, no_work)
     out = tmp_path / "b"
@@ -162,6 +163,12 @@ def test_bench_functions_check_their_arguments():
         speed.pipeline_vs_paper(sizes=((32, 24),), repeats=0, progress=False)
     with pytest.raises(InputError, match="repeats"):
         speed.cost_follows_work(size=(32, 24), repeats=-1, progress=False)
+    with pytest.raises(InputError, match="repeats"):
+        speed.thread_scaling(size=(32, 24), repeats=0, progress=False)
+    with pytest.raises(InputError, match="repeats"):
+        speed.startup(size=(32, 24), repeats=True, progress=False)
+    with pytest.raises(InputError, match="scene"):
+        speed.startup(size=(32, 24), scene="nosuch", progress=False)
     with pytest.raises(InputError, match="scenes"):
         dof.run_dof_bench(scenes=["slanted_plane", "nosuch"], progress=False)
     with pytest.raises(InputError, match="repeats"):
@@ -294,3 +301,28 @@ def test_wide_spec_default_lens_is_focused_on_the_subject():
         assert isinstance(spec, SceneSpec), kind
         assert spec.default_lens.focus_distance_m == spec.focus_m["mid"]
         assert spec.focus_m["near"] < spec.focus_m["mid"] < spec.focus_m["far"]
+
+
+def test_speed_part_reports_spread_threads_and_start_up(quick_report):
+    out, report = quick_report
+    for row in report["speed"]:
+        lo, hi = row["ratio_quartiles"]
+        assert 0 < lo <= row["ratio_paired"] <= hi
+        assert row["pcdof_ms_quartiles"][0] <= row["pcdof_ms"] <= row["pcdof_ms_quartiles"][1]
+    threads = report["threads"]
+    assert threads[0]["threads"] == 1 and threads[0]["speedup"] == 1.0
+    assert [r["threads"] for r in threads] == sorted({r["threads"] for r in threads})
+    start = report["startup"]
+    # a fresh render process imports pcdof and more, and renders: it takes longer than the import alone
+    assert 0 < start["import_s"] < start["warm_render_s"]
+    assert start["cold_render_s"] is None  # --quick leaves out the compile from an empty cache
+    md = (out / "report.md").read_text()
+    assert "speed-up over 1 thread" in md and "python -c 'import pcdof'" in md
+
+
+def test_quartiles():
+    from pcdof.bench.speed import quartiles
+
+    assert quartiles([5.0]) == [5.0, 5.0]
+    assert quartiles([1, 2, 3, 4, 5]) == [2.0, 4.0]
+    assert quartiles([4, 1, 3, 2]) == [1.75, 3.25]

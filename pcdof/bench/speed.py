@@ -1,13 +1,21 @@
-"""Speed: the full pipeline against the seed paper's method, and cost against the blurred share.
+"""Speed: the full pipeline against the seed paper's method, its scaling with threads, start-up, and
+cost against the blurred share.
 
-All times are medians over repeated runs measured side by side in one process (JIT warm-up
-excluded); ratios, not absolute times, are what carries between machines.
+In-process times are medians over repeated runs measured side by side (the contenders alternated, JIT
+warm-up excluded), with their quartiles; a ratio is the median of the per-repeat ratios of runs made
+one after the other, so a burst of load from elsewhere hits both. Start-up times are of fresh
+processes. Ratios, not absolute times, are what carries between machines.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 
 import numpy as np
@@ -57,14 +65,137 @@ def pipeline_vs_paper(*, sizes=((640, 480), (1920, 1080)), depth_size=(512, 424)
                 res = fn()
                 samples[name].append((time.perf_counter() - t0, {t.name: t.seconds for t in res.trace}))
         results = {name: statistics.median(t for t, _ in ss) * 1e3 for name, ss in samples.items()}
+        ratios = [a / b for (a, _), (b, _) in zip(samples["pcdof"], samples["paper"])]
         stage_ms = {name: {k: statistics.median(s.get(k, 0) for _, s in ss) * 1e3 for k in ss[0][1]}
                     for name, ss in samples.items()}
         # the paper's method alone, as the seed implemented it (blur + weight + blend on registered depth)
         rows.append({"color_size": f"{size[0]}x{size[1]}", "depth_size": f"{depth_size[0]}x{depth_size[1]}",
                      "scene": scene, "max_coc_px": cmax, "pcdof_ms": results["pcdof"], "paper_ms": results["paper"],
                      "ratio": results["pcdof"] / results["paper"], "pcdof_stages_ms": stage_ms["pcdof"],
-                     "paper_stages_ms": stage_ms["paper"]})
+                     "paper_stages_ms": stage_ms["paper"], "repeats": repeats,
+                     "pcdof_ms_quartiles": quartiles([t * 1e3 for t, _ in samples["pcdof"]]),
+                     "paper_ms_quartiles": quartiles([t * 1e3 for t, _ in samples["paper"]]),
+                     "ratio_paired": statistics.median(ratios), "ratio_quartiles": quartiles(ratios)})
     return rows
+
+
+def quartiles(values) -> list[float]:
+    """[first, third] quartile of *values* (a list of numbers; one value: itself twice)."""
+    values = [float(v) for v in values]
+    if len(values) < 2:
+        return values * 2
+    q = statistics.quantiles(values, n=4, method="inclusive")
+    return [q[0], q[2]]
+
+
+@contextlib.contextmanager
+def threads(n: int):
+    """Run the block with *n* threads for numba's kernels and OpenCV (each stage's plan reads numba's count)."""
+    import cv2
+    import numba
+
+    before_numba, before_cv = numba.get_num_threads(), cv2.getNumThreads()
+    numba.set_num_threads(n)
+    cv2.setNumThreads(n)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before_numba)
+        cv2.setNumThreads(before_cv)
+
+
+def thread_scaling(*, size=(640, 480), depth_size=(512, 424), scene="portrait", repeats: int = 7,
+                   progress: bool = True) -> list[dict]:
+    """Median ms of the full pipeline (defaults) on 1, 2, 4, ... up to every thread numba has, alternated.
+
+    *repeats* (>= 1, checked before any work): timed runs per thread count. Returns one row per thread
+    count: ms, its quartiles and the speed-up over one thread (the median of the per-repeat ratios).
+    """
+    from tqdm.auto import tqdm
+
+    repeats = check_repeats(repeats)
+    check_scenes([scene], "scene")
+    import numba
+
+    from ..pipeline import run
+    from ..synth import generate_scene
+
+    sf = generate_scene(scene, color_size=tuple(size), depth_size=tuple(depth_size), seed=0)
+    lens = sf.default_lens
+    top = int(numba.config.NUMBA_NUM_THREADS)
+    counts = sorted({min(2 ** k, top) for k in range(int(math.log2(top)) + 1)} | {top})
+    samples = {n: [] for n in counts}
+    for n in counts:
+        with threads(n):
+            run(sf.frame, lens)  # warm-up
+    for _ in tqdm(range(repeats), desc="threads", disable=not progress):
+        for n in counts:
+            with threads(n):
+                t0 = time.perf_counter()
+                run(sf.frame, lens)
+                samples[n].append(time.perf_counter() - t0)
+    return [{"threads": n, "color_size": f"{size[0]}x{size[1]}", "ms": statistics.median(samples[n]) * 1e3,
+             "ms_quartiles": quartiles([t * 1e3 for t in samples[n]]),
+             "speedup": statistics.median(a / b for a, b in zip(samples[1], samples[n]))} for n in counts]
+
+
+def _cli(args) -> list[str]:
+    """A fresh interpreter running ``pcdof ARGS`` (the console script's own entry point)."""
+    return [sys.executable, "-c", "import sys; from pcdof.cli import main; sys.argv[0] = 'pcdof'; sys.exit(main())",
+            *args]
+
+
+def _wall_s(cmd, env=None) -> float:
+    """Wall seconds of a fresh process running *cmd*; a RuntimeError with the end of its stderr if it fails."""
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    seconds = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd[:1] + cmd[3:])} failed: {done.stderr.strip()[-400:]}")
+    return seconds
+
+
+def startup(*, size=(640, 480), depth_size=(512, 424), scene="portrait", repeats: int = 5, cold: bool = True,
+            progress: bool = True) -> dict:
+    """Wall seconds of fresh processes: ``python -c "import pcdof"``, a warm one-shot ``pcdof render`` of a
+    *size* frame (kernels cached), and with *cold* a first ``pcdof render`` with an empty kernel cache
+    (a fresh install: numba's cache pointed at a new folder, so every stage compiles, then the frame renders).
+
+    *repeats* (>= 1, checked before any work): runs of the import and of the warm render (medians and
+    quartiles); the cold render runs once. Returns a dict of the medians, quartiles and the settings.
+    """
+    from tqdm.auto import tqdm
+
+    repeats = check_repeats(repeats)
+    check_scenes([scene], "scene")
+    from ..synth import generate_scene, write_scene
+
+    with tempfile.TemporaryDirectory(prefix="pcdof-startup-") as tmp:
+        sf = generate_scene(scene, color_size=tuple(size), depth_size=tuple(depth_size), seed=0)
+        write_scene(sf, tmp, ground_truth=False, linear=False)
+        render = ["render", os.path.join(tmp, "color.png"), os.path.join(tmp, "depth.png"), "--calib",
+                  os.path.join(tmp, "calib.json"), "-o", os.path.join(tmp, "out.png")]
+        imports, warm = [], []
+        _wall_s(_cli(render))  # the kernels in the cache, whatever ran before
+        for _ in tqdm(range(repeats), desc="start-up", disable=not progress):
+            imports.append(_wall_s([sys.executable, "-c", "import pcdof"]))
+            warm.append(_wall_s(_cli(render)))
+        out = {"color_size": f"{size[0]}x{size[1]}", "depth_size": f"{depth_size[0]}x{depth_size[1]}",
+               "repeats": repeats, "import_s": statistics.median(imports), "import_s_quartiles": quartiles(imports),
+               "warm_render_s": statistics.median(warm), "warm_render_s_quartiles": quartiles(warm),
+               "cold_render_s": None, "load_average": _load()}
+        if cold:
+            with tempfile.TemporaryDirectory(prefix="pcdof-cache-") as cache:
+                out["cold_render_s"] = _wall_s(_cli(render), env={**os.environ, "NUMBA_CACHE_DIR": cache})
+    return out
+
+
+def _load() -> float | None:
+    """The 1-minute load average (None where the platform has none)."""
+    try:
+        return float(os.getloadavg()[0])
+    except (AttributeError, OSError):
+        return None
 
 
 def _share_out_of_focus(lens, depth, fx):

@@ -21,7 +21,7 @@ DEFAULT_PARTS = ("dof", "wide", "speed", "registration", "fill")
 #: the order the parts run in (the report's sections follow it)
 RUN_ORDER = ("dof", "wide", "wide-tune", "tiers", "hidden", "speed", "registration", "fill")
 #: the stages each side of the speed table sums
-PCDOF_STAGES, PAPER_STAGES = ("register", "fill", "coc", "render"), ("register", "fill", "render")
+PCDOF_STAGES, PAPER_STAGES = ("register", "fill", "coc", "highlights", "render"), ("register", "fill", "render")
 
 
 def _write_text(path: str, text: str) -> None:
@@ -189,20 +189,47 @@ def _speed_part(report, md, run) -> None:
     sizes = ((160, 120),) if quick else ((640, 480), (1920, 1080))
     dsize = (128, 106) if quick else (512, 424)
     rows = speed.pipeline_vs_paper(sizes=sizes, depth_size=dsize, repeats=repeats)
+    scaling = speed.thread_scaling(size=sizes[0], depth_size=dsize, repeats=repeats)
+    start = speed.startup(size=sizes[0], depth_size=dsize, repeats=min(repeats, 5), cold=not quick)
     cost = speed.cost_follows_work(size=sizes[0], depth_size=dsize, repeats=repeats)
     speed.cost_plot(cost, os.path.join(run["output"], "cost.png"))
-    report["speed"], report["cost"] = rows, cost
-    lines = table_lines(
-        ("colour", "depth", "pcdof ms (register + fill + coc + render)",
-         "paper method ms (register + fill + blur/weight/blend)", "ratio", "paper blur/weight/blend alone ms"),
-        ((r["color_size"], r["depth_size"], f"{r['pcdof_ms']:.1f} ({_stage_sum(r['pcdof_stages_ms'], PCDOF_STAGES)})",
-          f"{r['paper_ms']:.1f} ({_stage_sum(r['paper_stages_ms'], PAPER_STAGES)})", f"{r['ratio']:.2f}",
-          f"{r['paper_stages_ms'].get('render', 0):.1f}") for r in rows))
+    report["speed"], report["threads"], report["startup"], report["cost"] = rows, scaling, start, cost
+    lines = _speed_lines(rows, scaling, start)
     lines += ["", *table_lines(("out of focus", "f-number", "render ms", "relative to 100 %"), (
         (f"{100 * r['share']:.0f} %", f"{r['f_number']:.2f}", f"{r['render_ms']:.2f}", f"{r['relative_to_full']:.3f}")
         for r in cost))]
     md += ["## Speed\n", *lines, ""]
     click.echo("\n".join(lines))
+
+
+def _speed_lines(rows, scaling, start) -> list[str]:
+    """The speed tables: pipeline against the paper method (medians, quartiles, per-repeat ratio), the pipeline
+    per thread count, and start-up in fresh processes."""
+    from ..bench import table_lines
+
+    def q(pair, fmt="{:.1f}"):
+        return "-".join(fmt.format(v) for v in pair)
+
+    lines = table_lines(
+        ("colour", "depth", "pcdof ms (register + fill + coc + highlights + render)", "quartiles",
+         "paper method ms (register + fill + blur/weight/blend)", "quartiles", "ratio (per repeat: median, quartiles)",
+         "paper blur/weight/blend alone ms"),
+        ((r["color_size"], r["depth_size"], f"{r['pcdof_ms']:.1f} ({_stage_sum(r['pcdof_stages_ms'], PCDOF_STAGES)})",
+          q(r["pcdof_ms_quartiles"]), f"{r['paper_ms']:.1f} ({_stage_sum(r['paper_stages_ms'], PAPER_STAGES)})",
+          q(r["paper_ms_quartiles"]), f"{r['ratio_paired']:.2f} ({q(r['ratio_quartiles'], '{:.2f}')})",
+          f"{r['paper_stages_ms'].get('render', 0):.1f}") for r in rows))
+    lines += ["", *table_lines(("threads", "colour", "pipeline ms", "quartiles", "speed-up over 1 thread"), (
+        (str(r["threads"]), r["color_size"], f"{r['ms']:.1f}", q(r["ms_quartiles"]), f"{r['speedup']:.2f}")
+        for r in scaling))]
+    cold = "not measured" if start["cold_render_s"] is None else f"{start['cold_render_s']:.1f}"
+    load = "" if start["load_average"] is None else f" (load average {start['load_average']:.1f})"
+    lines += ["", *table_lines(("fresh process", "seconds (median)", "quartiles"), (
+        ("python -c 'import pcdof'", f"{start['import_s']:.3f}", q(start["import_s_quartiles"], "{:.3f}")),
+        (f"pcdof render, {start['color_size']}, kernels cached", f"{start['warm_render_s']:.2f}",
+         q(start["warm_render_s_quartiles"], "{:.2f}")),
+        (f"pcdof render, {start['color_size']}, empty kernel cache (first run after an install)", cold, "one run")))]
+    lines.append(f"Start-up: {start['repeats']} run{'s' if start['repeats'] != 1 else ''} of each{load}.")
+    return lines
 
 
 def _stage_sum(stages_ms: dict, names) -> str:

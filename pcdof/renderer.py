@@ -239,9 +239,15 @@ def _composite_under(layer_buf, y0, x0, acc, acc_a, trans):
 
 
 @njit(cache=True)
-def _composite_sharp(src, member, y0, x0, acc, acc_a, trans):
-    """Composite in-focus pixels (placed at row y0, column x0): opaque copies behind what is already there."""
-    hb, wb, nc = src.shape
+def _composite_sharp(lin, member, y0, x0, dst, src, acc, acc_a, trans):
+    """Composite in-focus pixels as opaque copies behind what is already there.
+
+    *lin* is the whole frame (H, W, C); *member* (hb, wb) bool marks the layer's pixels in the box placed at
+    row y0, column x0; *dst* and *src* (N,) int64 are flat indices into that box of the pixels the layer is
+    extended into and of the pixels they copy (:func:`_behind_sources`; none of *dst* is a member).
+    """
+    hb, wb = member.shape
+    nc = lin.shape[2]
     for yy in range(hb):
         y = y0 + yy
         for xx in range(wb):
@@ -249,9 +255,18 @@ def _composite_sharp(src, member, y0, x0, acc, acc_a, trans):
             t = trans[y, x]
             if member[yy, xx] and t > 0.0:
                 for c in range(nc):
-                    acc[y, x, c] += t * src[yy, xx, c]
+                    acc[y, x, c] += t * lin[y, x, c]
                 acc_a[y, x] += t
                 trans[y, x] = 0.0
+    for i in range(dst.size):
+        y, x = y0 + dst[i] // wb, x0 + dst[i] % wb
+        sy, sx = y0 + src[i] // wb, x0 + src[i] % wb
+        t = trans[y, x]
+        if t > 0.0:
+            for c in range(nc):
+                acc[y, x, c] += t * lin[sy, sx, c]
+            acc_a[y, x] += t
+            trans[y, x] = 0.0
 
 
 @njit(cache=True)
@@ -420,40 +435,93 @@ def _reduce_cells(lin, radius, member, s):
     return lin_s, r_s, m_s
 
 
+@njit(cache=True)
+def _copy_pixels(lin, radius, member, dst, src):
+    """lin, radius at the flat indices *dst* (N,) set to their values at *src* (N,), in place; member[dst] = True.
+    lin (H, W, C), radius (H, W), member (H, W) bool, all C-contiguous."""
+    w = member.shape[1]
+    for i in range(dst.size):
+        y, x = dst[i] // w, dst[i] % w
+        sy, sx = src[i] // w, src[i] % w
+        for c in range(lin.shape[2]):
+            lin[y, x, c] = lin[sy, sx, c]
+        radius[y, x] = radius[sy, sx]
+        member[y, x] = True
+
+
+_NO_PIXELS = np.zeros(0, np.int64)  # no flat indices
+
+
+@njit(cache=True, nogil=True)
+def _nearest_members(member, hidden, y0, x0, dist, labels, n_members, reach_px):
+    """The hidden, non-member pixels of the window at (y0, x0) (the shape of *dist*) of the box arrays
+    *member* and *hidden* (H, W) bool within *reach_px* of their nearest member pixel (*dist*, *labels*:
+    OpenCV's transform of the window, its labels numbering its *n_members* member pixels in raster order),
+    and those nearest pixels: (dst, src) int64 flat indices into the box."""
+    hw, ww = dist.shape
+    w = member.shape[1]
+    pos = np.empty(n_members, np.int64)  # label - 1 -> flat index into the box
+    dst = np.empty(hw * ww - n_members, np.int64)
+    src = np.empty(hw * ww - n_members, np.int64)  # the labels first
+    k = 0
+    i = 0
+    for y in range(hw):
+        for x in range(ww):
+            if member[y0 + y, x0 + x]:
+                pos[k] = (y0 + y) * w + x0 + x
+                k += 1
+            elif hidden[y0 + y, x0 + x] and dist[y, x] <= reach_px:
+                dst[i] = (y0 + y) * w + x0 + x
+                src[i] = labels[y, x] - 1
+                i += 1
+    for j in range(i):
+        src[j] = pos[src[j]]
+    return dst[:i], src[:i]
+
+
+def _behind_sources(member, hidden, reach_px):
+    """Where :func:`_extend_behind` extends a layer: (dst, src), int64 flat indices into the (H, W) box of
+    the *hidden* pixels within *reach_px* (OpenCV's 5x5 chamfer distance) of a pixel of *member* and of
+    that nearest pixel (ties in OpenCV's scan order), or None when there is none.
+
+    The transform runs on the window that holds every pixel that can be filled and its nearest member
+    pixel within reach (the hidden pixels' bounding box widened by the reach). A member pixel is its own
+    nearest, so copying it would change nothing: *dst* holds no member pixel.
+    """
+    rows = np.flatnonzero(hidden.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(hidden.any(axis=0))
+    pad = int(math.ceil(reach_px)) + 1
+    h, w = member.shape
+    y0, x0 = max(0, int(rows[0]) - pad), max(0, int(cols[0]) - pad)
+    win = (slice(y0, min(h, int(rows[-1]) + pad + 1)), slice(x0, min(w, int(cols[-1]) + pad + 1)))
+    m_win = member[win]
+    n_members = int(np.count_nonzero(m_win))
+    if n_members == 0:
+        return None
+    dist, labels = cv2.distanceTransformWithLabels(np.logical_not(m_win).view(np.uint8), cv2.DIST_L2, 5,
+                                                   labelType=cv2.DIST_LABEL_PIXEL)
+    dst, src = _nearest_members(np.ascontiguousarray(member, bool), np.ascontiguousarray(hidden, bool), y0, x0,
+                                dist, labels, n_members, float(reach_px))
+    return (dst, src) if dst.size else None
+
+
 def _extend_behind(lin, radius, member, hidden, reach_px):
     """Extend a layer into the pixels that nearer layers hide, up to *reach_px* from its own pixels.
 
     One view cannot see behind a foreground edge, but a real lens does (partial occlusion): the
     hidden part of the background shows through the soft edge of a blurred foreground. The best
-    single-view guess continues each background pixel's nearest visible neighbour in its layer.
-    Returns (lin, radius, mask) with the extension filled in (copies; inputs are not modified).
+    single-view guess continues each background pixel's nearest visible neighbour in its layer
+    (:func:`_behind_sources`). Returns (lin, radius, mask) with the extension filled in (C-contiguous
+    copies; the inputs themselves when nothing is extended; inputs are never modified).
     """
-    rows = np.flatnonzero(hidden.any(axis=1))
-    if rows.size == 0:
+    found = _behind_sources(member, hidden, reach_px)
+    if found is None:
         return lin, radius, member
-    cols = np.flatnonzero(hidden.any(axis=0))
-    # every pixel that can be filled, and its nearest member within reach, lie in this window
-    pad = int(math.ceil(reach_px)) + 1
-    h, w = member.shape
-    win = (slice(max(0, rows[0] - pad), min(h, rows[-1] + pad + 1)),
-           slice(max(0, cols[0] - pad), min(w, cols[-1] + pad + 1)))
-    m_win = member[win]
-    if not m_win.any():
-        return lin, radius, member
-    dist, labels = cv2.distanceTransformWithLabels((~m_win).astype(np.uint8), cv2.DIST_L2, 5,
-                                                   labelType=cv2.DIST_LABEL_PIXEL)
-    band = hidden[win] & (dist <= reach_px)
-    if not band.any():
-        return lin, radius, member
-    sources = np.flatnonzero(m_win.ravel())  # labels number the member pixels in raster order
-    nearest = sources[labels[band] - 1]
-    lin = lin.copy()
-    radius = radius.copy()
-    member = member.copy()
-    lin_win, r_win = lin[win], radius[win]
-    lin_win[band] = lin_win.reshape(-1, lin.shape[2])[nearest]
-    r_win[band] = r_win.ravel()[nearest]
-    member[win] |= band
+    dst, src = found
+    lin, radius, member = lin.copy(), radius.copy(), member.copy()
+    _copy_pixels(lin, radius, member, dst, src)
     return lin, radius, member
 
 
@@ -858,6 +926,7 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
     *threads*: the hidden pixels' box is cut into up to that many strips along its longer side, each
     decided on its own windows on its own thread (OpenCV releases the GIL): the same answer.
     """
+    layer, hidden = np.ascontiguousarray(layer, np.int32), np.ascontiguousarray(hidden, bool)
     h, w = layer.shape
     (by, ey), (bx, ex) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
     reach_cells = int(math.ceil(reach_px / cell_px))
@@ -889,12 +958,8 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
     strips = [(y0, y1, int(a), int(b) - 1) if along else (int(a), int(b) - 1, x0, x1) for a, b in zip(cuts, cuts[1:])]
 
     def strip(sy0, sy1, sx0, sx1):
-        part = (slice(sy0 - by, sy1 + 1 - by), slice(sx0 - bx, sx1 + 1 - bx))
         win = (_span(sy0, sy1, rd + 3, whole[0]), _span(sx0, sx1, rd + 3, whole[1]))
-        inner = (slice(sy0 - win[0].start, sy1 + 1 - win[0].start), slice(sx0 - win[1].start, sx1 + 1 - win[1].start))
-        at = np.zeros((win[0].stop - win[0].start, win[1].stop - win[1].start), bool)
-        at[inner] = hidden[part]
-        out[part] = _owned_in(layer, li, win, at, rd, whole)[inner]
+        _owned_in(layer, li, win, hidden, (by, bx), (sy0, sy1, sx0, sx1), rd, whole, out)
 
     others = [_in_thread(lambda box=box: strip(*box)) for box in strips[1:]]
     strip(*strips[0])
@@ -903,30 +968,66 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
     return out
 
 
-def _owned_in(layer: np.ndarray, li: int, win, at: np.ndarray, rd: int, bound) -> np.ndarray:
-    """:func:`_owned` on the window *win* of *layer*: which pixels of *at* (h_win, w_win) bool layer *li*
-    continues, decided for those within *rd* of their nearest candidate; (h_win, w_win) bool. The
-    farther layers' transform looks beyond *win*, within *bound*."""
-    lay = layer[win]
-    behind = lay >= li
-    res = np.zeros_like(at)
-    if not behind.any():
-        return res  # no candidate within reach of any hidden pixel: nothing to continue
-    dist, labels = cv2.distanceTransformWithLabels(np.logical_not(behind).view(np.uint8), cv2.DIST_L2, 5,
-                                                   labelType=cv2.DIST_LABEL_PIXEL)
-    at = np.flatnonzero(at)
-    d = dist.ravel()[at]
-    q = np.flatnonzero(behind)[labels.ravel()[at] - 1]  # labels number the candidates in raster order
-    own = (d <= rd) & np.equal(lay, li).ravel()[q]
-    test = own & (d > 1.0)  # within 1 px a candidate of layer li always reaches
-    if test.any():
-        qy, qx = np.divmod(q[test], behind.shape[1])
-        qy += win[0].start
-        qx += win[1].start
-        width = _farther_dist(layer, li, qy, qx, int(math.ceil(float(d[test].max()))) + 3, bound)
-        own[test] = d[test] <= np.maximum(width, 1.0)
-    res.ravel()[at] = own
-    return res
+@njit(cache=True, nogil=True)
+def _nearest_candidates(layer, li, wy0, wx0, dist, labels, n_cand, hidden, by, bx, part, rd, out):
+    """The hidden pixels of *part* (y0, y1, x0, x1 inclusive, frame coordinates) within *rd* of their nearest
+    candidate (a pixel of layer *li* or farther) when that candidate is of layer *li*: those within 1 px
+    are set in *out* (the box of *hidden*), the others returned for the farther layers' test.
+
+    *layer* (H, W) int32 is the frame's layer ids; *hidden* and *out* (hb, wb) bool the box at (by, bx);
+    *dist* and *labels* OpenCV's transform of the window at (wy0, wx0) (their shape), whose labels number
+    its *n_cand* candidates in raster order. Returns (py, px, qy, qx, d): the pixels to test, their
+    candidates (frame coordinates, int64) and their distance (float32).
+    """
+    hw, ww = dist.shape
+    # label - 1 -> the candidate's row and column in the frame; column -1 for a candidate of a farther layer
+    cand_y = np.empty(n_cand, np.int32)
+    cand_x = np.empty(n_cand, np.int32)
+    k = 0
+    for y in range(hw):
+        for x in range(ww):
+            v = layer[wy0 + y, wx0 + x]
+            if v >= li:
+                cand_y[k] = wy0 + y
+                cand_x[k] = wx0 + x if v == li else -1
+                k += 1
+    y0, y1, x0, x1 = part
+    n = (y1 + 1 - y0) * (x1 + 1 - x0)
+    py, px = np.empty(n, np.int64), np.empty(n, np.int64)
+    qy, qx = np.empty(n, np.int64), np.empty(n, np.int64)
+    d = np.empty(n, np.float32)
+    i = 0
+    for y in range(y0, y1 + 1):
+        for x in range(x0, x1 + 1):
+            if hidden[y - by, x - bx]:
+                dd = dist[y - wy0, x - wx0]
+                if dd <= rd:
+                    c = labels[y - wy0, x - wx0] - 1
+                    if cand_x[c] >= 0:
+                        if dd > 1.0:
+                            py[i], px[i], qy[i], qx[i], d[i] = y, x, cand_y[c], cand_x[c], dd
+                            i += 1
+                        else:  # within 1 px a candidate of layer li always reaches
+                            out[y - by, x - bx] = True
+    return py[:i], px[:i], qy[:i], qx[:i], d[:i]
+
+
+def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part, rd: int, bound, out) -> None:
+    """:func:`_owned` on the window *win* of *layer*: sets in *out* (the box of *hidden*, at *origin* (row,
+    column)) the hidden pixels of *part* (y0, y1, x0, x1 inclusive, frame coordinates) that layer *li*
+    continues, deciding those within *rd* of their nearest candidate. The farther layers' transform looks
+    beyond *win*, within *bound*."""
+    src = np.less(layer[win], li).view(np.uint8)
+    n_cand = src.size - int(np.count_nonzero(src))
+    if n_cand == 0:
+        return  # no candidate within reach of any hidden pixel: nothing to continue
+    dist, labels = cv2.distanceTransformWithLabels(src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+    py, px, qy, qx, d = _nearest_candidates(layer, li, win[0].start, win[1].start, dist, labels, n_cand, hidden,
+                                            origin[0], origin[1], tuple(int(v) for v in part), rd, out)
+    if d.size:
+        width = _farther_dist(layer, li, qy, qx, int(math.ceil(float(d.max()))) + 3, bound)
+        own = d <= np.maximum(width, 1.0)
+        out[py[own] - origin[0], px[own] - origin[1]] = True
 
 
 def _in_thread(fn):
@@ -971,14 +1072,13 @@ def _hidden(frame: _Frame, canvas: _Canvas, li: int, box, bbox, reach_px: float,
 
 def _sharp_layer(frame: _Frame, canvas: _Canvas, li: int, n_members: int, r_max: float, r_front: float,
                  bbox) -> dict:
-    """Composite the in-focus layer: an opaque copy, no blur (extended behind nearer layers)."""
+    """Composite the in-focus layer: an opaque copy, no blur (extended behind nearer layers), read in place
+    from the frame (nothing is copied)."""
     box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
-    src, src_r = frame.lin[box], frame.radius[box]
     hidden = _hidden(frame, canvas, li, box, bbox, ext_reach) if extend else None
-    if hidden is not None:
-        src, src_r, m = _extend_behind(src, src_r, m, hidden, ext_reach)
-    _composite_sharp(np.ascontiguousarray(src), np.ascontiguousarray(m), box[0].start, box[1].start,
-                     canvas.acc, canvas.acc_a, canvas.trans)
+    found = _behind_sources(m, hidden, ext_reach) if hidden is not None else None
+    dst, src = found if found is not None else (_NO_PIXELS, _NO_PIXELS)
+    _composite_sharp(frame.lin, m, box[0].start, box[1].start, dst, src, canvas.acc, canvas.acc_a, canvas.trans)
     return {"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1}
 
 

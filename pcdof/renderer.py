@@ -452,6 +452,15 @@ def _copy_pixels(lin, radius, member, dst, src):
 _NO_PIXELS = np.zeros(0, np.int64)  # no flat indices
 
 
+@dataclass(frozen=True)
+class _Behind:
+    """Pixels of nearer layers that a layer continues (*dst*) and the pixel of the layer each one copies
+    (*src*): (N,) int64 flat indices into the layer's box; no pixel of *dst* is the layer's."""
+
+    dst: np.ndarray
+    src: np.ndarray
+
+
 @njit(cache=True, nogil=True)
 def _nearest_members(member, hidden, y0, x0, dist, labels, n_members, reach_px):
     """The hidden, non-member pixels of the window at (y0, x0) (the shape of *dist*) of the box arrays
@@ -512,14 +521,16 @@ def _extend_behind(lin, radius, member, hidden, reach_px):
 
     One view cannot see behind a foreground edge, but a real lens does (partial occlusion): the
     hidden part of the background shows through the soft edge of a blurred foreground. The best
-    single-view guess continues each background pixel's nearest visible neighbour in its layer
-    (:func:`_behind_sources`). Returns (lin, radius, mask) with the extension filled in (C-contiguous
-    copies; the inputs themselves when nothing is extended; inputs are never modified).
+    single-view guess continues each background pixel's nearest visible neighbour in its layer.
+    *hidden* is the (H, W) bool mask of the pixels to extend into (their nearest pixels found by
+    :func:`_behind_sources`), or the :class:`_Behind` that :func:`_hidden` found with them. Returns
+    (lin, radius, mask) with the extension filled in (C-contiguous copies; the inputs themselves when
+    nothing is extended; inputs are never modified).
     """
-    found = _behind_sources(member, hidden, reach_px)
+    found = hidden if isinstance(hidden, _Behind) else _behind_sources(member, hidden, reach_px)
     if found is None:
         return lin, radius, member
-    dst, src = found
+    dst, src = (found.dst, found.src) if isinstance(found, _Behind) else found
     lin, radius, member = lin.copy(), radius.copy(), member.copy()
     _copy_pixels(lin, radius, member, dst, src)
     return lin, radius, member
@@ -906,10 +917,27 @@ def _span(lo: int, hi: int, margin: int, bound: slice) -> slice:
 
 def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: float, cell_px: int = 1,
            threads: int = 1):
+    """The *hidden* pixels of *box* that layer *li* continues (:func:`_ownership`) as a mask: (H_box, W_box) bool,
+    a subset of *hidden*."""
+    found = _ownership(layer, li, box, bbox, hidden, reach_px, cell_px, threads)
+    if isinstance(found, np.ndarray):
+        return found
+    out = np.zeros(hidden.shape, bool)
+    if found is not None:
+        out.ravel()[found[0]] = True
+    return out
+
+
+def _ownership(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: float, cell_px: int = 1,
+               threads: int = 1):
     """The *hidden* pixels of *box* that layer *li* continues: those whose nearest pixel of layer *li* or
     a farther layer (OpenCV's 5x5 chamfer distance, ties in its scan order) is one of layer *li*'s, no
     farther from it than the distance from that pixel to the nearest pixel of a farther layer (at
-    least 1 px). Returns (H_box, W_box) bool, a subset of *hidden*.
+    least 1 px). Returns (dst, src, dist): those pixels and each one's nearest candidate, the pixel of
+    layer *li* the extension copies ((N,) int64 flat indices into the box; *src* inside the box when it
+    holds the layer's bounding box, as the renderer's does), and their distance ((N,) float32); None when
+    there is none; or, when no farther layer is near, the hidden pixels layer *li* is the only candidate
+    for: (H_box, W_box) bool, their nearest pixels still to be found (:func:`_behind_sources`).
 
     A hidden pixel is continued by one layer only, the one seen next to it: a small layer (a lamp, a
     glint, a thin rod) is not copied across the whole width a blurred foreground hides, on top of the
@@ -925,6 +953,13 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
     transforms give on the whole widened box; the others are not decided (the render does not read them).
     *threads*: the hidden pixels' box is cut into up to that many strips along its longer side, each
     decided on its own windows on its own thread (OpenCV releases the GIL): the same answer.
+
+    One transform serves ownership and the extension: where a pixel's nearest candidate q is layer *li*'s,
+    the transform of layer *li*'s pixels alone on the extension's window (:func:`_behind_sources`) labels q
+    too, ties included. Both run OpenCV's two passes in the same scan order; leaving out seeds (the farther
+    layers) or cutting the window away only raises what the other neighbours offer, and a shortest chamfer
+    path from the pixel to q lies in the rectangle they span, inside both windows, so every comparison
+    along it picks as before (tests/test_extend_behind.py checks it on random layers).
     """
     layer, hidden = np.ascontiguousarray(layer, np.int32), np.ascontiguousarray(hidden, bool)
     h, w = layer.shape
@@ -936,19 +971,19 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
     rd = int(math.ceil(reach_cells * cell_px + 1.41 * (cell_px - 1)))
     pad = 2 * int(math.ceil(reach_px)) + 2
     whole = (slice(max(0, by - pad), min(h, ey + pad)), slice(max(0, bx - pad), min(w, ex + pad)))
-    out = np.zeros_like(hidden)
     reach_box = (_span(bbox[0] - by, bbox[1] - by, near, slice(0, ey - by)),
                  _span(bbox[2] - bx, bbox[3] - bx, near, slice(0, ex - bx)))
     sub = hidden[reach_box]
     rows, cols = np.flatnonzero(sub.any(axis=1)), np.flatnonzero(sub.any(axis=0))
     if rows.size == 0:
-        return out
+        return None
     # the hidden pixels' bounding box: (y0, y1, x0, x1) inclusive in the frame, *tight* in the box
     y0, y1 = (int(v) + reach_box[0].start + by for v in (rows[0], rows[-1]))
     x0, x1 = (int(v) + reach_box[1].start + bx for v in (cols[0], cols[-1]))
     tight = (slice(y0 - by, y1 + 1 - by), slice(x0 - bx, x1 + 1 - bx))
     # no farther layer within twice the distance tested: layer li is every hidden pixel's only candidate
     if not (layer[_span(y0, y1, 2 * rd + 3, whole[0]), _span(x0, x1, 2 * rd + 3, whole[1])] > li).any():
+        out = np.zeros_like(hidden)
         out[tight] = hidden[tight]
         return out
     # strips along the longer side, one per thread: each pixel's answer depends only on its own window
@@ -959,25 +994,26 @@ def _owned(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: 
 
     def strip(sy0, sy1, sx0, sx1):
         win = (_span(sy0, sy1, rd + 3, whole[0]), _span(sx0, sx1, rd + 3, whole[1]))
-        _owned_in(layer, li, win, hidden, (by, bx), (sy0, sy1, sx0, sx1), rd, whole, out)
+        return _owned_in(layer, li, win, hidden, (by, bx), (sy0, sy1, sx0, sx1), rd, whole)
 
     others = [_in_thread(lambda box=box: strip(*box)) for box in strips[1:]]
-    strip(*strips[0])
-    for done in others:
-        done()
-    return out
+    parts = [strip(*strips[0])] + [done() for done in others]
+    py, px, qy, qx, d = (np.concatenate(v) for v in zip(*parts))
+    if py.size == 0:
+        return None
+    wb = ex - bx
+    return (py - by) * wb + px - bx, (qy - by) * wb + qx - bx, d
 
 
 @njit(cache=True, nogil=True)
-def _nearest_candidates(layer, li, wy0, wx0, dist, labels, n_cand, hidden, by, bx, part, rd, out):
+def _nearest_candidates(layer, li, wy0, wx0, dist, labels, n_cand, hidden, by, bx, part, rd):
     """The hidden pixels of *part* (y0, y1, x0, x1 inclusive, frame coordinates) within *rd* of their nearest
-    candidate (a pixel of layer *li* or farther) when that candidate is of layer *li*: those within 1 px
-    are set in *out* (the box of *hidden*), the others returned for the farther layers' test.
+    candidate (a pixel of layer *li* or farther) when that candidate is of layer *li*.
 
-    *layer* (H, W) int32 is the frame's layer ids; *hidden* and *out* (hb, wb) bool the box at (by, bx);
-    *dist* and *labels* OpenCV's transform of the window at (wy0, wx0) (their shape), whose labels number
-    its *n_cand* candidates in raster order. Returns (py, px, qy, qx, d): the pixels to test, their
-    candidates (frame coordinates, int64) and their distance (float32).
+    *layer* (H, W) int32 is the frame's layer ids; *hidden* (hb, wb) bool the box at (by, bx); *dist* and
+    *labels* OpenCV's transform of the window at (wy0, wx0) (their shape), whose labels number its *n_cand*
+    candidates in raster order. Returns (py, px, qy, qx, d): the pixels, their candidates (frame
+    coordinates, int64) and their distance (float32).
     """
     hw, ww = dist.shape
     # label - 1 -> the candidate's row and column in the frame; column -1 for a candidate of a farther layer
@@ -1004,30 +1040,31 @@ def _nearest_candidates(layer, li, wy0, wx0, dist, labels, n_cand, hidden, by, b
                 if dd <= rd:
                     c = labels[y - wy0, x - wx0] - 1
                     if cand_x[c] >= 0:
-                        if dd > 1.0:
-                            py[i], px[i], qy[i], qx[i], d[i] = y, x, cand_y[c], cand_x[c], dd
-                            i += 1
-                        else:  # within 1 px a candidate of layer li always reaches
-                            out[y - by, x - bx] = True
+                        py[i], px[i], qy[i], qx[i], d[i] = y, x, cand_y[c], cand_x[c], dd
+                        i += 1
     return py[:i], px[:i], qy[:i], qx[:i], d[:i]
 
 
-def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part, rd: int, bound, out) -> None:
-    """:func:`_owned` on the window *win* of *layer*: sets in *out* (the box of *hidden*, at *origin* (row,
-    column)) the hidden pixels of *part* (y0, y1, x0, x1 inclusive, frame coordinates) that layer *li*
-    continues, deciding those within *rd* of their nearest candidate. The farther layers' transform looks
-    beyond *win*, within *bound*."""
+def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part, rd: int, bound):
+    """:func:`_ownership` on the window *win* of *layer*: the hidden pixels (*hidden*: the box at *origin*
+    (row, column)) of *part* (y0, y1, x0, x1 inclusive, frame coordinates) that layer *li* continues, deciding
+    those within *rd* of their nearest candidate, those candidates ((py, px, qy, qx) int64 frame
+    coordinates) and their distance (d, float32). The farther layers' transform looks beyond *win*, within
+    *bound*."""
     src = np.less(layer[win], li).view(np.uint8)
     n_cand = src.size - int(np.count_nonzero(src))
-    if n_cand == 0:
-        return  # no candidate within reach of any hidden pixel: nothing to continue
+    if n_cand == 0:  # no candidate within reach of any hidden pixel: nothing to continue
+        return (np.zeros(0, np.int64),) * 4 + (np.zeros(0, np.float32),)
     dist, labels = cv2.distanceTransformWithLabels(src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
     py, px, qy, qx, d = _nearest_candidates(layer, li, win[0].start, win[1].start, dist, labels, n_cand, hidden,
-                                            origin[0], origin[1], tuple(int(v) for v in part), rd, out)
-    if d.size:
-        width = _farther_dist(layer, li, qy, qx, int(math.ceil(float(d.max()))) + 3, bound)
-        own = d <= np.maximum(width, 1.0)
-        out[py[own] - origin[0], px[own] - origin[1]] = True
+                                            origin[0], origin[1], tuple(int(v) for v in part), rd)
+    test = d > 1.0  # within 1 px a candidate of layer li always reaches
+    if test.any():
+        own = np.ones(d.shape, bool)
+        width = _farther_dist(layer, li, qy[test], qx[test], int(math.ceil(float(d[test].max()))) + 3, bound)
+        own[test] = d[test] <= np.maximum(width, 1.0)
+        py, px, qy, qx, d = py[own], px[own], qy[own], qx[own], d[own]
+    return py, px, qy, qx, d
 
 
 def _in_thread(fn):
@@ -1061,13 +1098,24 @@ def _farther_dist(layer: np.ndarray, li: int, qy: np.ndarray, qx: np.ndarray, fa
 
 
 def _hidden(frame: _Frame, canvas: _Canvas, li: int, box, bbox, reach_px: float, cell_px: int = 1):
-    """Pixels of nearer layers that are not yet opaque and that this layer continues (:func:`_owned`), or None."""
+    """The pixels of nearer layers that are not yet opaque and that this layer continues, and the pixel of the
+    layer each one copies (:func:`_ownership`): a :class:`_Behind` with flat indices into *box*, or None."""
     hidden = (frame.layer[box] < li) & (canvas.trans[box] > 0)
-    if hidden.any():
-        # a second thread pays for itself from about 0.2 Mpx
-        threads = frame.plan.threads if hidden.size >= 200_000 else 1
-        hidden = _owned(frame.layer, li, box, bbox, hidden, reach_px, cell_px, threads)
-    return hidden if hidden.any() else None
+    if not hidden.any():
+        return None
+    # a second thread pays for itself from about 0.2 Mpx
+    threads = frame.plan.threads if hidden.size >= 200_000 else 1
+    found = _ownership(frame.layer, li, box, bbox, hidden, reach_px, cell_px, threads)
+    if isinstance(found, np.ndarray):  # their nearest pixels of the layer still to be found
+        found = _behind_sources(frame.layer[box] == li, found, reach_px)
+        return None if found is None else _Behind(*found)
+    if found is None:
+        return None
+    # the nearest candidate is the nearest pixel of the layer, the one the extension copies (the same
+    # transform with the farther layers' pixels left out labels it alike: see _ownership)
+    dst, src, d = found
+    near = d <= reach_px
+    return _Behind(dst[near], src[near]) if near.any() else None
 
 
 def _sharp_layer(frame: _Frame, canvas: _Canvas, li: int, n_members: int, r_max: float, r_front: float,
@@ -1075,9 +1123,8 @@ def _sharp_layer(frame: _Frame, canvas: _Canvas, li: int, n_members: int, r_max:
     """Composite the in-focus layer: an opaque copy, no blur (extended behind nearer layers), read in place
     from the frame (nothing is copied)."""
     box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
-    hidden = _hidden(frame, canvas, li, box, bbox, ext_reach) if extend else None
-    found = _behind_sources(m, hidden, ext_reach) if hidden is not None else None
-    dst, src = found if found is not None else (_NO_PIXELS, _NO_PIXELS)
+    found = _hidden(frame, canvas, li, box, bbox, ext_reach) if extend else None
+    dst, src = (found.dst, found.src) if found is not None else (_NO_PIXELS, _NO_PIXELS)
     _composite_sharp(frame.lin, m, box[0].start, box[1].start, dst, src, canvas.acc, canvas.acc_a, canvas.trans)
     return {"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1}
 

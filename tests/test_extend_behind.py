@@ -190,3 +190,32 @@ def test_in_focus_layer_composited_in_place_is_the_extended_copy(seed):
     t[on] = 0.0
     for g, x in zip(got, want):
         np.testing.assert_array_equal(g, x)
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), threads=st.integers(1, 3))
+def test_ownership_transform_labels_the_pixel_the_extension_copies(seed, threads):
+    """One transform serves ownership and extension: each owned pixel within reach copies the candidate
+    that ownership's transform labels nearest, and that is the pixel the transform of the layer's pixels
+    alone (on the extension's own window) labels nearest, ties included, on every thread's strip."""
+    rng, layer, li, box, hidden, reach = _layer_case(seed)
+    ys, xs = np.nonzero(layer == li)
+    if ys.size == 0:
+        return
+    bbox = (ys.min(), ys.max(), xs.min(), xs.max())
+    # the renderer's box holds the layer's bounding box
+    box = (slice(min(box[0].start, bbox[0]), max(box[0].stop, bbox[1] + 1)),
+           slice(min(box[1].start, bbox[2]), max(box[1].stop, bbox[3] + 1)))
+    hidden = (layer[box] < li) & (rng.random((box[0].stop - box[0].start, box[1].stop - box[1].start)) < 0.9)
+    found = renderer._ownership(layer, li, box, bbox, hidden, reach, 1, threads)
+    if found is None or isinstance(found, np.ndarray):
+        return
+    dst, src, d = found
+    alone = renderer._behind_sources(layer[box] == li, renderer._owned(layer, li, box, bbox, hidden, reach), reach)
+    near = d <= reach
+    if alone is None:
+        assert not near.any()
+        return
+    order = np.argsort(dst[near])
+    np.testing.assert_array_equal(dst[near][order], np.sort(alone[0]))
+    np.testing.assert_array_equal(src[near][order], alone[1][np.argsort(alone[0])])

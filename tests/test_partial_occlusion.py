@@ -83,7 +83,7 @@ def test_ownership_on_its_window_renders_as_on_the_whole_box(seed, quality):
     decide it: the render is bit for bit the one of the rule answered everywhere on the widened box."""
     lin, coc = _random_frame(seed)
     out, info = render_layers_linear(lin, coc, quality=quality)
-    with mock.patch.object(renderer, "_owned", _owned_whole):
+    with mock.patch.object(renderer, "_ownership", _owned_whole):
         whole, whole_info = render_layers_linear(lin, coc, quality=quality)
     np.testing.assert_array_equal(out, whole)
     assert info["layers"] == whole_info["layers"]

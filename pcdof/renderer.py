@@ -438,15 +438,12 @@ def _reduce_cells(lin, radius, member, s):
 @njit(cache=True)
 def _copy_pixels(lin, radius, member, dst, src):
     """lin, radius at the flat indices *dst* (N,) set to their values at *src* (N,), in place; member[dst] = True.
-    lin (H, W, C), radius (H, W), member (H, W) bool, all C-contiguous."""
-    w = member.shape[1]
+    lin (H * W, C), radius (H * W,), member (H * W,) bool: flat views of C-contiguous arrays."""
     for i in range(dst.size):
-        y, x = dst[i] // w, dst[i] % w
-        sy, sx = src[i] // w, src[i] % w
-        for c in range(lin.shape[2]):
-            lin[y, x, c] = lin[sy, sx, c]
-        radius[y, x] = radius[sy, sx]
-        member[y, x] = True
+        for c in range(lin.shape[1]):
+            lin[dst[i], c] = lin[src[i], c]
+        radius[dst[i]] = radius[src[i]]
+        member[dst[i]] = True
 
 
 _NO_PIXELS = np.zeros(0, np.int64)  # no flat indices
@@ -532,7 +529,7 @@ def _extend_behind(lin, radius, member, hidden, reach_px):
         return lin, radius, member
     dst, src = (found.dst, found.src) if isinstance(found, _Behind) else found
     lin, radius, member = lin.copy(), radius.copy(), member.copy()
-    _copy_pixels(lin, radius, member, dst, src)
+    _copy_pixels(lin.reshape(-1, lin.shape[2]), radius.reshape(-1), member.reshape(-1), dst, src)
     return lin, radius, member
 
 

@@ -46,7 +46,7 @@ from .apertures import Aperture, aperture_for, aperture_from_blades, as_aperture
 from .camera import _short, check_color
 from .color import decode_to_linear, encode_from_linear, from_float, to_float
 from .errors import InputError, LensError
-from .kernels import ensure_warm
+from .kernels import ensure_warm, read_only
 from .lens import MAX_COC_PX, PaperLens, ThinLens
 from .plans import QUALITIES, UNIFORM_MIN_RADIUS_PX, check_quality  # noqa: F401  (re-exported)
 from .plans import RenderPlan, as_dict, check_render_plan, plan_render, threads_for
@@ -1122,7 +1122,8 @@ def _sharp_layer(frame: _Frame, canvas: _Canvas, li: int, n_members: int, r_max:
     box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
     found = _hidden(frame, canvas, li, box, bbox, ext_reach) if extend else None
     dst, src = (found.dst, found.src) if found is not None else (_NO_PIXELS, _NO_PIXELS)
-    _composite_sharp(frame.lin, m, box[0].start, box[1].start, dst, src, canvas.acc, canvas.acc_a, canvas.trans)
+    _composite_sharp(read_only(frame.lin), m, box[0].start, box[1].start, dst, src, canvas.acc, canvas.acc_a,
+                     canvas.trans)
     return {"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1}
 
 
@@ -1346,8 +1347,8 @@ def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.
 
 def warmup() -> None:
     """Compile (or load from numba's cache) every renderer kernel on a tiny frame that takes every path:
-    copy tiles, an in-focus layer, a blurred foreground extended behind, uniform tiles convolved and
-    reduced-resolution layers, encoded to 8 and 16 bits."""
+    copy tiles, an in-focus layer and blur layers extended behind a blurred foreground, uniform tiles
+    convolved and reduced-resolution layers, encoded to 8 and 16 bits."""
     h, w = 48, 96
     depth = np.full((h, w), 2.0, np.float32)
     depth[:, 40:48] = 1.0  # in front of focus: blurred, extends the layers behind it
@@ -1361,3 +1362,6 @@ def warmup() -> None:
         render_image(image, depth, lens, fx=300.0, quality="balanced", plan=plan)
     # and one at full resolution, whose far layer's uniform tiles take the convolution path
     render_image(color, depth, lens, fx=300.0, quality="exact")
+    # and one focused in front of everything: blur layers extended behind nearer ones (the farthest with no
+    # farther layer near, so its nearest pixels are found by its own transform)
+    render_image(color, depth, ThinLens(50.0, 1.4, 0.5), fx=300.0, quality="exact")

@@ -1,0 +1,96 @@
+"""What the extension behind nearer layers costs, with an earlier renderer and the current one, side by side.
+
+    git show REV:pcdof/renderer.py > before_renderer.py
+    python scripts/extension_side_by_side.py before_renderer.py --repeats 21
+
+Both renderers render the benchmark's speed frames (synthetic portrait, 512x424 depth, the scene's
+default lens, depth registered and filled once by the pipeline) in one process, alternated per repeat
+(ABBA, so neither always goes first), and the time spent deciding which hidden pixels each layer
+continues and extending it (``_hidden`` and ``_extend_behind``, and ``_behind_sources`` where the
+renderer has it; nested calls counted once) is summed per render: wall time, and the CPU time of the
+rendering thread (which a busy machine inflates less). Medians in ms, their ratio, and whether the two
+renders are bit-identical. Set NUMBA_NUM_THREADS=1 for one thread.
+"""
+
+import argparse
+import functools
+import importlib.util
+import statistics
+import sys
+import time
+
+import numpy as np
+
+#: the functions whose time is summed (the decision and the extension), where a renderer has them
+TIMED = ("_hidden", "_extend_behind", "_behind_sources")
+
+
+def _timed(module, acc: dict, depth: list) -> None:
+    """Wrap the functions of TIMED in *module* so that each render's time in them adds to *acc*."""
+    def wrap(fn):
+        @functools.wraps(fn)
+        def inner(*a, **k):
+            if depth[0]:
+                return fn(*a, **k)
+            depth[0] += 1
+            w0, c0 = time.perf_counter(), time.thread_time()
+            try:
+                return fn(*a, **k)
+            finally:
+                acc["wall"] += time.perf_counter() - w0
+                acc["cpu"] += time.thread_time() - c0
+                depth[0] -= 1
+        return inner
+    for name in TIMED:
+        if hasattr(module, name):
+            setattr(module, name, wrap(getattr(module, name)))
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("before", help="an earlier pcdof/renderer.py (git show REV:pcdof/renderer.py > FILE)")
+    ap.add_argument("--repeats", type=int, default=21)
+    ap.add_argument("--sizes", default="640x480,1920x1080")
+    ap.add_argument("--quality", default="balanced")
+    args = ap.parse_args(argv)
+
+    import pcdof.pipeline as pipeline
+    from pcdof import renderer
+    from pcdof.synth import generate_scene
+
+    spec = importlib.util.spec_from_file_location("pcdof._renderer_before", args.before)
+    before = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = before
+    spec.loader.exec_module(before)
+    modules = {"before": before, "now": renderer}
+    acc, depth = {"wall": 0.0, "cpu": 0.0}, [0]
+    for module in modules.values():
+        _timed(module, acc, depth)
+    for size in [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]:
+        sf = generate_scene("portrait", color_size=size, depth_size=(512, 424), seed=0)
+        lens, fx = sf.default_lens, sf.frame.rig.color.fx
+        depth_m = pipeline.run(sf.frame, lens, quality=args.quality).depth_filled_m
+        signed = lens.signed_coc_px(depth_m, fx)
+
+        def render(module):
+            return module.render_image(sf.frame.color, depth_m, lens, fx=fx, quality=args.quality,
+                                       signed_coc=signed)[0]
+
+        same = np.array_equal(render(before), render(renderer))  # and the warm-up
+        ts = {(k, s): [] for k in modules for s in ("render", "extension wall", "extension CPU")}
+        for i in range(args.repeats):
+            for k, module in list(modules.items())[:: 1 if i % 2 == 0 else -1]:
+                acc["wall"] = acc["cpu"] = 0.0
+                t0 = time.perf_counter()
+                render(module)
+                ts[(k, "render")].append(time.perf_counter() - t0)
+                ts[(k, "extension wall")].append(acc["wall"])
+                ts[(k, "extension CPU")].append(acc["cpu"])
+        print(f"{size[0]}x{size[1]} {args.quality}, medians of {args.repeats}; bit-identical: {same}")
+        for s in ("render", "extension wall", "extension CPU"):
+            b, n = (statistics.median(ts[(k, s)]) * 1e3 for k in modules)
+            print(f"  {s:15s} before {b:8.2f} ms  now {n:8.2f} ms  now/before {n / b:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange
 
 from .apertures import Aperture, aperture_for, aperture_from_blades, as_aperture
 from .camera import _short, check_color
@@ -124,94 +124,131 @@ def _aperture(aperture) -> np.ndarray:
 
 
 @njit(cache=True, inline="always", fastmath=True, error_model="numpy")
-def _strip(dy, r, symmetric, table):
-    """(area, centre offset) of the aperture's footprint on the pixel row dy rows below its centre."""
-    lo = max(dy - 0.5, -r)
-    hi = min(dy + 0.5, r)
-    if hi <= lo:
-        return 0.0, 0.0
-    ghi = _g(hi / r, table, 0)
-    glo = _g(lo / r, table, 0)
-    area = r * r * (ghi - glo)
-    if symmetric or ghi <= glo:
-        return area, 0.0
-    return area, r * (_g(hi / r, table, 1) - _g(lo / r, table, 1)) / (ghi - glo)
+def _row_strips(radius, k0, n, reach, symmetric, table, area, centre):
+    """Area and centre offset of the footprints of sources k0 .. k0+n-1 on the pixel rows around them.
+
+    The strip of a source of radius r on the row dy rows below its centre lies between the heights
+    max(dy - 1/2, -r) and min(dy + 1/2, r): area r^2 (G(hi/r) - G(lo/r)), centre r (M(hi/r) - M(lo/r)) /
+    (G(hi/r) - G(lo/r)) (:func:`aperture_table`). Consecutive rows share an edge, so each edge is looked
+    up once. Writes area[d, j] (and centre[d, j] unless *symmetric*) for dy = d - reach, d in 0 .. 2 reach,
+    of source k0 + j; rows the footprint does not reach get area 0.
+    """
+    for j in range(n):
+        r = radius[k0 + j]
+        edge = min(max(-reach - 0.5, -r), r)
+        glo = _g(edge / r, table, 0)
+        mlo = 0.0 if symmetric else _g(edge / r, table, 1)
+        for d in range(2 * reach + 1):
+            edge = min(max(d - reach + 0.5, -r), r)  # the upper edge of row d, clamped to the footprint
+            ghi = _g(edge / r, table, 0)
+            area[d, j] = r * r * (ghi - glo)
+            if not symmetric:
+                mhi = _g(edge / r, table, 1)
+                centre[d, j] = r * (mhi - mlo) / (ghi - glo) if ghi > glo else 0.0
+                mlo = mhi
+            glo = ghi
 
 
 # ----------------------------------------------------------------------------- layer kernels
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
-def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symmetric, table, out):
+def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symmetric, table, out, tasks):
     """Scatter packed sources into ``out`` rows y_lo..y_hi (H, W, 4: premultiplied colour, coverage).
 
     Sources are sorted by row: those of row y are ``offsets[y]:offsets[y+1]``, at column ``xs``,
     with footprint radius ``radius`` and ``values`` = (r, g, b, 1) * weight / footprint area. Each
-    footprint is split exactly into one strip per pixel row, and each strip into two fractional
-    end pixels and a run of whole pixels (kept as a difference array). Runs as a gather over
-    output rows, so rows are independent and parallel; the four channels are unrolled.
+    footprint is split exactly into one strip per pixel row (:func:`_row_strips`), and each strip
+    into two fractional end pixels and a run of whole pixels (kept as a difference array). Runs as
+    a gather over output rows, so rows are independent; the four channels are unrolled.
+
+    The output rows are cut into up to *tasks* runs of consecutive rows, one parallel task each (one
+    parallel region per call: on a loaded machine every region waits for its slowest thread). A
+    task keeps the strips of the 2 reach + 1 source rows around its current output row in a ring,
+    each source row's strips computed once when the task first needs them, so the table lookups
+    are off the gather's critical path and shared by the rows they serve. Every output pixel sums
+    the same terms in the same order (source row, then column) whatever the split.
     """
     h = offsets.size - 1
     reach = int(math.ceil(r_max + 0.5))
-    for y in prange(y_lo, y_hi + 1):
-        diff = np.zeros((width + 1, 4), np.float32)
-        row = out[y]
-        for ys in range(max(0, y - reach), min(h - 1, y + reach) + 1):
-            dy = y - ys
-            gap = abs(dy) - 0.5
-            for k in range(offsets[ys], offsets[ys + 1]):
-                r = radius[k]
-                if gap >= r:
-                    continue
-                area, centre = _strip(dy, r, symmetric, table)
-                if area <= 0.0:
-                    continue
-                v0, v1, v2, v3 = values[k, 0], values[k, 1], values[k, 2], values[k, 3]
-                a = xs[k] + centre - 0.5 * area
-                b = a + area
-                ka = int(math.floor(a + 0.5))
-                kb = int(math.floor(b + 0.5))
-                if ka == kb:
+    nd = 2 * reach + 1
+    n_max = 0
+    for ys in range(max(0, y_lo - reach), min(h - 1, y_hi + reach) + 1):
+        n_max = max(n_max, offsets[ys + 1] - offsets[ys])
+    n_rows = y_hi - y_lo + 1
+    # a task recomputes the strips of 2 reach source rows at its start: runs of at least 4 reach rows
+    n_tasks = max(1, min(tasks, n_rows // (4 * reach)))
+    for task in prange(n_tasks):
+        ya = y_lo + task * n_rows // n_tasks
+        yb = y_lo + (task + 1) * n_rows // n_tasks
+        areas = np.empty((nd, nd, n_max), np.float64)  # [source row % nd, dy + reach, source]
+        centres = np.zeros((nd if not symmetric else 1, nd, n_max), np.float64)
+        diff = np.empty((width + 1, 4), np.float32)
+        next_row = max(0, ya - reach)
+        for y in range(ya, yb):
+            while next_row <= min(h - 1, y + reach):
+                slot = next_row % nd
+                _row_strips(radius, offsets[next_row], offsets[next_row + 1] - offsets[next_row], reach, symmetric,
+                            table, areas[slot], centres[0 if symmetric else slot])
+                next_row += 1
+            diff[:] = 0.0
+            row = out[y]
+            for ys in range(max(0, y - reach), min(h - 1, y + reach) + 1):
+                d = y - ys + reach
+                slot = ys % nd
+                k0 = offsets[ys]
+                for j in range(offsets[ys + 1] - k0):
+                    area = areas[slot, d, j]
+                    if area <= 0.0:
+                        continue
+                    k = k0 + j
+                    centre = 0.0 if symmetric else centres[slot, d, j]
+                    v0, v1, v2, v3 = values[k, 0], values[k, 1], values[k, 2], values[k, 3]
+                    a = xs[k] + centre - 0.5 * area
+                    b = a + area
+                    ka = int(math.floor(a + 0.5))
+                    kb = int(math.floor(b + 0.5))
+                    if ka == kb:
+                        if 0 <= ka < width:
+                            row[ka, 0] += area * v0
+                            row[ka, 1] += area * v1
+                            row[ka, 2] += area * v2
+                            row[ka, 3] += area * v3
+                        continue
                     if 0 <= ka < width:
-                        row[ka, 0] += area * v0
-                        row[ka, 1] += area * v1
-                        row[ka, 2] += area * v2
-                        row[ka, 3] += area * v3
-                    continue
-                if 0 <= ka < width:
-                    f = ka + 0.5 - a
-                    row[ka, 0] += f * v0
-                    row[ka, 1] += f * v1
-                    row[ka, 2] += f * v2
-                    row[ka, 3] += f * v3
-                if 0 <= kb < width:
-                    f = b - (kb - 0.5)
-                    row[kb, 0] += f * v0
-                    row[kb, 1] += f * v1
-                    row[kb, 2] += f * v2
-                    row[kb, 3] += f * v3
-                lo = max(ka + 1, 0)
-                hi = min(kb, width)  # whole pixels ka+1 .. kb-1
-                if hi > lo:
-                    diff[lo, 0] += v0
-                    diff[lo, 1] += v1
-                    diff[lo, 2] += v2
-                    diff[lo, 3] += v3
-                    diff[hi, 0] -= v0
-                    diff[hi, 1] -= v1
-                    diff[hi, 2] -= v2
-                    diff[hi, 3] -= v3
-        r0 = np.float32(0.0)
-        r1 = np.float32(0.0)
-        r2 = np.float32(0.0)
-        r3 = np.float32(0.0)
-        for x in range(width):
-            r0 += diff[x, 0]
-            r1 += diff[x, 1]
-            r2 += diff[x, 2]
-            r3 += diff[x, 3]
-            row[x, 0] += r0
-            row[x, 1] += r1
-            row[x, 2] += r2
-            row[x, 3] += r3
+                        f = ka + 0.5 - a
+                        row[ka, 0] += f * v0
+                        row[ka, 1] += f * v1
+                        row[ka, 2] += f * v2
+                        row[ka, 3] += f * v3
+                    if 0 <= kb < width:
+                        f = b - (kb - 0.5)
+                        row[kb, 0] += f * v0
+                        row[kb, 1] += f * v1
+                        row[kb, 2] += f * v2
+                        row[kb, 3] += f * v3
+                    lo = max(ka + 1, 0)
+                    hi = min(kb, width)  # whole pixels ka+1 .. kb-1
+                    if hi > lo:
+                        diff[lo, 0] += v0
+                        diff[lo, 1] += v1
+                        diff[lo, 2] += v2
+                        diff[lo, 3] += v3
+                        diff[hi, 0] -= v0
+                        diff[hi, 1] -= v1
+                        diff[hi, 2] -= v2
+                        diff[hi, 3] -= v3
+            r0 = np.float32(0.0)
+            r1 = np.float32(0.0)
+            r2 = np.float32(0.0)
+            r3 = np.float32(0.0)
+            for x in range(width):
+                r0 += diff[x, 0]
+                r1 += diff[x, 1]
+                r2 += diff[x, 2]
+                r3 += diff[x, 3]
+                row[x, 0] += r0
+                row[x, 1] += r1
+                row[x, 2] += r2
+                row[x, 3] += r3
 
 
 @njit(parallel=True, cache=True)
@@ -588,7 +625,7 @@ def _footprint_kernel(r: float, symmetric: bool, table: np.ndarray) -> np.ndarra
     offsets[reach + 1:] = 1  # the one source sits on row `reach`
     buf = np.zeros((n, n, 4), np.float32)
     _scatter_packed(np.array([reach], np.float32), np.array([r], np.float32), values, offsets, n, float(r), 0, n - 1,
-                    symmetric, table, buf)
+                    symmetric, table, buf, 1)
     return np.ascontiguousarray(buf[:, :, 3])
 
 
@@ -829,8 +866,9 @@ def _scatter_sources(grid: _Grid, scattered, aperture: _Aperture, buf) -> int:
         r_max = float(src_r.max())
         reach = int(math.ceil(r_max + 0.5))
         hs, ws = scattered.shape
+        # two runs of rows per thread: rows carry unequal work, and two balance it better than one (measured)
         _scatter_packed(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach),
-                        aperture.symmetric, aperture.table, buf)
+                        aperture.symmetric, aperture.table, buf, 2 * get_num_threads())
     return n_scattered
 
 

@@ -610,6 +610,9 @@ UNIFORM_BIN = 0.04
 #: A radius bin is convolved only if its cells fill at least 1/UNIFORM_MAX_WASTE of their bounding window.
 UNIFORM_MAX_WASTE = 3.0
 _NO_BIN = -(2 ** 31)  # bin of the cells that are not convolved
+#: Output rows per band of the uniform tiles' convolution (at least 8 kernel reaches, so that the rows
+#: convolved twice, the reach above and below each band, stay a small share).
+_CONVOLVE_BAND_ROWS = 64
 
 
 def _footprint_kernel(r: float, symmetric: bool, table: np.ndarray) -> np.ndarray:
@@ -650,17 +653,18 @@ def _fast_cells(fast, member, s):
 
 
 @njit(cache=True)
-def _premultiplied_planes(lin, share, y0, y1, x0, x1):
-    """(y1 - y0, x1 - x0, 4) float32 window: colour times share (zero-padded to 3 channels), then the share."""
+def _premultiplied_planes(lin, share, y0, y1, x0, x1, out):
+    """out[:y1 - y0, :x1 - x0] (a window of lin and share): colour times share, zero-padded to 3 channels, then
+    the share; out is (>= y1 - y0, x1 - x0, 4) float32."""
     nc = lin.shape[2]
-    out = np.zeros((y1 - y0, x1 - x0, 4), np.float32)
     for y in range(y0, y1):
         for x in range(x0, x1):
             m = share[y, x]
             for c in range(nc):
                 out[y - y0, x - x0, c] = lin[y, x, c] * m
+            for c in range(nc, 3):
+                out[y - y0, x - x0, c] = 0.0
             out[y - y0, x - x0, 3] = m
-    return out
 
 
 @njit(cache=True)
@@ -743,17 +747,28 @@ def _convolve_uniform(lin, share, bins, groups, symmetric, table, buf):
 
     lin (hs, ws, C) and share (hs, ws) on the layer's grid; *bins* and *groups* from
     :func:`_uniform_plan`; buf (hs, ws, 4) receives premultiplied colour and coverage there.
+
+    A group's window is convolved in bands of rows, each with the kernel's reach of rows around it, through
+    two band-sized buffers used for every band: the same sums as one convolution of the whole window, without
+    two window-sized buffers of fresh memory (whose first touch costs more than the convolution).
     """
     hs, ws, nc = lin.shape
     for b, radius, (ya, yb, xa, xb) in groups:
-        kernel = _footprint_kernel(radius, symmetric, table)
-        k = kernel.shape[0] // 2
-        # the window with the kernel's reach around it, so the convolution sees every source it needs
-        cy0, cy1, cx0, cx1 = max(0, ya - k), min(hs, yb + k), max(0, xa - k), min(ws, xb + k)
-        planes = _premultiplied_planes(lin, share, cy0, cy1, cx0, cx1)
         # filter2D correlates: the flipped kernel makes it the scatter's convolution; zeros beyond the grid
-        conv = cv2.filter2D(planes, -1, cv2.flip(kernel, -1), borderType=cv2.BORDER_CONSTANT)
-        _put_cells(conv, cy0, cx0, bins, b, ya, yb, xa, xb, buf)
+        kernel = cv2.flip(_footprint_kernel(radius, symmetric, table), -1)
+        k = kernel.shape[0] // 2
+        cx0, cx1 = max(0, xa - k), min(ws, xb + k)
+        band = max(_CONVOLVE_BAND_ROWS, 8 * k)
+        planes = np.empty((min(band + 2 * k, hs), cx1 - cx0, 4), np.float32)
+        conv = np.empty_like(planes)
+        for y0 in range(ya, yb, band):
+            y1 = min(yb, y0 + band)
+            # the band with the kernel's reach around it, so the convolution sees every source it needs
+            cy0, cy1 = max(0, y0 - k), min(hs, y1 + k)
+            n = cy1 - cy0
+            _premultiplied_planes(lin, share, cy0, cy1, cx0, cx1, planes)
+            cv2.filter2D(planes[:n], -1, kernel, dst=conv[:n], borderType=cv2.BORDER_CONSTANT)
+            _put_cells(conv, cy0, cx0, bins, b, y0, y1, xa, xb, buf)
 
 
 @dataclass(frozen=True)

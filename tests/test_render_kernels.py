@@ -253,3 +253,34 @@ class TestFastCells:
                 block = fast[cy * s:(cy + 1) * s, cx * s:(cx + 1) * s]
                 expected[cy, cx] = member[cy, cx] and block.shape == (s, s) and block.all()
         np.testing.assert_array_equal(renderer._fast_cells(fast, member, s), expected)
+
+
+class TestCompositeUnder:
+    @settings(max_examples=40, deadline=None)
+    @given(seed=st.integers(0, 2 ** 32 - 1), nc=st.integers(1, 3))
+    def test_front_to_back_over_operator(self, seed, nc):
+        """The layer (placed at row 3, column 2) goes behind the canvas: where the canvas is not yet opaque and
+        the layer covers more than 1e-6, colour / coverage times min(coverage, 1) times the transmittance is
+        added and the transmittance falls by that opacity; nothing changes elsewhere."""
+        rng = np.random.default_rng(seed)
+        h, w, hb, wb = 12, 15, 7, 9
+        layer = rng.random((hb, wb, nc + 1)).astype(np.float32)
+        cover = rng.choice([0.0, 1e-7, 0.3, 0.99995, 1.0, 1.7], size=(hb, wb)) * rng.uniform(0.9, 1.0, (hb, wb))
+        layer[:, :, nc] = cover
+        acc = rng.random((h, w, nc)).astype(np.float32)
+        acc_a = rng.random((h, w)).astype(np.float32)
+        trans = np.where(rng.random((h, w)) < 0.3, 0.0, rng.random((h, w))).astype(np.float32)
+        want_acc, want_a, want_t = acc.astype(np.float64), acc_a.astype(np.float64), trans.astype(np.float64)
+        win = (slice(3, 3 + hb), slice(2, 2 + wb))
+        t = want_t[win]
+        c = layer[:, :, nc].astype(np.float64)
+        on = (t > 0) & (c > 1e-6)
+        alpha = np.where(c >= 1.0 - 1e-4, 1.0, c)
+        f = np.where(on, t * alpha / np.where(on, c, 1.0), 0.0)
+        want_acc[win] += f[:, :, None] * layer[:, :, :nc]
+        want_a[win] += np.where(on, t * alpha, 0.0)
+        want_t[win] = np.where(on, t * (1.0 - alpha), t)
+        renderer._composite_under(layer, 3, 2, acc, acc_a, trans)
+        np.testing.assert_allclose(acc, want_acc, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(acc_a, want_a, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(trans, want_t, rtol=1e-6, atol=1e-7)

@@ -181,19 +181,25 @@ def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symme
         yb = y_lo + (task + 1) * n_rows // n_tasks
         areas = np.empty((nd, nd, n_max), np.float64)  # [source row % nd, dy + reach, source]
         centres = np.zeros((nd if not symmetric else 1, nd, n_max), np.float64)
+        row_r = np.zeros(nd, np.float32)  # the largest radius of each source row in the ring
         diff = np.empty((width + 1, 4), np.float32)
         next_row = max(0, ya - reach)
         for y in range(ya, yb):
             while next_row <= min(h - 1, y + reach):
                 slot = next_row % nd
-                _row_strips(radius, offsets[next_row], offsets[next_row + 1] - offsets[next_row], reach, symmetric,
-                            table, areas[slot], centres[0 if symmetric else slot])
+                k0, k1 = offsets[next_row], offsets[next_row + 1]
+                _row_strips(radius, k0, k1 - k0, reach, symmetric, table, areas[slot], centres[0 if symmetric else slot])
+                row_r[slot] = 0.0
+                for k in range(k0, k1):
+                    row_r[slot] = max(row_r[slot], radius[k])
                 next_row += 1
             diff[:] = 0.0
             row = out[y]
             for ys in range(max(0, y - reach), min(h - 1, y + reach) + 1):
                 d = y - ys + reach
                 slot = ys % nd
+                if abs(d - reach) - 0.5 >= row_r[slot]:
+                    continue  # no footprint of that row reaches this one (every strip's area is 0)
                 k0 = offsets[ys]
                 for j in range(offsets[ys + 1] - k0):
                     area = areas[slot, d, j]

@@ -73,8 +73,9 @@ def random_sources(rng, h, w, n, r_lo, r_hi):
     """n sources at distinct random pixels of an (h, w) grid (borders included), radii in [r_lo, r_hi]."""
     cells = rng.choice(h * w, size=min(n, h * w), replace=False)
     ys, xs = np.divmod(cells, w)
-    radius = rng.uniform(r_lo, r_hi, ys.size)
-    values = rng.uniform(0.0, 1.0, (ys.size, 4))
+    # float32, as the kernel takes them (a thin strip at a footprint's edge moves with the radius' last bit)
+    radius = rng.uniform(r_lo, r_hi, ys.size).astype(np.float32).astype(np.float64)
+    values = rng.uniform(0.0, 1.0, (ys.size, 4)).astype(np.float32).astype(np.float64)
     return xs, ys, radius, values
 
 

@@ -323,7 +323,8 @@ def _copy_tiles(src, copy, tile, out):
             if copy[ty, tx]:
                 for y in range(ty * tile, min(h, (ty + 1) * tile)):
                     for x in range(tx * tile, min(w, (tx + 1) * tile)):
-                        out[y, x] = src[y, x]
+                        for c in range(src.shape[2]):  # not out[y, x] = src[y, x]: slice assignment compiles slowly
+                            out[y, x, c] = src[y, x, c]
 
 
 def copy_tiles(src: np.ndarray, tiles: TileMap, out: np.ndarray) -> None:
@@ -684,10 +685,8 @@ def _bin_groups(bins, max_waste):
     n_bins = max(0, b_hi - b_lo + 1)
     count = np.zeros(n_bins, np.int64)
     box = np.empty((n_bins, 4), np.int64)  # y0, y1, x0, x1 of each bin's cells
-    box[:, 0] = hs
-    box[:, 1] = 0
-    box[:, 2] = ws
-    box[:, 3] = 0
+    for i in range(n_bins):
+        box[i, 0], box[i, 1], box[i, 2], box[i, 3] = hs, 0, ws, 0
     for y in range(hs):
         for x in range(ws):
             b = bins[y, x]
@@ -698,18 +697,26 @@ def _bin_groups(bins, max_waste):
                 box[i, 1] = max(box[i, 1], y + 1)
                 box[i, 2] = min(box[i, 2], x)
                 box[i, 3] = max(box[i, 3], x + 1)
-    keep = (count > 0) & ((box[:, 1] - box[:, 0]) * (box[:, 3] - box[:, 2]) <= max_waste * count)
-    if not keep.all():
+    # plain loops, not array expressions: each of those costs numba a second or so of compiling
+    keep = np.zeros(n_bins, np.bool_)
+    n_kept = 0
+    for i in range(n_bins):
+        keep[i] = count[i] > 0 and (box[i, 1] - box[i, 0]) * (box[i, 3] - box[i, 2]) <= max_waste * count[i]
+        n_kept += int(keep[i])
+    if n_kept < n_bins:
         for y in range(hs):
             for x in range(ws):
                 b = bins[y, x]
                 if b != _NO_BIN and not keep[b - b_lo]:
                     bins[y, x] = _NO_BIN
-    kept = np.flatnonzero(keep)
-    groups = np.empty((kept.size, 5), np.int64)
-    for j in range(kept.size):
-        groups[j, 0] = b_lo + kept[j]
-        groups[j, 1:] = box[kept[j]]
+    groups = np.empty((n_kept, 5), np.int64)
+    j = 0
+    for i in range(n_bins):
+        if keep[i]:
+            groups[j, 0] = b_lo + i
+            for c in range(4):
+                groups[j, 1 + c] = box[i, c]
+            j += 1
     return groups
 
 

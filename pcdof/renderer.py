@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 import threading
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -1519,3 +1519,7 @@ def warmup() -> None:
     # and one focused in front of everything: blur layers extended behind nearer ones (the farthest with no
     # farther layer near, so its nearest pixels are found by its own transform)
     render_image(color, depth, ThinLens(50.0, 1.4, 0.5), fx=300.0, quality="exact")
+    # and a wall with one CoC (18 px) on a 1/4 grid: uniform tiles convolved on a reduced grid
+    wall = np.full((96, 96), 4.0, np.float32)
+    texture = (np.indices((96, 96)).sum(axis=0) % 5 * 50).astype(np.uint8)[:, :, None].repeat(3, axis=2)
+    render_image(texture, wall, lens, fx=2000.0, quality="balanced", plan=replace(plan, reduce_min_coc_px=4.0))

@@ -12,14 +12,12 @@ rendering thread (which a busy machine inflates less). Medians in ms, their rati
 renders are bit-identical. Set NUMBA_NUM_THREADS=1 for one thread.
 """
 
-import argparse
 import functools
-import importlib.util
 import statistics
-import sys
 import time
 
 import numpy as np
+from _before import load_renderer, renderer_arguments, sizes
 
 #: the functions whose time is summed (the decision and the extension), where a renderer has them
 TIMED = ("_hidden", "_extend_behind", "_behind_sources")
@@ -47,10 +45,7 @@ def _timed(module, acc: dict, depth: list) -> None:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("before", help="an earlier pcdof/renderer.py (git show REV:pcdof/renderer.py > FILE)")
-    ap.add_argument("--repeats", type=int, default=21)
-    ap.add_argument("--sizes", default="640x480,1920x1080")
+    ap = renderer_arguments(__doc__.splitlines()[0], repeats=21)
     ap.add_argument("--quality", default="balanced")
     args = ap.parse_args(argv)
 
@@ -58,15 +53,12 @@ def main(argv=None) -> None:
     from pcdof import renderer
     from pcdof.synth import generate_scene
 
-    spec = importlib.util.spec_from_file_location("pcdof._renderer_before", args.before)
-    before = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = before
-    spec.loader.exec_module(before)
+    before = load_renderer(args.before)
     modules = {"before": before, "now": renderer}
     acc, depth = {"wall": 0.0, "cpu": 0.0}, [0]
     for module in modules.values():
         _timed(module, acc, depth)
-    for size in [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]:
+    for size in sizes(args.sizes):
         sf = generate_scene("portrait", color_size=size, depth_size=(512, 424), seed=0)
         lens, fx = sf.default_lens, sf.frame.rig.color.fx
         depth_m = pipeline.run(sf.frame, lens, quality=args.quality).depth_filled_m

@@ -10,19 +10,15 @@ renderer reads the quality thresholds from :data:`pcdof.plans.QUALITIES` at call
 ``balanced`` threshold is set (``--before-balanced``) while it runs.
 """
 
-import argparse
-import importlib.util
 import statistics
-import sys
 import time
+
+from _before import load_renderer, renderer_arguments, sizes
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("before", help="an earlier pcdof/renderer.py (git show REV:pcdof/renderer.py > FILE)")
+    ap = renderer_arguments(__doc__.splitlines()[0], repeats=11)
     ap.add_argument("--before-balanced", type=float, default=4.0, help="its balanced threshold (px cells)")
-    ap.add_argument("--repeats", type=int, default=11)
-    ap.add_argument("--sizes", default="640x480,1920x1080")
     args = ap.parse_args(argv)
 
     import pcdof.pipeline as pipeline
@@ -30,10 +26,7 @@ def main(argv=None) -> None:
     from pcdof.lens import PaperLens
     from pcdof.synth import generate_scene
 
-    spec = importlib.util.spec_from_file_location("pcdof._renderer_before", args.before)
-    before = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = before
-    spec.loader.exec_module(before)
+    before = load_renderer(args.before)
     now = dict(plans.QUALITIES)
 
     def variant(module, balanced):
@@ -49,7 +42,7 @@ def main(argv=None) -> None:
     rows = {f"before (balanced {args.before_balanced:g})": variant(before, args.before_balanced),
             f"now (balanced {now['balanced']:g})": variant(renderer, now["balanced"]),
             "now, exact": variant(renderer, float("inf"))}
-    for size in [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]:
+    for size in sizes(args.sizes):
         sf = generate_scene("portrait", color_size=size, depth_size=(512, 424), seed=0)
         lens = sf.default_lens
         cmax = float(lens.coc_px(sf.depth_color_m, sf.rig.color.fx).max())

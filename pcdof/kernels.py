@@ -94,25 +94,28 @@ def cold_stages(stages=tuple(STAGES)) -> list[str]:
 
 
 def estimate_seconds(stages, workers: int | None = None, load: float | None = None) -> float:
-    """Wall seconds to compile *stages* side by side on *workers* cores (default: this machine's) while
-    other work keeps *load* processes busy (default: the 1-minute load average), from :data:`COMPILE_CPU_S`.
+    """Wall seconds to compile *stages* on *workers* cores (default: this machine's) while other work
+    keeps *load* processes busy (default: the 1-minute load average), from :data:`COMPILE_CPU_S`.
 
-    Each stage is one process and every busy process gets an equal share of the cores (at most one core):
-    the stages run at that share until the shortest is done, then the others at their larger share, and
-    so on.
+    Stages run as :func:`_compile_apart` runs them: one process each, at most *workers* at a time,
+    longest first, the next one starting as one ends; every busy process (these and the *load*) gets
+    an equal share of the cores, at most one core.
     """
-    left = sorted(COMPILE_CPU_S[s] for s in check_stages(stages))
+    queue = sorted((COMPILE_CPU_S[s] for s in check_stages(stages)), reverse=True)
     workers = max(1, workers or os.cpu_count() or 1)
     if load is None:
         try:
             load = os.getloadavg()[0]
         except (AttributeError, OSError):  # not on this platform
             load = 0.0
-    wall = done = 0.0
-    for i, cpu in enumerate(left):
-        share = min(1.0, workers / (len(left) - i + max(0.0, float(load))))
-        wall += (cpu - done) / share
-        done = cpu
+    running, wall = [], 0.0  # CPU seconds left per running stage
+    while queue or running:
+        while queue and len(running) < workers:
+            running.append(queue.pop(0))
+        share = min(1.0, workers / (len(running) + max(0.0, float(load))))
+        step = min(running)
+        wall += step / share
+        running = [left - step for left in running if left > step]
     return wall
 
 
@@ -126,23 +129,26 @@ def _warm_stage(stage: str) -> float:
 
 
 def _compile_apart(stages, say, t0: float) -> dict:
-    """Compile *stages* side by side in fresh interpreters (numba compiles one function at a time per
-    process, and the stages share no kernel), each writing numba's on-disk cache; *say* gets a line as
-    each one ends (seconds since *t0*). Returns seconds per stage that succeeded; a stage that failed
-    there is left to this process."""
+    """Compile *stages* in fresh interpreters (numba compiles one function at a time per process, and the
+    stages share no kernel), each writing numba's on-disk cache: at most one per core at a time, longest
+    first, the next starting as one ends (on 2 cores: the renderer on one, fill then registration on the
+    other; three processes sharing two cores would leave the longest one last, alone). *say* gets a line as
+    each one ends (seconds since *t0*). Returns seconds per stage that succeeded; a stage that failed or
+    could not start there is left to this process."""
     import subprocess
 
-    procs = {}
-    for stage in stages:
-        code = f"from pcdof.kernels import _warm_stage; print(_warm_stage({stage!r}))"
-        try:
-            procs[stage] = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
-                                            stderr=subprocess.DEVNULL, text=True)
-        except OSError:  # no processes here: compile in this process
-            break
-    seconds = {}
-    done = 0
-    while procs:
+    queue = sorted(stages, key=lambda stage: -COMPILE_CPU_S[stage])
+    workers = max(1, os.cpu_count() or 1)
+    procs, seconds, done = {}, {}, 0
+    while queue or procs:
+        while queue and len(procs) < workers:
+            stage = queue.pop(0)
+            code = f"from pcdof.kernels import _warm_stage; print(_warm_stage({stage!r}))"
+            try:
+                procs[stage] = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                                                stderr=subprocess.DEVNULL, text=True)
+            except OSError:  # no processes here: compile in this process
+                queue.clear()
         for stage, proc in list(procs.items()):
             if proc.poll() is None:
                 continue

@@ -92,22 +92,58 @@ class TestStages:
             kernels.check_stages(["render", "paint"])
         assert isinstance(err.value, PcdofError) and "paint" in str(err.value)
 
-    def test_estimate_shares_the_cores(self):
-        """Processor sharing in closed form: each stage a process, the cores shared equally (at most one each)."""
+    def test_estimate_runs_longest_first_one_per_core(self):
+        """At most one stage per core, longest first, the next one starting as one ends; every busy process
+        (these and the load) shares the cores equally, at most one core each."""
         cpu = kernels.COMPILE_CPU_S
         three = list(kernels.STAGES)
-        a, _, c = sorted(cpu[s] for s in three)
+        a, b, c = sorted(cpu[s] for s in three)
         assert kernels.estimate_seconds([], workers=2, load=0) == 0.0
         assert kernels.estimate_seconds(["fill"], workers=8, load=0) == pytest.approx(cpu["fill"])
         assert kernels.estimate_seconds(["fill", "render"], workers=1, load=0) == pytest.approx(
             cpu["fill"] + cpu["render"])  # one core: all the work, one after the other
         assert kernels.estimate_seconds(three, workers=4, load=0) == pytest.approx(c)  # a core each
-        # 2 cores: all three at 2/3 of a core until the shortest is done, then a core each
-        assert kernels.estimate_seconds(three, workers=2, load=0) == pytest.approx(a / (2 / 3) + (c - a))
+        # 2 cores: the longest on one, the two others one after the other on the other
+        assert kernels.estimate_seconds(three, workers=2, load=0) == pytest.approx(max(c, a + b))
         # one stage on one core beside 3 busy processes gets a quarter of it
         assert kernels.estimate_seconds(["render"], workers=1, load=3) == pytest.approx(4 * cpu["render"])
+        # 2 cores, 2 busy processes besides: the first two stages get half a core each until the shorter ends
+        assert kernels.estimate_seconds(["render", "fill"], workers=2, load=2) == pytest.approx(
+            2 * min(b, c) + (max(b, c) - min(b, c)) / (2 / 3))
         loads = [kernels.estimate_seconds(three, workers=2, load=x) for x in (0.0, 0.5, 2.0, 6.0)]
         assert loads == sorted(loads) and loads[0] < loads[-1]
+
+    def test_compile_apart_runs_one_stage_per_core_longest_first(self, monkeypatch):
+        """The stages start longest first and never more at once than there are cores."""
+        import subprocess
+
+        started, running, most = [], set(), [0]
+
+        class Proc:
+            def __init__(self, cmd, **kwargs):
+                self.stage = cmd[-1].split("'")[1]
+                started.append(self.stage)
+                running.add(self.stage)
+                most[0] = max(most[0], len(running))
+                self.polls = 0
+
+            def poll(self):
+                self.polls += 1
+                return None if self.polls < 2 else 0
+
+            def communicate(self):
+                running.discard(self.stage)
+                return "1.5\n", ""
+
+            returncode = 0
+
+        monkeypatch.setattr(subprocess, "Popen", Proc)
+        monkeypatch.setattr(kernels.os, "cpu_count", lambda: 2)
+        monkeypatch.setattr(kernels.time, "sleep", lambda s: None)
+        lines = []
+        seconds = kernels._compile_apart(["register", "fill", "render"], lines.append, 0.0)
+        assert started == sorted(kernels.STAGES, key=lambda s: -kernels.COMPILE_CPU_S[s])
+        assert most[0] == 2 and seconds == {s: 1.5 for s in kernels.STAGES} and len(lines) == 3
 
     def test_warm_stages_are_checked_once_and_silently(self, monkeypatch):
         import io

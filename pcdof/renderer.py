@@ -351,6 +351,18 @@ def _normalise(acc, acc_a, lin, out):
                     out[y, x, c] = lin[y, x, c]
 
 
+@njit(cache=True, inline="always")
+def _note_run(count, r_max, box, k, y, x0, x1, r):
+    """Add the run of pixels x0..x1 of row y with key *k* and largest radius *r* to the key's count, largest
+    radius and box (row0, row1, col0, col1)."""
+    count[k] += x1 - x0 + 1
+    r_max[k] = max(r_max[k], r)
+    box[k, 0] = min(box[k, 0], y)
+    box[k, 1] = max(box[k, 1], y)
+    box[k, 2] = min(box[k, 2], x0)
+    box[k, 3] = max(box[k, 3], x1)
+
+
 @njit(parallel=True, cache=True)
 def _classify_layers(raw, max_coc, edges):
     """One pass over a signed CoC map (H, W): cleaned CoC, footprint radius, layer ids and per-layer statistics.
@@ -358,8 +370,8 @@ def _classify_layers(raw, max_coc, edges):
     The CoC is cleaned as NaN -> 0 and clipped to +-max_coc; the footprint radius is |c| / 2. The
     signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k]
     (negative in front of focus); layers number the keys present from near to far. Bands of rows
-    run in parallel and note, per key, the pixel count, largest radius and bounding box; the
-    bands are merged exactly (counts, maxima and bounds do not depend on the order), then the
+    run in parallel and note, per key, the pixel count, largest radius and bounding box (once per run of
+    equal keys along a row, not per pixel); the bands are merged exactly (counts, maxima and bounds do not depend on the order), then the
     keys are replaced by layer ids in a second parallel pass.
 
     Returns (coc, radius) float32 (H, W), layer (H, W) int32, keys (L,) int64 ascending, and per
@@ -391,6 +403,8 @@ def _classify_layers(raw, max_coc, edges):
             box[b, k, 2] = w
             box[b, k, 3] = -1
         for y in range(b * h // n_bands, (b + 1) * h // n_bands):
+            # the statistics per run of equal keys along the row (runs are long: a key is a range of depth)
+            run_k, run_x, run_r = -1, 0, np.float32(0.0)
             for x in range(w):
                 c = raw[y, x]
                 c = np.float32(0.0) if c != c else min(max(c, -lim), lim)
@@ -402,12 +416,14 @@ def _classify_layers(raw, max_coc, edges):
                 j = by_half[i]
                 k = n + (-j if c < 0 else j)
                 layer[y, x] = k
-                count[b, k] += 1
-                r_max[b, k] = max(r_max[b, k], r)
-                box[b, k, 0] = min(box[b, k, 0], y)
-                box[b, k, 1] = max(box[b, k, 1], y)
-                box[b, k, 2] = min(box[b, k, 2], x)
-                box[b, k, 3] = max(box[b, k, 3], x)
+                if k == run_k:
+                    run_r = max(run_r, r)
+                    continue
+                if run_k >= 0:
+                    _note_run(count[b], r_max[b], box[b], run_k, y, run_x, x - 1, run_r)
+                run_k, run_x, run_r = k, x, r
+            if run_k >= 0:
+                _note_run(count[b], r_max[b], box[b], run_k, y, run_x, w - 1, run_r)
     # plain loops, not count.sum(axis=0): numba's axis reductions cost seconds of compiling
     present = np.zeros(n_keys, np.bool_)
     n_layers = 0
@@ -450,7 +466,7 @@ def _reduce_cells(lin, radius, member, s):
     """Block means over s x s cells (zero-padded): member-weighted colour and radius, and member share.
     Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s) as float32.
 
-    Rows of cells run in parallel; each cell is summed in local accumulators, its pixels in raster order."""
+    Rows of cells run in parallel; each cell is summed in scalar accumulators, its pixels in raster order."""
     h, w, nc = lin.shape
     hs, ws = (h + s - 1) // s, (w + s - 1) // s
     lin_s = np.zeros((hs, ws, nc), np.float32)
@@ -458,25 +474,31 @@ def _reduce_cells(lin, radius, member, s):
     m_s = np.zeros((hs, ws), np.float32)
     inv_area = 1.0 / (s * s)
     for cy in prange(hs):
-        acc = np.empty(nc, np.float32)
         y0, y1 = cy * s, min(h, (cy + 1) * s)
         for cx in range(ws):
             x0, x1 = cx * s, min(w, (cx + 1) * s)
             m = np.float32(0.0)
             r = np.float32(0.0)
-            acc[:] = 0.0
+            # the channels in scalars, not a small array: they stay in registers (the same sums, in the same order)
+            a0 = a1 = a2 = np.float32(0.0)
             for y in range(y0, y1):
                 for x in range(x0, x1):
                     if member[y, x]:
                         m += np.float32(1.0)
                         r += radius[y, x]
-                        for c in range(nc):
-                            acc[c] += lin[y, x, c]
+                        a0 += lin[y, x, 0]
+                        if nc > 1:
+                            a1 += lin[y, x, 1]
+                        if nc > 2:
+                            a2 += lin[y, x, 2]
             if m > 0:
                 inv = 1.0 / m
                 r_s[cy, cx] = r * inv
-                for c in range(nc):
-                    lin_s[cy, cx, c] = acc[c] * inv
+                lin_s[cy, cx, 0] = a0 * inv
+                if nc > 1:
+                    lin_s[cy, cx, 1] = a1 * inv
+                if nc > 2:
+                    lin_s[cy, cx, 2] = a2 * inv
             m_s[cy, cx] = m * inv_area
     return lin_s, r_s, m_s
 

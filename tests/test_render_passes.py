@@ -1,0 +1,138 @@
+"""The renderer's per-frame passes against their definitions written plainly in numpy.
+
+Each pass (layer classification, the reduced grid's cell means, the tiles' window ranges) is a kernel written
+for speed (statistics per run of equal keys, scalar accumulators, a separable window); these tests state what
+each computes, pixel by pixel, and compare bits on random and adversarial inputs (NaN, infinities, one row,
+one column, long runs and single pixels).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from pcdof import renderer, tiles
+from pcdof.lens import MAX_COC_PX
+
+
+def _coc_map(rng, h, w, kind):
+    """A signed CoC map (H, W) float32: smooth noise, runs of one value, or a few levels; NaN and inf sprinkled."""
+    if kind == "noise":
+        raw = rng.normal(0, 20, (h, w))
+    elif kind == "runs":
+        raw = np.repeat(rng.normal(0, 20, (h, (w + 7) // 8)), 8, axis=1)[:, :w]
+    else:
+        raw = rng.integers(-3, 4, (h, w)) * 5.3
+    raw = raw.astype(np.float32)
+    raw[rng.random((h, w)) < 0.05] = np.nan
+    raw[rng.random((h, w)) < 0.02] = np.inf
+    raw[rng.random((h, w)) < 0.02] = -np.inf
+    return raw
+
+
+def _classify_plainly(raw):
+    """What _classify_layers returns, from its docstring, with numpy."""
+    edges = renderer.LAYER_EDGES_PX
+    coc = np.clip(np.nan_to_num(raw, nan=0.0, posinf=np.inf, neginf=-np.inf), -MAX_COC_PX, MAX_COC_PX)
+    coc = coc.astype(np.float32)
+    a = np.abs(coc)
+    j = np.searchsorted(edges, a.astype(np.float64), side="right")  # edges[j-1] <= |c| < edges[j]
+    key = np.where(coc < 0, -j, j)
+    keys = np.unique(key)
+    layer = np.searchsorted(keys, key).astype(np.int32)
+    count = np.array([np.count_nonzero(key == k) for k in keys], np.int64)
+    r_max = np.array([a[key == k].max() * np.float32(0.5) for k in keys], np.float32)
+    boxes = []
+    for k in keys:
+        ys, xs = np.nonzero(key == k)
+        boxes.append((ys.min(), ys.max(), xs.min(), xs.max()))
+    return coc, a * np.float32(0.5), layer, keys.astype(np.int64), count, r_max, np.array(boxes, np.int64)
+
+
+class TestClassifyLayers:
+    @pytest.mark.parametrize("kind", ["noise", "runs", "levels"])
+    @pytest.mark.parametrize("shape", [(1, 1), (1, 57), (61, 1), (37, 83), (130, 70)])
+    def test_matches_the_definition(self, kind, shape):
+        rng = np.random.default_rng(hash((kind, shape)) % 2 ** 32)
+        raw = _coc_map(rng, *shape, kind)
+        got = renderer._classify_layers(raw, MAX_COC_PX, renderer.LAYER_EDGES_PX)
+        for name, g, e in zip(("coc", "radius", "layer", "keys", "count", "r_max", "box"), got,
+                              _classify_plainly(raw)):
+            assert g.dtype == e.dtype, name
+            np.testing.assert_array_equal(g, e, err_msg=name)
+
+    @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 80), w=st.integers(1, 80),
+           kind=st.sampled_from(["noise", "runs", "levels"]))
+    def test_property_any_map(self, seed, h, w, kind):
+        raw = _coc_map(np.random.default_rng(seed), h, w, kind)
+        got = renderer._classify_layers(raw, MAX_COC_PX, renderer.LAYER_EDGES_PX)
+        for g, e in zip(got, _classify_plainly(raw)):
+            np.testing.assert_array_equal(g, e)
+
+
+def _reduce_plainly(lin, radius, member, s):
+    """Member-weighted cell means of colour and radius, and the member share, cell by cell, pixels in raster
+    order with float32 sums (as the kernel's docstring states)."""
+    h, w, nc = lin.shape
+    hs, ws = -(-h // s), -(-w // s)
+    lin_s = np.zeros((hs, ws, nc), np.float32)
+    r_s = np.zeros((hs, ws), np.float32)
+    m_s = np.zeros((hs, ws), np.float32)
+    for cy in range(hs):
+        for cx in range(ws):
+            cell = (slice(cy * s, (cy + 1) * s), slice(cx * s, (cx + 1) * s))
+            m = np.float32(0.0)
+            r = np.float32(0.0)
+            acc = np.zeros(nc, np.float32)
+            for y, x in zip(*np.nonzero(member[cell])):
+                m += np.float32(1.0)
+                r += radius[cell][y, x]
+                acc += lin[cell][y, x]
+            if m > 0:
+                inv = 1.0 / float(m)  # float64 products, rounded once to float32
+                r_s[cy, cx] = float(r) * inv
+                lin_s[cy, cx] = acc.astype(np.float64) * inv
+            m_s[cy, cx] = float(m) * (1.0 / (s * s))
+    return lin_s, r_s, m_s
+
+
+class TestReduceCells:
+    @pytest.mark.parametrize("nc", [1, 2, 3])
+    @pytest.mark.parametrize("s", [2, 4, 8])
+    def test_matches_the_definition(self, nc, s):
+        rng = np.random.default_rng(10 * nc + s)
+        h, w = 37, 53  # cells cut by both borders
+        lin = rng.random((h, w, nc)).astype(np.float32) * 3
+        radius = rng.random((h, w)).astype(np.float32) * 10
+        member = rng.random((h, w)) < 0.6
+        member[:s, :s] = False  # an empty cell
+        for g, e in zip(renderer._reduce_cells(lin, radius, member, s), _reduce_plainly(lin, radius, member, s)):
+            assert g.dtype == e.dtype
+            np.testing.assert_array_equal(g, e)
+
+
+def _window_plainly(lo, hi, k):
+    th, tw = lo.shape
+    wlo, whi = np.empty_like(lo), np.empty_like(hi)
+    for ty in range(th):
+        for tx in range(tw):
+            win = (slice(max(0, ty - k), ty + k + 1), slice(max(0, tx - k), tx + k + 1))
+            wlo[ty, tx], whi[ty, tx] = lo[win].min(), hi[win].max()
+    return wlo, whi
+
+
+class TestWindowRange:
+    @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @given(seed=st.integers(0, 2 ** 32 - 1), th=st.integers(1, 30), tw=st.integers(1, 30), k=st.integers(0, 8))
+    def test_min_and_max_over_the_window(self, seed, th, tw, k):
+        rng = np.random.default_rng(seed)
+        lo = rng.normal(0, 10, (th, tw)).astype(np.float32)
+        hi = lo + rng.random((th, tw)).astype(np.float32)
+        lo[rng.random((th, tw)) < 0.05] = -np.inf
+        hi[rng.random((th, tw)) < 0.05] = np.inf
+        for g, e in zip(tiles._window_range(lo, hi, k), _window_plainly(lo, hi, k)):
+            assert g.dtype == e.dtype
+            np.testing.assert_array_equal(g, e)

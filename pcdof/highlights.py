@@ -154,14 +154,26 @@ def clipped_mask(linear_rgb: np.ndarray, clip_level: float = CLIP_LEVEL) -> np.n
     if img.ndim != 3 or img.shape[2] != 3:
         raise InputError(f"linear_rgb must be an (H, W, 3) array; got {img.shape}")
     _number("clip_level", clip_level, 0.0, strict=True)
+    if img.dtype in (np.uint8, np.uint16) and img.size:
+        # integer codes: c >= level exactly where c >= ceil(level), an integer OpenCV compares exactly
+        level = math.ceil(clip_level)
+        if level > np.iinfo(img.dtype).max:
+            return np.zeros(img.shape[:2], bool)
+        return _any_channel_at_least(img, max(level, 0))
     if img.dtype not in (np.float32, np.float64) or img.size == 0:
         m = img >= clip_level
         return m[..., 0] | m[..., 1] | m[..., 2]  # ten times faster than numpy's any() over the last axis
-    # OpenCV, twice as fast again: the channels compared as one row (0 / 255), then any channel by a grey
-    # conversion, > 0 exactly where a channel is 255 (its smallest weight, blue's 0.114, still gives 29). The
-    # level in the image's dtype, as numpy compares a float32 array with a Python float
+    # the level in the image's dtype, as numpy compares a float32 array with a Python float
+    return _any_channel_at_least(img, float(img.dtype.type(clip_level)))
+
+
+def _any_channel_at_least(img, level):
+    """(H, W) bool: a channel of *img* (H, W, 3; uint8, uint16, float32 or float64) >= *level* (in its dtype).
+
+    OpenCV, twice as fast as numpy's: the channels compared as one row (0 / 255), then any channel by a grey
+    conversion, > 0 exactly where a channel is 255 (its smallest weight, blue's 0.114, still gives 29)."""
     flat = np.ascontiguousarray(img).reshape(img.shape[0], -1)
-    codes = cv2.compare(flat, float(img.dtype.type(clip_level)), cv2.CMP_GE).reshape(img.shape)
+    codes = cv2.compare(flat, level, cv2.CMP_GE).reshape(img.shape)
     return cv2.cvtColor(codes, cv2.COLOR_RGB2GRAY) > 0
 
 
@@ -287,16 +299,34 @@ def _disc(diameter_px: float) -> np.ndarray:
     return k
 
 
+#: what white shows (:func:`_display` of 1), computed as it computes it
+_WHITE = 1.055 * np.power(np.float64(1.0), 1 / 2.4) - 0.055
+
+
 def _display(linear):
-    """What a pixel shows: linear light clipped at white, sRGB-encoded (the scale the loss is taken on)."""
+    """What a pixel shows: linear light clipped at white, sRGB-encoded (the scale the loss is taken on).
+
+    The power only where the value is strictly between the encoding's linear segment and white: most of a
+    blurred blob's samples are at white for most of the levels tried (the same values, a fraction of the work)."""
     v = np.clip(linear, 0.0, 1.0)
-    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
+    out = np.where(v <= 0.0031308, 12.92 * v, _WHITE)
+    curve = ~(v <= 0.0031308) & ~(v >= 1.0)  # (NaN, as np.power gives it)
+    out[curve] = 1.055 * np.power(v[curve], 1 / 2.4) - 0.055
+    return out
 
 
 def prior_levels(clip_level: float, prior_max: float, n: int = PRIOR_SAMPLES) -> np.ndarray:
     """Quadrature of the log-uniform prior over [clip_level, prior_max]: *n* log-spaced midpoints (equal weight)."""
+    return _prior_levels(float(clip_level), float(prior_max), int(n)).copy()
+
+
+@functools.lru_cache(maxsize=256)
+def _prior_levels(clip_level: float, prior_max: float, n: int) -> np.ndarray:
+    """:func:`prior_levels`, read-only and kept: most blobs' channels share one prior."""
     lo, hi = math.log(clip_level), math.log(max(prior_max, clip_level))
-    return np.exp(lo + (np.arange(n) + 0.5) / n * (hi - lo))
+    levels = np.exp(lo + (np.arange(n) + 0.5) / n * (hi - lo))
+    levels.flags.writeable = False
+    return levels
 
 
 def expected_best_level(base, k, weight, levels, keep: float, level_weights=None) -> float:
@@ -387,21 +417,36 @@ def channel_bound(block, clipped_ch, c: int, max_ratio: float) -> float:
     return float(max_ratio * np.median(measured[has]))
 
 
-def _footprint(chan, m, edge, keep: float, d: float):
+def _footprint(chan, m, edge, keep: float, d: float, cover=None):
     """One clipped channel of a blob blurred by a disc of diameter *d*: (base, k, weight) at the output pixels
     it reaches (:func:`expected_best_level`'s arguments; the raised value is L inside, (L + keep) / 2 on
     the *edge*). A blur wider than :data:`MAX_KERNEL_PX` is computed on the window shrunk by d /
-    MAX_KERNEL_PX (area-averaged, each sample standing for that many more pixels)."""
+    MAX_KERNEL_PX (area-averaged, each sample standing for that many more pixels).
+
+    *cover*: a dict that keeps the blurred interior and edge of each mask blurred at full resolution, for the
+    blob's other channels clipped in the same pixels (a white light: the same two blurs three times)."""
     scale = max(1.0, d / MAX_KERNEL_PX)
-    layers = np.stack([np.where(m, 0.0, chan), m & ~edge, edge], axis=-1).astype(np.float32)
     if scale > 1.0:
+        layers = np.stack([np.where(m, 0.0, chan), m & ~edge, edge], axis=-1).astype(np.float32)
         h, w = chan.shape
         size = (max(1, round(w / scale)), max(1, round(h / scale)))
         layers = cv2.resize(layers, size, interpolation=cv2.INTER_AREA).reshape(size[1], size[0], 3)
-    kern = _disc(d / scale)
-    rest = cv2.filter2D(layers[..., 0], -1, kern, borderType=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
-    inner, k_edge = (cv2.filter2D(layers[..., i], -1, kern, borderType=cv2.BORDER_CONSTANT).ravel().astype(np.float64)
-                     for i in (1, 2))
+        kern = _disc(d / scale)
+        rest = cv2.filter2D(layers[..., 0], -1, kern, borderType=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
+        inner, k_edge = (cv2.filter2D(layers[..., i], -1, kern, borderType=cv2.BORDER_CONSTANT).ravel()
+                         .astype(np.float64) for i in (1, 2))
+    else:
+        kern = _disc(d)
+        rest = cv2.filter2D(np.where(m, np.float32(0.0), chan).astype(np.float32), -1, kern,
+                            borderType=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
+        key = (m.shape, m.tobytes())
+        if cover is None or key not in cover:
+            blurred = tuple(cv2.filter2D(a.astype(np.float32), -1, kern, borderType=cv2.BORDER_CONSTANT).ravel()
+                            .astype(np.float64) for a in (m & ~edge, edge))
+            if cover is None:
+                cover = {}
+            cover[key] = blurred
+        inner, k_edge = cover[key]
     base, k = rest + keep / 2 * k_edge, inner + k_edge / 2
     sel = np.flatnonzero(k > 1e-6)
     step = max(1, int(math.ceil(sel.size / MAX_FOOTPRINT_PX)))
@@ -414,6 +459,7 @@ def _prior_channels(block, clipped_ch, clipped, d, prior, use_rim):
     least 1; *prior*: (clip level, prior max, channel ratio)): (channel, its clipped mask, edge mask, keep,
     problem) each, the problem (base, k, weight, candidates (1 + T,), probabilities (T,)) of :func:`_best_levels`."""
     clip_level, prior_max, max_ratio = prior
+    cover = {}  # the blurred clipped pixels of each channel's mask, shared by channels clipped alike
     for c in range(3):
         m = clipped_ch[..., c]
         if not m.any():
@@ -421,13 +467,14 @@ def _prior_channels(block, clipped_ch, clipped, d, prior, use_rim):
         top = min(prior_max, channel_bound(block, clipped_ch, c, max_ratio))
         if top <= clip_level:
             continue
-        levels = prior_levels(clip_level, top)
+        levels = _prior_levels(float(clip_level), float(top), PRIOR_SAMPLES)
         chan, edge = block[..., c], _edge(m)
         keep = float(chan[m].max())
         # an edge pixel is partly covered: given that it clipped, its coverage is even over (p, 1), so its
         # expected value is (L + clip) / 2 (see the module notes); the interior is L
         lw = rim_likelihood(chan, m, clipped, levels, clip_level) if use_rim else np.ones(len(levels))
-        yield c, m, edge, keep, (*_footprint(chan, m, edge, keep, d), np.concatenate(([keep], levels)), lw / lw.sum())
+        yield c, m, edge, keep, (*_footprint(chan, m, edge, keep, d, cover), np.concatenate(([keep], levels)),
+                                 lw / lw.sum())
 
 
 def _batches(items, sizes, cap: int):

@@ -371,8 +371,8 @@ def _classify_layers(raw, max_coc, edges):
     signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k]
     (negative in front of focus); layers number the keys present from near to far. Bands of rows
     run in parallel and note, per key, the pixel count, largest radius and bounding box (once per run of
-    equal keys along a row, not per pixel); the bands are merged exactly (counts, maxima and bounds do not depend on the order), then the
-    keys are replaced by layer ids in a second parallel pass.
+    equal keys along a row, not per pixel); the bands are merged exactly (counts, maxima and bounds do not
+    depend on the order), then the keys are replaced by layer ids in a second parallel pass.
 
     Returns (coc, radius) float32 (H, W), layer (H, W) int32, keys (L,) int64 ascending, and per
     layer: count (L,) int64, largest radius (L,) float32, box (L, 4) int64 (row0, row1, col0, col1; inclusive).
@@ -1431,7 +1431,7 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     if cmax > MAX_COC_PX:
         warnings.warn(f"circle of confusion up to {cmax:.0f} px clamped to {MAX_COC_PX:.0f} px", stacklevel=3)
     src = _as_channels(color)
-    lin = to_float(src).copy() if linear else decode_to_linear(src)
+    lin = to_float(src) if linear else decode_to_linear(src)  # read only: the render never writes its input
     tiles = classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
     out_lin, info = render_layers_linear(np.ascontiguousarray(lin, np.float32), coc,
                                          aperture=aperture_for(lens),

@@ -449,6 +449,17 @@ def _candidates(holes, bnd, h, rules, iv, r, kq, qs, slot):
 
 
 @njit(cache=True, inline="always")
+def _support_bound(r, order, start, end, support_px):
+    """The most a surface's candidates order[start:end] can score: every colour similarity 1 (its largest).
+
+    Summed in the order the score is, so the score, rounded alike term by term, never exceeds it."""
+    bound = 0.0
+    for i in range(start, end):
+        bound += 1.0 / (r[order[i]] + support_px)
+    return bound
+
+
+@njit(cache=True, inline="always")
 def _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, z, order):
     """(1/z, kind) of a hole whose candidates span several surfaces (steps 2-4)."""
     for j in range(m):  # sort far to near (insertion sort: at most 16 candidates)
@@ -477,6 +488,10 @@ def _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, sl
         end = start + 1
         while end < m and z[end - 1] - z[end] <= rules.edge_ratio * z[end - 1]:
             end += 1
+        if rules.use_color and start > 0 and \
+                _support_bound(r, order, start, end, rules.support_px) / bias <= best_score:
+            start = end  # cannot score more than the best so far, whatever its colours: not sampled
+            continue
         score = 0.0
         sw = 0.0
         swi = 0.0

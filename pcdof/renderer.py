@@ -150,8 +150,44 @@ def _row_strips(radius, k0, n, reach, symmetric, table, area, centre):
 
 
 # ----------------------------------------------------------------------------- layer kernels
+#: The work of one output row of the scatter that does not depend on its sources (clearing and summing its
+#: difference array), in strips per pixel of the row's width (measured: a strip costs about 8 ns, a pixel of
+#: that pass about 1 ns)
+_ROW_PASS_STRIPS_PER_PX = 0.125
+
+
+@njit(cache=True)
+def _balanced_runs(offsets, width, reach, y_lo, y_hi, runs):
+    """First rows of up to *runs* runs of the output rows y_lo..y_hi of about equal scatter work, then y_hi + 1.
+
+    A row's work is its strips (one per source of the 2 reach + 1 rows around it; an upper bound: their own
+    footprints may not reach it) plus the pass over its width. A run starts by computing the strips of the
+    2 reach source rows before its first, so there are at most (rows) / (2 reach) runs. Returns (n + 1,)
+    int64, ascending (*offsets*: the sources' row offsets, as :func:`_scatter_packed` takes them).
+    """
+    h = offsets.size - 1
+    n_rows = y_hi - y_lo + 1
+    n = max(1, min(runs, n_rows // (2 * reach)))
+    work = np.empty(n_rows + 1, np.float64)  # cumulative
+    work[0] = 0.0
+    for i in range(n_rows):
+        y = y_lo + i
+        near = offsets[min(h - 1, y + reach) + 1] - offsets[max(0, y - reach)]
+        work[i + 1] = work[i] + near + _ROW_PASS_STRIPS_PER_PX * width
+    starts = np.empty(n + 1, np.int64)
+    starts[0] = y_lo
+    starts[n] = y_hi + 1
+    j = 0
+    for t in range(1, n):
+        target = work[n_rows] * t / n
+        while j < n_rows and work[j] < target:
+            j += 1
+        starts[t] = max(starts[t - 1], y_lo + j)
+    return starts
+
+
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
-def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symmetric, table, out, tasks):
+def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symmetric, table, out, starts):
     """Scatter packed sources into ``out`` rows y_lo..y_hi (H, W, 4: premultiplied colour, coverage).
 
     Sources are sorted by row: those of row y are ``offsets[y]:offsets[y+1]``, at column ``xs``,
@@ -160,10 +196,11 @@ def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symme
     into two fractional end pixels and a run of whole pixels (kept as a difference array). Runs as
     a gather over output rows, so rows are independent; the four channels are unrolled.
 
-    The output rows are cut into up to *tasks* runs of consecutive rows, one parallel task each (one
-    parallel region per call: on a loaded machine every region waits for its slowest thread). A
-    task keeps the strips of the 2 reach + 1 source rows around its current output row in a ring,
-    each source row's strips computed once when the task first needs them, so the table lookups
+    The output rows y_lo..y_hi are cut into runs of consecutive rows, run i starting at ``starts[i]``
+    (``starts[-1]`` = y_hi + 1; :func:`_balanced_runs`), one parallel task each (one parallel region per
+    call: on a loaded machine every region waits for its slowest thread). A task keeps the strips of
+    the 2 reach + 1 source rows around its current output row in a ring, each source row's strips
+    computed once when the task first needs them, so the table lookups
     are off the gather's critical path and shared by the rows they serve. Every output pixel sums
     the same terms in the same order (source row, then column) whatever the split.
     """
@@ -173,12 +210,9 @@ def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symme
     n_max = 0
     for ys in range(max(0, y_lo - reach), min(h - 1, y_hi + reach) + 1):
         n_max = max(n_max, offsets[ys + 1] - offsets[ys])
-    n_rows = y_hi - y_lo + 1
-    # a task recomputes the strips of 2 reach source rows at its start: runs of at least 4 reach rows
-    n_tasks = max(1, min(tasks, n_rows // (4 * reach)))
-    for task in prange(n_tasks):
-        ya = y_lo + task * n_rows // n_tasks
-        yb = y_lo + (task + 1) * n_rows // n_tasks
+    for task in prange(starts.size - 1):
+        ya = starts[task]
+        yb = starts[task + 1]
         areas = np.empty((nd, nd, n_max), np.float64)  # [source row % nd, dy + reach, source]
         centres = np.zeros((nd if not symmetric else 1, nd, n_max), np.float64)
         row_r = np.zeros(nd, np.float32)  # the largest radius of each source row in the ring
@@ -656,7 +690,7 @@ def _footprint_kernel(r: float, symmetric: bool, table: np.ndarray) -> np.ndarra
     offsets[reach + 1:] = 1  # the one source sits on row `reach`
     buf = np.zeros((n, n, 4), np.float32)
     _scatter_packed(np.array([reach], np.float32), np.array([r], np.float32), values, offsets, n, float(r), 0, n - 1,
-                    symmetric, table, buf, 1)
+                    symmetric, table, buf, np.array([0, n], np.int64))
     return np.ascontiguousarray(buf[:, :, 3])
 
 
@@ -1004,9 +1038,12 @@ def _scatter_sources(grid: _Grid, scattered, aperture: _Aperture, buf) -> int:
         r_max = float(src_r.max())
         reach = int(math.ceil(r_max + 0.5))
         hs, ws = scattered.shape
-        # two runs of rows per thread: rows carry unequal work, and two balance it better than one (measured)
-        _scatter_packed(xs, src_r, values, offsets, ws, r_max, max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach),
-                        aperture.symmetric, aperture.table, buf, 2 * get_num_threads())
+        y_lo, y_hi = max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach)
+        # one run of rows of equal work per thread: numba's static schedule hands each thread an equal count of
+        # runs, so runs of equal rows (as many as 3 on 2 threads) left one thread up to twice the other's work
+        starts = _balanced_runs(offsets, ws, reach, y_lo, y_hi, get_num_threads())
+        _scatter_packed(xs, src_r, values, offsets, ws, r_max, y_lo, y_hi, aperture.symmetric, aperture.table, buf,
+                        starts)
     return n_scattered
 
 

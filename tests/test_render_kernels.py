@@ -79,13 +79,17 @@ def random_sources(rng, h, w, n, r_lo, r_hi):
     return xs, ys, radius, values
 
 
-def run_scatter(xs, ys, radius, values, shape, aperture, y_lo=None, y_hi=None, tasks=4) -> np.ndarray:
+def run_scatter(xs, ys, radius, values, shape, aperture, y_lo=None, y_hi=None, tasks=4, starts=None) -> np.ndarray:
+    """The scatter of the rows y_lo..y_hi in up to *tasks* runs of equal work, or in the runs that begin at *starts*."""
     h, w = shape
     table = renderer.aperture_table(aperture)
     pxs, pr, pv, offsets = packed(xs, ys, radius, values, h)
     out = np.zeros((h, w, 4), np.float32)
-    renderer._scatter_packed(pxs, pr, pv, offsets, w, float(pr.max()), 0 if y_lo is None else y_lo,
-                             h - 1 if y_hi is None else y_hi, aperture.symmetric, table, out, tasks)
+    y_lo, y_hi = 0 if y_lo is None else y_lo, h - 1 if y_hi is None else y_hi
+    if starts is None:
+        starts = renderer._balanced_runs(offsets, w, math.ceil(float(pr.max()) + 0.5), y_lo, y_hi, tasks)
+    renderer._scatter_packed(pxs, pr, pv, offsets, w, float(pr.max()), y_lo, y_hi, aperture.symmetric, table, out,
+                             np.asarray(starts, np.int64))
     return out
 
 
@@ -135,6 +139,33 @@ class TestScatterPacked:
         assert one.any()
         for tasks in (2, 3, 5, 8, 20):
             np.testing.assert_array_equal(run_scatter(xs, ys, radius, values, (h, w), APERTURES[name], tasks=tasks), one)
+        # runs of any length, one row and empty ones included
+        for starts in ([0, 1, 2, 60, 60, 127, 128], [0, 3, 128], [0, 128, 128]):
+            np.testing.assert_array_equal(run_scatter(xs, ys, radius, values, (h, w), APERTURES[name], starts=starts),
+                                          one)
+
+    @settings(max_examples=60, deadline=None)
+    @given(seed=st.integers(0, 2 ** 32 - 1), n_rows=st.integers(1, 400), reach=st.integers(1, 20),
+           runs=st.integers(1, 16), width=st.integers(1, 2000))
+    def test_balanced_runs_cut_the_rows_into_runs_of_about_equal_work(self, seed, n_rows, reach, runs, width):
+        rng = np.random.default_rng(seed)
+        h = n_rows + int(rng.integers(0, 30))
+        y_lo = int(rng.integers(0, h - n_rows + 1))
+        y_hi = y_lo + n_rows - 1
+        counts = rng.integers(0, 50, h) * (rng.random(h) < 0.5)
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        starts = renderer._balanced_runs(offsets, width, reach, y_lo, y_hi, runs)
+        n = starts.size - 1
+        assert starts[0] == y_lo and starts[-1] == y_hi + 1 and np.all(np.diff(starts) >= 0)
+        assert n == max(1, min(runs, n_rows // (2 * reach)))
+        # a row's work: the sources within reach plus the pass over its width; every run within one row's work of
+        # an equal share
+        ys = np.arange(y_lo, y_hi + 1)
+        near = offsets[np.minimum(h - 1, ys + reach) + 1] - offsets[np.maximum(0, ys - reach)]
+        work = near + renderer._ROW_PASS_STRIPS_PER_PX * width
+        cum = np.concatenate([[0.0], np.cumsum(work)])
+        shares = cum[starts[1:] - y_lo] - cum[starts[:-1] - y_lo]
+        assert np.all(np.abs(shares - cum[-1] / n) <= work.max() + 1e-9 * cum[-1])
 
     @pytest.mark.parametrize("name", list(APERTURES))
     def test_energy_of_sources_inside_the_frame(self, name):

@@ -724,35 +724,35 @@ def _fast_cells(fast, member, s):
 
 
 @njit(cache=True)
-def _bin_groups(bins, max_waste):
-    """The radius bins (hs, ws) int32 (``_NO_BIN`` where no cell) that a convolution serves well, in place.
+def _bin_groups(bins, max_waste, b_lo, b_hi):
+    """The radius bins (hs, ws) int32 (``_NO_BIN`` where no cell; the others within b_lo..b_hi) that a
+    convolution serves well, in place.
 
     Drops (sets to ``_NO_BIN``) the bins whose cells fill less than 1 / *max_waste* of their bounding window;
     returns one row per kept bin, (bin, y0, y1, x0, x1) (n, 5) int64 ascending: the bin and that window.
+    One pass over the cells, each run of one bin along a row noted once (neighbouring cells share a bin).
     """
     hs, ws = bins.shape
-    b_lo, b_hi = 2 ** 31 - 1, -(2 ** 31)
-    for y in range(hs):
-        for x in range(ws):
-            b = bins[y, x]
-            if b != _NO_BIN:
-                b_lo = min(b_lo, b)
-                b_hi = max(b_hi, b)
     n_bins = max(0, b_hi - b_lo + 1)
     count = np.zeros(n_bins, np.int64)
     box = np.empty((n_bins, 4), np.int64)  # y0, y1, x0, x1 of each bin's cells
     for i in range(n_bins):
         box[i, 0], box[i, 1], box[i, 2], box[i, 3] = hs, 0, ws, 0
     for y in range(hs):
-        for x in range(ws):
+        x = 0
+        while x < ws:
             b = bins[y, x]
-            if b != _NO_BIN:
+            x0 = x
+            x += 1
+            while x < ws and bins[y, x] == b:
+                x += 1
+            if b != _NO_BIN:  # cells x0 .. x-1 of bin b
                 i = b - b_lo
-                count[i] += 1
+                count[i] += x - x0
                 box[i, 0] = min(box[i, 0], y)
                 box[i, 1] = max(box[i, 1], y + 1)
-                box[i, 2] = min(box[i, 2], x)
-                box[i, 3] = max(box[i, 3], x + 1)
+                box[i, 2] = min(box[i, 2], x0)
+                box[i, 3] = max(box[i, 3], x)
     # plain loops, not array expressions: each of those costs numba a second or so of compiling
     keep = np.zeros(n_bins, np.bool_)
     n_kept = 0
@@ -793,7 +793,7 @@ def _uniform_plan(fast, radius):
     np.rint(b, out=b)
     bins = np.full(fast.shape, _NO_BIN, np.int32)
     bins[fast] = b
-    kept = _bin_groups(bins, UNIFORM_MAX_WASTE)
+    kept = _bin_groups(bins, UNIFORM_MAX_WASTE, *((int(b.min()), int(b.max())) if b.size else (0, -1)))
     groups = [(int(b), math.exp(int(b) * step), (int(y0), int(y1), int(x0), int(x1))) for b, y0, y1, x0, x1 in kept]
     return bins, groups
 

@@ -33,6 +33,7 @@ eq. 2 (or eq. 1), computed in the image's own sRGB encoding as in the paper.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import warnings
@@ -40,7 +41,7 @@ from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import get_num_threads, njit, prange, set_num_threads
 
 from .apertures import Aperture, aperture_for, aperture_from_blades, as_aperture
 from .camera import _short, check_color
@@ -63,6 +64,27 @@ SHARP_COC_PX = 1.0
 #: |c| >= 1 px (radius >= 0.5), and a disc smaller than a pixel lands in one pixel anyway. Keeps
 #: 1 / (pi r^2) finite for the pixels around a layer whose circle of confusion is tiny.
 MIN_SOURCE_RADIUS_PX = 0.5
+
+
+#: Kernels with less work than this (pixels, or strips of the scatter: about 1 and 8 ns each on one core) run
+#: on one thread. Every parallel region wakes the other threads and waits for the slowest: 10-20 us on an idle
+#: machine, and about 0.5 ms, a scheduler's slice, while another process keeps the other core busy.
+SERIAL_BELOW_PX = 65_536
+SERIAL_BELOW_STRIPS = 16_384
+
+
+@contextlib.contextmanager
+def _serial_if(small: bool):
+    """Run the block's numba kernels on one thread when *small* (numba's thread count is per calling thread)."""
+    if not small:
+        yield
+        return
+    before = get_num_threads()
+    set_num_threads(1)
+    try:
+        yield
+    finally:
+        set_num_threads(before)
 
 
 # ----------------------------------------------------------------------------- aperture spans
@@ -689,8 +711,9 @@ def _footprint_kernel(r: float, symmetric: bool, table: np.ndarray) -> np.ndarra
     offsets = np.zeros(n + 1, np.int64)
     offsets[reach + 1:] = 1  # the one source sits on row `reach`
     buf = np.zeros((n, n, 4), np.float32)
-    _scatter_packed(np.array([reach], np.float32), np.array([r], np.float32), values, offsets, n, float(r), 0, n - 1,
-                    symmetric, table, buf, np.array([0, n], np.int64))
+    with _serial_if(True):  # one run of a few rows
+        _scatter_packed(np.array([reach], np.float32), np.array([r], np.float32), values, offsets, n, float(r), 0,
+                        n - 1, symmetric, table, buf, np.array([0, n], np.int64))
     return np.ascontiguousarray(buf[:, :, 3])
 
 
@@ -909,7 +932,9 @@ def _convolve_uniform(lin, share, bins, groups, symmetric, table, buf):
     """
     for b, radius, (ya, yb, xa, xb) in groups:
         taps, weights = _footprint_taps(_footprint_kernel(radius, symmetric, table))
-        _convolve_rows(lin, share, bins, b, ya, yb, xa, xb, taps, weights, 2 * get_num_threads(), buf)
+        k = taps.shape[0] // 2
+        with _serial_if((yb - ya) // (4 * k + 4) < 2 or (yb - ya) * (xb - xa) < SERIAL_BELOW_PX):
+            _convolve_rows(lin, share, bins, b, ya, yb, xa, xb, taps, weights, 2 * get_num_threads(), buf)
 
 
 @dataclass(frozen=True)
@@ -963,8 +988,9 @@ def _reduced_grid(lin, radius, member, hidden, reach_px, s) -> _Grid:
     source next to it (a lamp beside a wall, behind a blurred foreground; 0.17 dB against exact on such a
     wide-benchmark case, 0.03 dB extended per pixel)."""
     lin, radius, member, extended = _extended(lin, radius, member, hidden, reach_px)
-    lin_s, r, m_s = _reduce_cells(np.ascontiguousarray(lin, np.float32), np.ascontiguousarray(radius, np.float32),
-                                  np.ascontiguousarray(member), s)
+    with _serial_if(member.size < SERIAL_BELOW_PX):
+        lin_s, r, m_s = _reduce_cells(np.ascontiguousarray(lin, np.float32),
+                                      np.ascontiguousarray(radius, np.float32), np.ascontiguousarray(member), s)
     # the block mean and the upsampling widen the blur by resample_variance_px2(s) per axis; a disc of
     # radius r has r^2 / 4: take it off the radius (at most down to half of it)
     r_s = (np.sqrt(np.maximum(r * r - 4 * resample_variance_px2(s), 0.25 * r * r)) / s).astype(np.float32)
@@ -1041,9 +1067,11 @@ def _scatter_sources(grid: _Grid, scattered, aperture: _Aperture, buf) -> int:
         y_lo, y_hi = max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach)
         # one run of rows of equal work per thread: numba's static schedule hands each thread an equal count of
         # runs, so runs of equal rows (as many as 3 on 2 threads) left one thread up to twice the other's work
-        starts = _balanced_runs(offsets, ws, reach, y_lo, y_hi, get_num_threads())
-        _scatter_packed(xs, src_r, values, offsets, ws, r_max, y_lo, y_hi, aperture.symmetric, aperture.table, buf,
-                        starts)
+        small = n_scattered * (2 * reach + 1) < SERIAL_BELOW_STRIPS
+        starts = _balanced_runs(offsets, ws, reach, y_lo, y_hi, 1 if small else get_num_threads())
+        with _serial_if(starts.size == 2):
+            _scatter_packed(xs, src_r, values, offsets, ws, r_max, y_lo, y_hi, aperture.symmetric, aperture.table,
+                            buf, starts)
     return n_scattered
 
 
@@ -1355,7 +1383,8 @@ def _blur_layer(frame: _Frame, canvas: _Canvas, li: int, key: int, n_members: in
     fast = frame.tiles.pixel_mask(uniform, box) if uniform.any() else None
     buf, extended, n_kernels, n_scattered = _scatter_layer(frame.lin[box], frame.radius[box], m, s, frame.aperture,
                                                            hidden, ext_reach, fast)
-    _composite_under(buf, box[0].start, box[1].start, canvas.acc, canvas.acc_a, canvas.trans)
+    with _serial_if(buf.shape[0] * buf.shape[1] < SERIAL_BELOW_PX):
+        _composite_under(buf, box[0].start, box[1].start, canvas.acc, canvas.acc_a, canvas.trans)
     return {"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
             "side": "front" if key < 0 else "back", "scale": s, "extended": extended,
             "uniform_tiles": int(uniform.sum()), "kernels": n_kernels, "sources_scattered": n_scattered}

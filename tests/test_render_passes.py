@@ -136,3 +136,30 @@ class TestWindowRange:
         for g, e in zip(tiles._window_range(lo, hi, k), _window_plainly(lo, hi, k)):
             assert g.dtype == e.dtype
             np.testing.assert_array_equal(g, e)
+
+
+class TestSerialIf:
+    def test_one_thread_inside_and_the_count_restored_after(self):
+        import numba
+
+        before = numba.get_num_threads()
+        with renderer._serial_if(True):
+            assert numba.get_num_threads() == 1
+        assert numba.get_num_threads() == before
+        with renderer._serial_if(False):
+            assert numba.get_num_threads() == before
+        with pytest.raises(ValueError), renderer._serial_if(True):
+            raise ValueError("restored all the same")
+        assert numba.get_num_threads() == before
+
+    def test_a_frame_renders_alike_with_small_kernels_on_one_thread_or_not(self, monkeypatch):
+        """The thresholds only choose threads: every kernel's output is the same whatever the threads."""
+        rng = np.random.default_rng(4)
+        lin = rng.random((96, 128, 3)).astype(np.float32)
+        coc = np.repeat(np.linspace(-14, 20, 128, dtype=np.float32)[None], 96, axis=0)
+        coc[:, 60:70] = 0.2
+        serial, _ = renderer.render_layers_linear(lin, coc)
+        monkeypatch.setattr(renderer, "SERIAL_BELOW_PX", 0)
+        monkeypatch.setattr(renderer, "SERIAL_BELOW_STRIPS", 0)
+        parallel, _ = renderer.render_layers_linear(lin, coc)
+        np.testing.assert_array_equal(serial, parallel)

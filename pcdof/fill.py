@@ -121,6 +121,19 @@ _HALF = np.array([
 ], dtype=np.int64)
 
 
+def _count_holes(depth_m) -> tuple[np.ndarray, int]:
+    """*depth_m* as an array, checked (2-D, numeric), and its number of unknown pixels (0, NaN, inf, negative)."""
+    arr = np.asarray(depth_m)
+    if arr.ndim != 2:
+        raise InputError(f"depth_m must be a 2-D (H, W) array; got shape {arr.shape}")
+    if arr.dtype.kind not in "fiub":
+        raise InputError(f"depth_m must be numeric; got dtype {arr.dtype}")
+    if arr.dtype.kind == "f":
+        # known: 0 < z < inf (NaN compares false), two comparisons and no temporary of isfinite
+        return arr, int(arr.size - np.count_nonzero((arr > 0) & (arr < np.inf)))
+    return arr, int(arr.size - np.count_nonzero(arr > 0))
+
+
 def needs_fill(depth_m) -> tuple[bool, str]:
     """Whether a depth map has unknown pixels to fill, and why (for the pipeline trace).
 
@@ -133,13 +146,7 @@ def needs_fill(depth_m) -> tuple[bool, str]:
     needed : bool
     reason : str, one line
     """
-    arr = np.asarray(depth_m)
-    if arr.ndim != 2:
-        raise InputError(f"depth_m must be a 2-D (H, W) array; got shape {arr.shape}")
-    if arr.dtype.kind not in "fiub":
-        raise InputError(f"depth_m must be numeric; got dtype {arr.dtype}")
-    known = (arr > 0) & np.isfinite(arr) if arr.dtype.kind == "f" else arr > 0
-    n = int(arr.size - np.count_nonzero(known))
+    arr, n = _count_holes(depth_m)
     if n == 0:
         return False, "depth has no holes"
     if n == arr.size:
@@ -755,9 +762,7 @@ def plan_fill(depth_m, *, parallel: bool | None = None) -> FillPlan:
     """
     if parallel is not None and not isinstance(parallel, (bool, np.bool_)):
         raise InputError(f"parallel must be None, True or False; got {parallel!r}")
-    needs_fill(depth_m)  # validates depth_m
-    arr = np.asarray(depth_m)
-    holes = int(arr.size - np.count_nonzero((arr > 0) & np.isfinite(arr) if arr.dtype.kind == "f" else arr > 0))
+    _, holes = _count_holes(depth_m)  # validates depth_m
     if parallel is None:
         parallel = holes >= _PARALLEL_MIN_HOLES
         reason = f"{holes} holes {'>=' if parallel else '<'} {_PARALLEL_MIN_HOLES}"

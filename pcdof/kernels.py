@@ -97,25 +97,24 @@ def estimate_seconds(stages, workers: int | None = None, load: float | None = No
     """Wall seconds to compile *stages* on *workers* cores (default: this machine's) while other work
     keeps *load* processes busy (default: the 1-minute load average), from :data:`COMPILE_CPU_S`.
 
-    Stages run as :func:`_compile_apart` runs them: one process each, at most *workers* at a time,
-    longest first, the next one starting as one ends; every busy process (these and the *load*) gets
-    an equal share of the cores, at most one core.
+    Stages run as :func:`_compile_apart` runs them: in at most *workers* processes, shared out by
+    :func:`_compile_groups`, each running its stages one after the other; every busy process (these and
+    the *load*) gets an equal share of the cores, at most one core.
     """
-    queue = sorted((COMPILE_CPU_S[s] for s in check_stages(stages)), reverse=True)
+    stages = check_stages(stages)
     workers = max(1, workers or os.cpu_count() or 1)
     if load is None:
         try:
             load = os.getloadavg()[0]
         except (AttributeError, OSError):  # not on this platform
             load = 0.0
-    running, wall = [], 0.0  # CPU seconds left per running stage
-    while queue or running:
-        while queue and len(running) < workers:
-            running.append(queue.pop(0))
-        share = min(1.0, workers / (len(running) + max(0.0, float(load))))
-        step = min(running)
+    left = [sum(COMPILE_CPU_S[s] for s in group) for group in _compile_groups(stages, workers)]
+    wall = 0.0
+    while left:  # CPU seconds left per running process
+        share = min(1.0, workers / (len(left) + max(0.0, float(load))))
+        step = min(left)
         wall += step / share
-        running = [left - step for left in running if left > step]
+        left = [cpu - step for cpu in left if cpu > step]
     return wall
 
 
@@ -128,37 +127,55 @@ def _warm_stage(stage: str) -> float:
     return time.perf_counter() - t0
 
 
-def _compile_apart(stages, say, t0: float) -> dict:
-    """Compile *stages* in fresh interpreters (numba compiles one function at a time per process, and the
-    stages share no kernel), each writing numba's on-disk cache: at most one per core at a time, longest
-    first, the next starting as one ends (on 2 cores: the renderer on one, fill then registration on the
-    other; three processes sharing two cores would leave the longest one last, alone). *say* gets a line as
-    each one ends (seconds since *t0*). Returns seconds per stage that succeeded; a stage that failed or
-    could not start there is left to this process."""
-    import subprocess
+def _compile_groups(stages, workers: int) -> list[list[str]]:
+    """*stages* shared among at most *workers* processes so they end close together: longest compile first,
+    each to the process with the least so far (on 2 cores: the renderer in one, fill then registration in
+    the other). Each process runs its stages one after the other."""
+    groups: list[list[str]] = [[] for _ in range(max(1, min(workers, len(stages))))]
+    for stage in sorted(stages, key=lambda stage: -COMPILE_CPU_S[stage]):
+        min(groups, key=lambda group: sum(COMPILE_CPU_S[s] for s in group)).append(stage)
+    return [group for group in groups if group]
 
-    queue = sorted(stages, key=lambda stage: -COMPILE_CPU_S[stage])
-    workers = max(1, os.cpu_count() or 1)
-    procs, seconds, done = {}, {}, 0
-    while queue or procs:
-        while queue and len(procs) < workers:
-            stage = queue.pop(0)
-            code = f"from pcdof.kernels import _warm_stage; print(_warm_stage({stage!r}))"
-            try:
-                procs[stage] = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
-                                                stderr=subprocess.DEVNULL, text=True)
-            except OSError:  # no processes here: compile in this process
-                queue.clear()
-        for stage, proc in list(procs.items()):
-            if proc.poll() is None:
-                continue
-            out, _ = proc.communicate()
-            del procs[stage]
-            done += 1
-            if proc.returncode == 0 and out.split():
-                seconds[stage] = float(out.split()[-1])
-                say(f"  [{done}/{len(stages)}] {stage} compiled ({time.perf_counter() - t0:.0f} s)")
-        time.sleep(0.05)
+
+def _compile_apart(stages, say, t0: float) -> dict:
+    """Compile *stages* in fresh interpreters, at most one per core (numba compiles one function at a time
+    per process, and the stages share no kernel; three processes sharing two cores would leave the longest
+    last, alone), as :func:`_compile_groups` shares them out, each writing numba's on-disk cache. *say* gets
+    a line as each stage ends (seconds since *t0*). Returns seconds per stage that succeeded; a stage that
+    failed or could not start there is left to this process."""
+    import queue
+    import subprocess
+    import threading
+
+    lines: queue.Queue = queue.Queue()  # (stage, seconds) as each ends; None as each process ends
+
+    def read(proc):
+        for line in proc.stdout:
+            stage, _, seconds = line.partition(" ")
+            if stage in STAGES:
+                lines.put((stage, float(seconds)))
+        proc.wait()
+        lines.put(None)
+
+    running = 0
+    for group in _compile_groups(stages, os.cpu_count() or 1):
+        code = ("from pcdof.kernels import _warm_stage\n"
+                f"for stage in {group!r}:\n    print(stage, _warm_stage(stage), flush=True)")
+        try:
+            proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                    text=True)
+        except OSError:  # no processes here: compile in this process
+            break
+        threading.Thread(target=read, args=(proc,), daemon=True).start()
+        running += 1
+    seconds = {}
+    while running:
+        item = lines.get()
+        if item is None:
+            running -= 1
+            continue
+        seconds[item[0]] = item[1]
+        say(f"  [{len(seconds)}/{len(stages)}] {item[0]} compiled ({time.perf_counter() - t0:.0f} s)")
     return seconds
 
 

@@ -113,37 +113,39 @@ class TestStages:
         loads = [kernels.estimate_seconds(three, workers=2, load=x) for x in (0.0, 0.5, 2.0, 6.0)]
         assert loads == sorted(loads) and loads[0] < loads[-1]
 
-    def test_compile_apart_runs_one_stage_per_core_longest_first(self, monkeypatch):
-        """The stages start longest first and never more at once than there are cores."""
+    def test_groups_balance_the_cores(self):
+        """Longest first, each stage to the process with the least work so far; never more processes than cores."""
+        cpu = kernels.COMPILE_CPU_S
+        three = list(kernels.STAGES)
+        for workers in (1, 2, 3, 8):
+            groups = kernels._compile_groups(three, workers)
+            assert sorted(s for g in groups for s in g) == sorted(three) and len(groups) == min(workers, 3)
+        longest = max(three, key=cpu.get)
+        assert [longest] in kernels._compile_groups(three, 2)  # the renderer alone, the two others together
+        assert kernels._compile_groups(["fill"], 4) == [["fill"]]
+
+    def test_compile_apart_reports_each_stage_as_it_ends(self, monkeypatch):
+        """One process per group, each printing a line per stage; every stage is reported once, with its seconds."""
         import subprocess
 
-        started, running, most = [], set(), [0]
+        started = []
 
         class Proc:
             def __init__(self, cmd, **kwargs):
-                self.stage = cmd[-1].split("'")[1]
-                started.append(self.stage)
-                running.add(self.stage)
-                most[0] = max(most[0], len(running))
-                self.polls = 0
+                group = eval(cmd[-1].split("for stage in ")[1].split(":")[0])
+                started.append(group)
+                self.stdout = iter(f"{stage} {1.5 + i}\n" for i, stage in enumerate(group))
 
-            def poll(self):
-                self.polls += 1
-                return None if self.polls < 2 else 0
-
-            def communicate(self):
-                running.discard(self.stage)
-                return "1.5\n", ""
-
-            returncode = 0
+            def wait(self):
+                return 0
 
         monkeypatch.setattr(subprocess, "Popen", Proc)
         monkeypatch.setattr(kernels.os, "cpu_count", lambda: 2)
-        monkeypatch.setattr(kernels.time, "sleep", lambda s: None)
         lines = []
         seconds = kernels._compile_apart(["register", "fill", "render"], lines.append, 0.0)
-        assert started == sorted(kernels.STAGES, key=lambda s: -kernels.COMPILE_CPU_S[s])
-        assert most[0] == 2 and seconds == {s: 1.5 for s in kernels.STAGES} and len(lines) == 3
+        assert started == kernels._compile_groups(["register", "fill", "render"], 2)
+        assert seconds == {g[i]: 1.5 + i for g in started for i in range(len(g))}
+        assert len(lines) == 3 and lines[-1].startswith("  [3/3] ")
 
     def test_warm_stages_are_checked_once_and_silently(self, monkeypatch):
         import io

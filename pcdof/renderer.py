@@ -933,8 +933,14 @@ def _convolve_uniform(lin, share, bins, groups, symmetric, table, buf):
     for b, radius, (ya, yb, xa, xb) in groups:
         taps, weights = _footprint_taps(_footprint_kernel(radius, symmetric, table))
         k = taps.shape[0] // 2
-        with _serial_if((yb - ya) // (4 * k + 4) < 2 or (yb - ya) * (xb - xa) < SERIAL_BELOW_PX):
-            _convolve_rows(lin, share, bins, b, ya, yb, xa, xb, taps, weights, 2 * get_num_threads(), buf)
+        # up to two runs of rows per thread (runs of at least 4 k + 4 rows), a multiple of the threads' count:
+        # numba hands each thread an equal count of runs, so three runs on two threads left one thread two
+        threads = get_num_threads()
+        runs = min(2 * threads, (yb - ya) // (4 * k + 4))
+        if runs > threads:
+            runs -= runs % threads
+        with _serial_if(runs < 2 or (yb - ya) * (xb - xa) < SERIAL_BELOW_PX):
+            _convolve_rows(lin, share, bins, b, ya, yb, xa, xb, taps, weights, max(1, runs), buf)
 
 
 @dataclass(frozen=True)

@@ -163,3 +163,27 @@ class TestSerialIf:
         monkeypatch.setattr(renderer, "SERIAL_BELOW_STRIPS", 0)
         parallel, _ = renderer.render_layers_linear(lin, coc)
         np.testing.assert_array_equal(serial, parallel)
+
+
+class TestConvolveRuns:
+    def test_any_number_of_runs_gives_the_same_bits(self):
+        """The convolution's rows cut into 1 .. 7 runs (each summing its ring of source rows afresh)."""
+        rng = np.random.default_rng(11)
+        hs, ws = 140, 90
+        lin = rng.random((hs, ws, 3)).astype(np.float32)
+        share = np.ones((hs, ws), np.float32)
+        radius = np.full((hs, ws), 3.0, np.float32)
+        fast = np.ones((hs, ws), bool)
+        fast[:, :10] = False
+        bins, groups = renderer._uniform_plan(fast, radius)
+        (b, r, (ya, yb, xa, xb)), = groups
+        table = renderer.aperture_table(0)
+        taps, weights = renderer._footprint_taps(renderer._footprint_kernel(r, True, table))
+        outs = []
+        for tasks in range(1, 8):
+            buf = np.zeros((hs, ws, 4), np.float32)
+            renderer._convolve_rows(lin, share, bins, b, ya, yb, xa, xb, taps, weights, tasks, buf)
+            outs.append(buf)
+        assert outs[0][ya:yb, xa:xb].any()
+        for buf in outs[1:]:
+            np.testing.assert_array_equal(buf, outs[0])

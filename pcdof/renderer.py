@@ -222,9 +222,9 @@ def _scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symme
     (``starts[-1]`` = y_hi + 1; :func:`_balanced_runs`), one parallel task each (one parallel region per
     call: on a loaded machine every region waits for its slowest thread). A task keeps the strips of
     the 2 reach + 1 source rows around its current output row in a ring, each source row's strips
-    computed once when the task first needs them, so the table lookups
-    are off the gather's critical path and shared by the rows they serve. Every output pixel sums
-    the same terms in the same order (source row, then column) whatever the split.
+    computed once when the task first needs them, so the table lookups are off the gather's critical
+    path and shared by the rows they serve. Every output pixel sums the same terms in the same order
+    (source row, then column) whatever the split.
     """
     h = offsets.size - 1
     reach = int(math.ceil(r_max + 0.5))

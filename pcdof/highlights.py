@@ -186,20 +186,37 @@ def _hue(img, mask):
 def _components(clipped):
     """The 8-connected blobs of *clipped* (H, W) bool: (labels (H, W) int32, boxes (n, 4) int [y0, y1, x0, x1)
     of blobs 1..n, pixels: per blob its (y, x) int arrays in raster order)."""
+    labels, boxes, ys, xs, starts = _labelled(clipped)
+    return labels, boxes, [(ys[a:b], xs[a:b]) for a, b in zip(starts[:-1], starts[1:])]
+
+
+def _labelled(clipped):
+    """:func:`_components` with the pixels of every blob one after another: (labels, boxes, ys, xs, starts
+    (n + 1,), blob i's pixels at starts[i]:starts[i + 1])."""
     u8 = clipped.view(np.uint8)
     # no stats from OpenCV: they include the background label, a pass over every pixel of the frame
     n, labels = cv2.connectedComponents(u8, connectivity=8)
     if n <= 1:
-        return labels, np.zeros((0, 4), np.int64), []
+        empty = np.zeros(0, np.int64)
+        return labels, np.zeros((0, 4), np.int64), empty, empty, np.zeros(1, np.int64)
     xy = cv2.findNonZero(u8).reshape(-1, 2)
     lab = labels[xy[:, 1], xy[:, 0]]
     order = np.argsort(lab, kind="stable")
     ys, xs = xy[order, 1].astype(np.int64), xy[order, 0].astype(np.int64)
-    ends = np.cumsum(np.bincount(lab, minlength=n))[1:]
-    starts = ends - np.bincount(lab, minlength=n)[1:]
-    boxes = np.stack([np.minimum.reduceat(ys, starts), np.maximum.reduceat(ys, starts) + 1,
-                      np.minimum.reduceat(xs, starts), np.maximum.reduceat(xs, starts) + 1], axis=1)
-    return labels, boxes, [(ys[a:b], xs[a:b]) for a, b in zip(starts, ends)]
+    starts = np.concatenate(([0], np.cumsum(np.bincount(lab, minlength=n)[1:])))
+    first = starts[:-1]
+    boxes = np.stack([np.minimum.reduceat(ys, first), np.maximum.reduceat(ys, first) + 1,
+                      np.minimum.reduceat(xs, first), np.maximum.reduceat(xs, first) + 1], axis=1)
+    return labels, boxes, ys, xs, starts
+
+
+def _medians(values, starts):
+    """The median of each run values[starts[i]:starts[i + 1]] (none empty) of a float32 array, as
+    ``np.median`` gives it (the mean of the two middle values in float32): (n,) float32."""
+    sizes = np.diff(starts)
+    ranked = values[np.lexsort((values, np.repeat(np.arange(sizes.size), sizes)))]
+    lo, hi = ranked[starts[:-1] + (sizes - 1) // 2], ranked[starts[:-1] + sizes // 2]
+    return (lo + hi) / np.float32(2)
 
 
 def _blobs(img, clip_level, coc=None):
@@ -208,12 +225,12 @@ def _blobs(img, clip_level, coc=None):
     blob's box widened by 3 px; with *coc*, by ceil(d / 2) + 1 px, d its median CoC (px), and a blob with
     d < 1 (not blurred) is left out."""
     clipped = clipped_mask(img, clip_level)
-    labels, boxes, pixels = _components(clipped)
+    labels, boxes, ys, xs, starts = _labelled(clipped)
     h, w = clipped.shape
-    for b, ((y0, y1, x0, x1), (ys, xs)) in enumerate(zip(boxes.tolist(), pixels), start=1):
-        d, p = 0.0, 3
+    blur = [0.0] * len(boxes) if coc is None or not len(boxes) else _medians(_coc_at(coc, ys, xs), starts).tolist()
+    for b, ((y0, y1, x0, x1), d) in enumerate(zip(boxes.tolist(), blur), start=1):
+        p = 3
         if coc is not None:
-            d = float(np.median(_coc_at(coc, ys, xs)))
             if d < 1.0:
                 continue
             p = math.ceil(d / 2) + 1
@@ -304,15 +321,22 @@ _WHITE = 1.055 * np.power(np.float64(1.0), 1 / 2.4) - 0.055
 
 
 def _display(linear):
-    """What a pixel shows: linear light clipped at white, sRGB-encoded (the scale the loss is taken on).
+    """What a pixel shows: linear light clipped at white, sRGB-encoded (the scale the loss is taken on)."""
+    return _display_in_place(np.clip(linear, 0.0, 1.0))
 
-    The power only where the value is strictly between the encoding's linear segment and white: most of a
-    blurred blob's samples are at white for most of the levels tried (the same values, a fraction of the work)."""
-    v = np.clip(linear, 0.0, 1.0)
-    out = np.where(v <= 0.0031308, 12.92 * v, _WHITE)
-    curve = ~(v <= 0.0031308) & ~(v >= 1.0)  # (NaN, as np.power gives it)
-    out[curve] = 1.055 * np.power(v[curve], 1 / 2.4) - 0.055
-    return out
+
+def _display_in_place(v):
+    """:func:`_display` of *v* (float64 ndarray) already clipped to [0, 1], written over *v* (a temporary:
+    fresh arrays of a blob batch's size cost more than the arithmetic). The values are the plain formula's:
+    the same power of the same values, then the linear segment and white put back where they apply."""
+    low, white = v <= 0.0031308, v >= 1.0
+    linear = v[low] * 12.92
+    np.power(v, 1 / 2.4, out=v)
+    v *= 1.055
+    v -= 0.055
+    np.putmask(v, white, _WHITE)
+    v[low] = linear
+    return v
 
 
 def prior_levels(clip_level: float, prior_max: float, n: int = PRIOR_SAMPLES) -> np.ndarray:
@@ -358,15 +382,19 @@ def _best_levels(base, k, weight, starts, cands, probs) -> np.ndarray:
     samples one after another (footprint j: samples starts[j]:starts[j + 1], none empty); *cands* (J, 1 + T):
     keep, then the levels; *probs* (J, T), rows summing to 1. Returns (J,) float64, the chosen candidates."""
     seg = np.repeat(np.arange(len(cands)), np.diff(starts))
-    shown = _display(base + cands.T[:, seg] * k)  # (1 + T, N): row 0 keep, rows 1.. the truths
+    table = cands.T[:, seg]  # (1 + T, N): row 0 keep, rows 1.. the truths
+    table *= k
+    table += base
+    shown = _display_in_place(np.clip(table, 0.0, 1.0, out=table))
     ws = shown * weight
     # E_t sum_n w (s_c - s_t)^2 = a2_c - 2 sum_n w s_c E_t[s_t] + E_t[a2_t]: the square is linear in the
     # truths once expanded, so no table of every candidate against every truth (T times the work). einsum and
     # reduceat, not a BLAS product: one thread, and the same sums on every machine
     mean_shown = np.einsum("tn,tn->n", probs.T[:, seg], shown[1:])
     first = starts[:-1]
-    a2 = np.add.reduceat(ws * shown, first, axis=1)  # (1 + T, J)
-    expected = a2 - 2 * np.add.reduceat(ws * mean_shown, first, axis=1) + np.einsum("jt,tj->j", probs, a2[1:])
+    a2 = np.add.reduceat(np.multiply(ws, shown, out=shown), first, axis=1)  # (1 + T, J)
+    cross = np.add.reduceat(np.multiply(ws, mean_shown, out=ws), first, axis=1)
+    expected = a2 - 2 * cross + np.einsum("jt,tj->j", probs, a2[1:])
     # the first candidate within rounding of the least (the expanded square leaves ~1e-12 noise)
     near = expected <= expected.min(axis=0) + 1e-7 * np.maximum(np.add.reduceat(weight, first), 1.0)
     return cands[np.arange(len(cands)), np.argmax(near, axis=0)]
@@ -425,56 +453,100 @@ def _footprint(chan, m, edge, keep: float, d: float, cover=None):
 
     *cover*: a dict that keeps the blurred interior and edge of each mask blurred at full resolution, for the
     blob's other channels clipped in the same pixels (a white light: the same two blurs three times)."""
+    base, k, weight, _ = _samples([_layers(chan, m, edge, d, cover)], [keep])
+    return base, k, weight
+
+
+def _layers(chan, m, edge, d: float, cover=None):
+    """The blurs of one clipped channel of a blob (:func:`_footprint`): (rest, interior, edge, scale), the first
+    three (n,) float32: the window without its clipped pixels, the clipped interior and the clipped edge, each
+    blurred by the disc (on the shrunk window where *scale* > 1)."""
     scale = max(1.0, d / MAX_KERNEL_PX)
+    key, cover = (m.shape, m.tobytes()), {} if cover is None else cover
     if scale > 1.0:
         layers = np.stack([np.where(m, 0.0, chan), m & ~edge, edge], axis=-1).astype(np.float32)
         h, w = chan.shape
         size = (max(1, round(w / scale)), max(1, round(h / scale)))
         layers = cv2.resize(layers, size, interpolation=cv2.INTER_AREA).reshape(size[1], size[0], 3)
         kern = _disc(d / scale)
-        rest = cv2.filter2D(layers[..., 0], -1, kern, borderType=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
-        inner, k_edge = (cv2.filter2D(layers[..., i], -1, kern, borderType=cv2.BORDER_CONSTANT).ravel()
-                         .astype(np.float64) for i in (1, 2))
-    else:
-        kern = _disc(d)
-        rest = cv2.filter2D(np.where(m, np.float32(0.0), chan).astype(np.float32), -1, kern,
-                            borderType=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
-        key = (m.shape, m.tobytes())
-        if cover is None or key not in cover:
-            blurred = tuple(cv2.filter2D(a.astype(np.float32), -1, kern, borderType=cv2.BORDER_CONSTANT).ravel()
-                            .astype(np.float64) for a in (m & ~edge, edge))
-            if cover is None:
-                cover = {}
-            cover[key] = blurred
-        inner, k_edge = cover[key]
-    base, k = rest + keep / 2 * k_edge, inner + k_edge / 2
+        rest = cv2.filter2D(layers[..., 0], -1, kern, borderType=cv2.BORDER_REPLICATE).ravel()
+        if key not in cover:  # (each channel of the shrunk window is shrunk alone: the mask's the same each time)
+            cover[key] = tuple(cv2.filter2D(layers[..., i], -1, kern, borderType=cv2.BORDER_CONSTANT).ravel()
+                               for i in (1, 2))
+        return (rest, *cover[key], scale)
+    kern = _disc(d)
+    rest = cv2.filter2D(np.where(m, np.float32(0.0), chan).astype(np.float32, copy=False), -1, kern,
+                        borderType=cv2.BORDER_REPLICATE).ravel()
+    if key not in cover:
+        cover[key] = tuple(cv2.filter2D(a.astype(np.float32), -1, kern, borderType=cv2.BORDER_CONSTANT).ravel()
+                           for a in (m & ~edge, edge))
+    return (rest, *cover[key], scale)
+
+
+def _samples(layers, keeps):
+    """(base, k, weight) of J footprints one after another, and (J,) int their counts of samples, from each
+    one's :func:`_layers` and keep (the value it has unraised).
+
+    base = rest + keep / 2 * edge and k = interior + edge / 2 at the pixels the blob reaches (k > 1e-6); of a
+    footprint with more than :data:`MAX_FOOTPRINT_PX` of them every step-th, standing for step pixels (times
+    scale^2 on a shrunk window). All footprints in a few whole-array operations, each value as one footprint
+    alone gives it."""
+    sizes = np.array([lay[0].size for lay in layers], np.int64)
+    rest, inner, k_edge = (np.concatenate([lay[i] for lay in layers]).astype(np.float64) for i in range(3))
+    base = rest + np.repeat(np.array(keeps, np.float64) / 2, sizes) * k_edge
+    k = inner + k_edge / 2
     sel = np.flatnonzero(k > 1e-6)
-    step = max(1, int(math.ceil(sel.size / MAX_FOOTPRINT_PX)))
-    sel = sel[::step]
-    return base[sel], k[sel], np.full(sel.size, step * scale * scale)
+    found = np.bincount(np.repeat(np.arange(len(layers)), sizes)[sel], minlength=len(layers))
+    steps = np.maximum(1, -(-found // MAX_FOOTPRINT_PX))  # ceil
+    first = np.cumsum(found) - found
+    rank = np.arange(sel.size) - np.repeat(first, found)
+    sel = sel[rank % np.repeat(steps, found) == 0]
+    counts = -(-found // steps)
+    weight = np.repeat([step * lay[3] * lay[3] for step, lay in zip(steps.tolist(), layers)], counts)
+    return base[sel], k[sel], weight, counts
 
 
 def _prior_channels(block, clipped_ch, clipped, d, prior, use_rim):
     """The clipped channels of one blob's window to raise (:func:`reconstruct_prior`; *d*: its blur (px), at
     least 1; *prior*: (clip level, prior max, channel ratio)): (channel, its clipped mask, edge mask, keep,
-    problem) each, the problem (base, k, weight, candidates (1 + T,), probabilities (T,)) of :func:`_best_levels`."""
+    layers, candidates (1 + T,), probabilities (T,)) each, the layers of :func:`_layers`."""
     clip_level, prior_max, max_ratio = prior
-    cover = {}  # the blurred clipped pixels of each channel's mask, shared by channels clipped alike
-    for c in range(3):
-        m = clipped_ch[..., c]
-        if not m.any():
+    cover, edges = {}, {}  # per mask: its blurred clipped pixels and its edge, shared by channels clipped alike
+    masks = [clipped_ch[..., c] for c in range(3)]
+    counts = [np.count_nonzero(m) for m in masks]
+    every = None
+    for c, m in enumerate(masks):
+        if not counts[c]:
             continue
-        top = min(prior_max, channel_bound(block, clipped_ch, c, max_ratio))
+        if every is None:
+            every = np.count_nonzero(masks[0] & masks[1] & masks[2])
+        # a pixel clipped in c has a measured channel unless every channel clipped: :func:`channel_bound` is
+        # inf where at most half of them have one (most blobs: white lights), found without it
+        bound = math.inf if 2 * (counts[c] - every) <= counts[c] else channel_bound(block, clipped_ch, c, max_ratio)
+        top = min(prior_max, bound)
         if top <= clip_level:
             continue
         levels = _prior_levels(float(clip_level), float(top), PRIOR_SAMPLES)
-        chan, edge = block[..., c], _edge(m)
+        chan, key = block[..., c], m.tobytes()
+        edge = edges[key] if key in edges else edges.setdefault(key, _edge(m))
         keep = float(chan[m].max())
         # an edge pixel is partly covered: given that it clipped, its coverage is even over (p, 1), so its
         # expected value is (L + clip) / 2 (see the module notes); the interior is L
-        lw = rim_likelihood(chan, m, clipped, levels, clip_level) if use_rim else np.ones(len(levels))
-        yield c, m, edge, keep, (*_footprint(chan, m, edge, keep, d, cover), np.concatenate(([keep], levels)),
-                                 lw / lw.sum())
+        probs = (_normalised(rim_likelihood(chan, m, clipped, levels, clip_level)) if use_rim
+                 else _uniform(len(levels)))
+        yield c, m, edge, keep, _layers(chan, m, edge, d, cover), np.concatenate(([keep], levels)), probs
+
+
+def _normalised(weights):
+    return weights / weights.sum()
+
+
+@functools.lru_cache(maxsize=8)
+def _uniform(n: int) -> np.ndarray:
+    """n equal probabilities, as :func:`_normalised` gives them (read-only, kept)."""
+    p = _normalised(np.ones(n))
+    p.flags.writeable = False
+    return p
 
 
 def _batches(items, sizes, cap: int):
@@ -491,19 +563,33 @@ def _batches(items, sizes, cap: int):
 
 
 def _chosen_levels(problems, max_samples: int = 4096) -> list:
-    """The chosen candidate of each (base, k, weight, candidates, probabilities) problem: :func:`_best_levels`
-    in batches of about *max_samples* samples, so its (1 + T, N) tables stay about 1 MB (larger ones were
-    slower: fresh memory)."""
-    chosen = [float(p[3][0]) for p in problems]  # keep: a footprint of no samples is not raised
+    """The chosen candidate of each (base, k, weight, candidates, probabilities) problem (:func:`_levels_of`)."""
+    chosen = [float(p[3][0]) for p in problems]
     for t in sorted({len(p[3]) for p in problems}):  # (one level grid size in a batch; every blob's is T)
-        todo = [i for i, p in enumerate(problems) if p[0].size and len(p[3]) == t]
-        for batch in _batches(todo, [problems[i][0].size for i in todo], max_samples):
-            base, k, weight = (np.concatenate([problems[i][j] for i in batch]) for j in range(3))
-            starts = np.cumsum([0] + [problems[i][0].size for i in batch])
-            levels = _best_levels(base, k, weight, starts, np.array([problems[i][3] for i in batch]),
-                                  np.array([problems[i][4] for i in batch]))
-            for i, level in zip(batch, levels.tolist()):
-                chosen[i] = level
+        todo = [i for i, p in enumerate(problems) if len(p[3]) == t]
+        base, k, weight = (np.concatenate([np.asarray(problems[i][j], np.float64) for i in todo]) for j in range(3))
+        levels = _levels_of(base, k, weight, np.array([problems[i][0].size for i in todo]),
+                            np.array([problems[i][3] for i in todo]), np.array([problems[i][4] for i in todo]),
+                            max_samples)
+        for i, level in zip(todo, levels):
+            chosen[i] = level
+    return chosen
+
+
+def _levels_of(base, k, weight, counts, cands, probs, max_samples: int = 4096) -> list:
+    """The chosen candidate of J footprints whose samples (*base*, *k*, *weight* (N,) float64) lie one after
+    another, *counts* (J,) of them each; *cands* (J, 1 + T), *probs* (J, T): :func:`_best_levels` in batches of
+    about *max_samples* samples, so its (1 + T, N) tables stay about 1 MB (larger ones were slower: fresh
+    memory). A footprint of no samples keeps its value (candidate 0). Returns a list of J floats."""
+    chosen = cands[:, 0].tolist()
+    ends = np.cumsum(counts).tolist()
+    todo = np.flatnonzero(counts).tolist()
+    for batch in _batches(todo, [int(counts[i]) for i in todo], max_samples):
+        a, b = ends[batch[0]] - int(counts[batch[0]]), ends[batch[-1]]
+        starts = np.concatenate(([0], np.cumsum(counts[batch])))
+        levels = _best_levels(base[a:b], k[a:b], weight[a:b], starts, cands[batch], probs[batch])
+        for i, level in zip(batch, levels.tolist()):
+            chosen[i] = level
     return chosen
 
 
@@ -522,15 +608,21 @@ def reconstruct_prior(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, pri
     prior = (clip_level, _number("prior_max", prior_max, clip_level),
              _number("max_channel_ratio", max_channel_ratio, 1.0, inf=True))
     # a blob that is not blurred (d < 1) is left out: its output stays at white whatever the radiance
-    raised, problems = [], []
+    raised, layers, cands, probs = [], [], [], []
     for win, _, clipped_ch, clipped, d in _blobs(img, clip_level, coc):
-        for c, m, edge, keep, problem in _prior_channels(img[win], clipped_ch, clipped, d, prior, use_rim):
+        for c, m, edge, keep, lay, cand, prob in _prior_channels(img[win], clipped_ch, clipped, d, prior, use_rim):
             raised.append((win, c, m, edge, keep))
-            problems.append(problem)
+            layers.append(lay)
+            cands.append(cand)
+            probs.append(prob)
     out = img.copy()
-    for (win, c, m, edge, keep), level in zip(raised, _chosen_levels(problems)):
-        chan = img[win][..., c]
-        out[win][..., c][m] = np.maximum(chan, np.where(edge, (level + keep) / 2, level))[m]
+    if not raised:
+        return out
+    base, k, weight, counts = _samples(layers, [r[4] for r in raised])
+    for (win, c, m, edge, keep), level in zip(raised, _levels_of(base, k, weight, counts, np.array(cands),
+                                                                  np.array(probs))):
+        block = out[win]
+        block[..., c][m] = np.maximum(block[..., c][m], np.where(edge[m], (level + keep) / 2, level))
     return out
 
 

@@ -186,28 +186,35 @@ def _hue(img, mask):
 def _components(clipped):
     """The 8-connected blobs of *clipped* (H, W) bool: (labels (H, W) int32, boxes (n, 4) int [y0, y1, x0, x1)
     of blobs 1..n, pixels: per blob its (y, x) int arrays in raster order)."""
-    labels, boxes, ys, xs, starts = _labelled(clipped)
+    boxes, ys, xs, starts = _labelled(clipped)
+    labels = np.zeros(clipped.shape, np.int32)
+    labels[ys, xs] = np.repeat(np.arange(1, len(boxes) + 1, dtype=np.int32), np.diff(starts))
     return labels, boxes, [(ys[a:b], xs[a:b]) for a, b in zip(starts[:-1], starts[1:])]
 
 
 def _labelled(clipped):
-    """:func:`_components` with the pixels of every blob one after another: (labels, boxes, ys, xs, starts
-    (n + 1,), blob i's pixels at starts[i]:starts[i + 1])."""
+    """The blobs of :func:`_components` with the pixels of every blob one after another: (boxes, ys, xs,
+    starts (n + 1,)), blob i's pixels at starts[i]:starts[i + 1].
+
+    Only the box around every clipped pixel is labelled, its corner at an even row and column: OpenCV's labelling
+    scans 2 x 2 blocks and numbers the blobs in the order it meets them, the same in the box as in the frame."""
     u8 = clipped.view(np.uint8)
-    # no stats from OpenCV: they include the background label, a pass over every pixel of the frame
-    n, labels = cv2.connectedComponents(u8, connectivity=8)
-    if n <= 1:
+    xy = cv2.findNonZero(u8) if clipped.size else None
+    if xy is None:
         empty = np.zeros(0, np.int64)
-        return labels, np.zeros((0, 4), np.int64), empty, empty, np.zeros(1, np.int64)
-    xy = cv2.findNonZero(u8).reshape(-1, 2)
-    lab = labels[xy[:, 1], xy[:, 0]]
+        return np.zeros((0, 4), np.int64), empty, empty, np.zeros(1, np.int64)
+    xy = xy.reshape(-1, 2)
+    (x0, y0), (x1, y1) = (xy.min(axis=0) // 2 * 2).tolist(), (xy.max(axis=0) + 1).tolist()
+    # no stats from OpenCV: they include the background label, a pass over every pixel of the box
+    n, labels = cv2.connectedComponents(u8[y0:y1, x0:x1], connectivity=8)
+    lab = labels[xy[:, 1] - y0, xy[:, 0] - x0]
     order = np.argsort(lab, kind="stable")
     ys, xs = xy[order, 1].astype(np.int64), xy[order, 0].astype(np.int64)
     starts = np.concatenate(([0], np.cumsum(np.bincount(lab, minlength=n)[1:])))
     first = starts[:-1]
     boxes = np.stack([np.minimum.reduceat(ys, first), np.maximum.reduceat(ys, first) + 1,
                       np.minimum.reduceat(xs, first), np.maximum.reduceat(xs, first) + 1], axis=1)
-    return labels, boxes, ys, xs, starts
+    return boxes, ys, xs, starts
 
 
 def _medians(values, starts):
@@ -225,17 +232,18 @@ def _blobs(img, clip_level, coc=None):
     blob's box widened by 3 px; with *coc*, by ceil(d / 2) + 1 px, d its median CoC (px), and a blob with
     d < 1 (not blurred) is left out."""
     clipped = clipped_mask(img, clip_level)
-    labels, boxes, ys, xs, starts = _labelled(clipped)
+    boxes, ys, xs, starts = _labelled(clipped)
     h, w = clipped.shape
     blur = [0.0] * len(boxes) if coc is None or not len(boxes) else _medians(_coc_at(coc, ys, xs), starts).tolist()
-    for b, ((y0, y1, x0, x1), d) in enumerate(zip(boxes.tolist(), blur), start=1):
+    for (y0, y1, x0, x1), d, a, b in zip(boxes.tolist(), blur, starts[:-1].tolist(), starts[1:].tolist()):
         p = 3
         if coc is not None:
             if d < 1.0:
                 continue
             p = math.ceil(d / 2) + 1
         win = (slice(max(y0 - p, 0), min(y1 + p, h)), slice(max(x0 - p, 0), min(x1 + p, w)))
-        mask = labels[win] == b
+        mask = np.zeros((win[0].stop - win[0].start, win[1].stop - win[1].start), bool)
+        mask[ys[a:b] - win[0].start, xs[a:b] - win[1].start] = True
         yield win, mask, mask[..., None] & (img[win] >= clip_level), clipped[win], d
 
 
@@ -381,8 +389,8 @@ def _best_levels(base, k, weight, starts, cands, probs) -> np.ndarray:
     """:func:`expected_best_level` of J footprints at once: *base*, *k*, *weight* (N,) float64 hold their
     samples one after another (footprint j: samples starts[j]:starts[j + 1], none empty); *cands* (J, 1 + T):
     keep, then the levels; *probs* (J, T), rows summing to 1. Returns (J,) float64, the chosen candidates."""
-    seg = np.repeat(np.arange(len(cands)), np.diff(starts))
-    table = cands.T[:, seg]  # (1 + T, N): row 0 keep, rows 1.. the truths
+    counts = np.diff(starts)
+    table = np.repeat(cands.T, counts, axis=1)  # (1 + T, N): row 0 keep, rows 1.. the truths
     table *= k
     table += base
     shown = _display_in_place(np.clip(table, 0.0, 1.0, out=table))
@@ -390,7 +398,7 @@ def _best_levels(base, k, weight, starts, cands, probs) -> np.ndarray:
     # E_t sum_n w (s_c - s_t)^2 = a2_c - 2 sum_n w s_c E_t[s_t] + E_t[a2_t]: the square is linear in the
     # truths once expanded, so no table of every candidate against every truth (T times the work). einsum and
     # reduceat, not a BLAS product: one thread, and the same sums on every machine
-    mean_shown = np.einsum("tn,tn->n", probs.T[:, seg], shown[1:])
+    mean_shown = np.einsum("tn,tn->n", np.repeat(probs.T, counts, axis=1), shown[1:])
     first = starts[:-1]
     a2 = np.add.reduceat(np.multiply(ws, shown, out=shown), first, axis=1)  # (1 + T, J)
     cross = np.add.reduceat(np.multiply(ws, mean_shown, out=ws), first, axis=1)

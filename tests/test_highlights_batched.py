@@ -155,3 +155,25 @@ def test_samples_of_many_footprints_are_each_ones(d):
     assert alone[1][2][0] > max(1.0, d / MAX_KERNEL_PX) ** 2  # (the large one was subsampled)
     for got, want in zip((base, k, weight), zip(*alone)):
         np.testing.assert_array_equal(got, np.concatenate(want))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 300), w=st.integers(1, 300), n=st.integers(0, 12))
+def test_components_labelled_in_their_box_are_the_whole_frames(seed, h, w, n):
+    """Blobs labelled inside the box around every clipped pixel: the labels, boxes and pixels of the whole frame
+    labelled by OpenCV (numbered in raster order of their first pixel either way)."""
+    rng = np.random.default_rng(seed)
+    clipped = np.zeros((h, w), bool)
+    for _ in range(n):
+        y, x = rng.integers(0, h), rng.integers(0, w)
+        clipped[y:y + rng.integers(1, 12), x:x + rng.integers(1, 12)] = rng.random() < 0.9
+        clipped[rng.integers(0, h), rng.integers(0, w)] = True
+    labels, boxes, pixels = highlights._components(clipped)
+    _, want = cv2.connectedComponents(clipped.astype(np.uint8), connectivity=8)
+    np.testing.assert_array_equal(labels, want)
+    assert len(boxes) == len(pixels) == want.max()
+    for b, (ys, xs) in enumerate(pixels, start=1):
+        wy, wx = np.nonzero(want == b)
+        np.testing.assert_array_equal(ys, wy)
+        np.testing.assert_array_equal(xs, wx)
+        assert boxes[b - 1].tolist() == [wy.min(), wy.max() + 1, wx.min(), wx.max() + 1]

@@ -218,8 +218,8 @@ def _labelled(clipped):
 
 
 def _medians(values, starts):
-    """The median of each run values[starts[i]:starts[i + 1]] (none empty) of a float32 array, as
-    ``np.median`` gives it (the mean of the two middle values in float32): (n,) float32."""
+    """The median of each run values[starts[i]:starts[i + 1]] (none empty) of a float array, as ``np.median``
+    gives it (the mean of the two middle values, in the array's dtype): (n,) in that dtype. One sort for all."""
     sizes = np.diff(starts)
     ranked = values[np.lexsort((values, np.repeat(np.arange(sizes.size), sizes)))]
     lo, hi = ranked[starts[:-1] + (sizes - 1) // 2], ranked[starts[:-1] + sizes // 2]
@@ -445,12 +445,14 @@ def channel_bound(block, clipped_ch, c: int, max_ratio: float) -> float:
     *max_ratio* times their median largest unclipped value, over the blob's pixels clipped in *c* that have
     one (inf when fewer than half of them do: mostly every channel clipped)."""
     m = clipped_ch[..., c]
-    others = [o for o in range(3) if o != c]
-    measured = np.where(clipped_ch[..., others], 0.0, block[..., others]).max(axis=-1)
-    has = m & ~clipped_ch[..., others].all(axis=-1)
-    if 2 * np.count_nonzero(has) <= np.count_nonzero(m):
+    o1, o2 = [o for o in range(3) if o != c]
+    values, clipped = block[m], clipped_ch[m]  # (n, 3): the pixels clipped in c, in raster order
+    has = ~(clipped[:, o1] & clipped[:, o2])
+    if 2 * np.count_nonzero(has) <= len(values):
         return math.inf
-    return float(max_ratio * np.median(measured[has]))
+    measured = np.maximum(np.where(clipped[:, o1], 0.0, values[:, o1]), np.where(clipped[:, o2], 0.0, values[:, o2]))
+    measured = measured[has]
+    return float(max_ratio * _medians(measured, np.array([0, measured.size]))[0])  # (np.median's value)
 
 
 def _footprint(chan, m, edge, keep: float, d: float, cover=None):

@@ -50,6 +50,16 @@ def _plain_footprint(chan, m, edge, keep, d):
     return base[sel], k[sel], np.full(sel.size, step * scale * scale)
 
 
+def _plain_channel_bound(block, clipped_ch, c, max_ratio):
+    m = clipped_ch[..., c]
+    others = [o for o in range(3) if o != c]
+    measured = np.where(clipped_ch[..., others], 0.0, block[..., others]).max(axis=-1)
+    has = m & ~clipped_ch[..., others].all(axis=-1)
+    if 2 * np.count_nonzero(has) <= np.count_nonzero(m):
+        return math.inf
+    return float(max_ratio * np.median(measured[has]))
+
+
 def plain_prior(img, coc, *, clip_level=CLIP_LEVEL, prior_max=PRIOR_MAX, max_ratio=4.0):
     """``reconstruct_prior`` blob by blob and channel by channel."""
     out = img.copy()
@@ -70,7 +80,7 @@ def plain_prior(img, coc, *, clip_level=CLIP_LEVEL, prior_max=PRIOR_MAX, max_rat
             m = clipped_ch[..., c]
             if not m.any():
                 continue
-            top = min(prior_max, highlights.channel_bound(block, clipped_ch, c, max_ratio))
+            top = min(prior_max, _plain_channel_bound(block, clipped_ch, c, max_ratio))
             if top <= clip_level:
                 continue
             levels = highlights.prior_levels(clip_level, top, PRIOR_SAMPLES)
@@ -177,3 +187,18 @@ def test_components_labelled_in_their_box_are_the_whole_frames(seed, h, w, n):
         np.testing.assert_array_equal(ys, wy)
         np.testing.assert_array_equal(xs, wx)
         assert boxes[b - 1].tolist() == [wy.min(), wy.max() + 1, wx.min(), wx.max() + 1]
+
+
+@settings(max_examples=80, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 20), w=st.integers(1, 20),
+       ratio=st.sampled_from([1.0, 4.0, math.inf]), dtype=st.sampled_from([np.float32, np.float64]))
+def test_channel_bound_is_the_plain_formula(seed, h, w, ratio, dtype):
+    rng = np.random.default_rng(seed)
+    block = rng.choice([0.0, 0.2, 0.5, 0.9, CLIP_LEVEL, 1.0], (h, w, 3)).astype(dtype)
+    if rng.random() < 0.5:
+        block = (rng.random((h, w, 3)) * 1.2).astype(dtype)
+    clipped_ch = (block >= CLIP_LEVEL) & (rng.random((h, w, 1)) < 0.8)
+    for c in range(3):
+        got, want = highlights.channel_bound(block, clipped_ch, c, ratio), \
+            _plain_channel_bound(block, clipped_ch, c, ratio)
+        assert got == want or (math.isnan(got) and math.isnan(want))

@@ -219,11 +219,21 @@ def _labelled(clipped):
 
 def _medians(values, starts):
     """The median of each run values[starts[i]:starts[i + 1]] (none empty) of a float array, as ``np.median``
-    gives it (the mean of the two middle values, in the array's dtype): (n,) in that dtype. One sort for all."""
+    gives it (the mean of the two middle values, in the array's dtype; a zero's sign aside): (n,) in that dtype.
+    One sort for all."""
     sizes = np.diff(starts)
-    ranked = values[np.lexsort((values, np.repeat(np.arange(sizes.size), sizes)))]
+    run = np.repeat(np.arange(sizes.size, dtype=np.uint64), sizes)
+    if values.dtype == np.float32 and not (np.signbit(values).any() or np.isnan(values).any()):
+        # a float32 >= +0 sorts as its bits: one sort of the keys (run, bits) (the CoC of every blob)
+        keys = (run << np.uint64(32)) | np.ascontiguousarray(values).view(np.uint32).astype(np.uint64)
+        ranked = np.sort(keys).astype(np.uint32).view(np.float32)
+    else:
+        ranked = values[np.lexsort((values, run))]
     lo, hi = ranked[starts[:-1] + (sizes - 1) // 2], ranked[starts[:-1] + sizes // 2]
-    return (lo + hi) / np.float32(2)
+    out = (lo + hi) / np.float32(2)
+    if sizes.size and np.isnan(values).any():  # (NaN sorts last; the median of a run holding one is NaN)
+        out[np.logical_or.reduceat(np.isnan(values), starts[:-1])] = np.nan
+    return out
 
 
 def _blobs(img, clip_level, coc=None):
@@ -335,14 +345,13 @@ def _display(linear):
 
 def _display_in_place(v):
     """:func:`_display` of *v* (float64 ndarray) already clipped to [0, 1], written over *v* (a temporary:
-    fresh arrays of a blob batch's size cost more than the arithmetic). The values are the plain formula's:
-    the same power of the same values, then the linear segment and white put back where they apply."""
-    low, white = v <= 0.0031308, v >= 1.0
+    fresh arrays of a blob batch's size cost more than the arithmetic). The values are the plain formula's: the
+    curve's of every value (at 1 it gives :data:`_WHITE`, as white is defined), the linear segment put back."""
+    low = v <= 0.0031308
     linear = v[low] * 12.92
     np.power(v, 1 / 2.4, out=v)
     v *= 1.055
     v -= 0.055
-    np.putmask(v, white, _WHITE)
     v[low] = linear
     return v
 
@@ -502,15 +511,15 @@ def _samples(layers, keeps):
     scale^2 on a shrunk window). All footprints in a few whole-array operations, each value as one footprint
     alone gives it."""
     sizes = np.array([lay[0].size for lay in layers], np.int64)
-    rest, inner, k_edge = (np.concatenate([lay[i] for lay in layers]).astype(np.float64) for i in range(3))
+    rest, inner, k_edge = (np.concatenate([lay[i] for lay in layers], dtype=np.float64) for i in range(3))
     base = rest + np.repeat(np.array(keeps, np.float64) / 2, sizes) * k_edge
     k = inner + k_edge / 2
     sel = np.flatnonzero(k > 1e-6)
-    found = np.bincount(np.repeat(np.arange(len(layers)), sizes)[sel], minlength=len(layers))
+    found = np.diff(np.searchsorted(sel, np.concatenate(([0], np.cumsum(sizes)))))
     steps = np.maximum(1, -(-found // MAX_FOOTPRINT_PX))  # ceil
-    first = np.cumsum(found) - found
-    rank = np.arange(sel.size) - np.repeat(first, found)
-    sel = sel[rank % np.repeat(steps, found) == 0]
+    if steps.max(initial=1) > 1:
+        rank = np.arange(sel.size) - np.repeat(np.cumsum(found) - found, found)
+        sel = sel[rank % np.repeat(steps, found) == 0]
     counts = -(-found // steps)
     weight = np.repeat([step * lay[3] * lay[3] for step, lay in zip(steps.tolist(), layers)], counts)
     return base[sel], k[sel], weight, counts

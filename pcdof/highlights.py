@@ -238,23 +238,36 @@ def _medians(values, starts):
 
 def _blobs(img, clip_level, coc=None):
     """Each clipped blob (8-connected pixels with a clipped channel): (window slices, blob mask in the window,
-    per-channel clipped mask in the window, every clipped pixel in the window, blur d). The window is the
-    blob's box widened by 3 px; with *coc*, by ceil(d / 2) + 1 px, d its median CoC (px), and a blob with
-    d < 1 (not blurred) is left out."""
+    per-channel clipped mask in the window, every clipped pixel in the window, blur d, (per channel its count of
+    clipped pixels, the count clipped in every channel, per channel its largest clipped value or -inf)). The
+    window is the blob's box widened by 3 px; with *coc*, by ceil(d / 2) + 1 px, d its median CoC (px), and a
+    blob with d < 1 (not blurred) is left out."""
     clipped = clipped_mask(img, clip_level)
     boxes, ys, xs, starts = _labelled(clipped)
+    if not len(boxes):
+        return
     h, w = clipped.shape
-    blur = [0.0] * len(boxes) if coc is None or not len(boxes) else _medians(_coc_at(coc, ys, xs), starts).tolist()
-    for (y0, y1, x0, x1), d, a, b in zip(boxes.tolist(), blur, starts[:-1].tolist(), starts[1:].tolist()):
+    blur = [0.0] * len(boxes) if coc is None else _medians(_coc_at(coc, ys, xs), starts).tolist()
+    # what each blob's channels need, for every blob at once from its pixels
+    values = img[ys, xs]
+    flags = values >= clip_level  # (P, 3), as the window's pixels compare
+    first = starts[:-1]
+    counts = np.add.reduceat(flags, first, dtype=np.int64).tolist()
+    every = np.add.reduceat(flags[:, 0] & flags[:, 1] & flags[:, 2], first, dtype=np.int64).tolist()
+    keeps = np.maximum.reduceat(np.where(flags, values, -np.inf), first).tolist()
+    for i, ((y0, y1, x0, x1), d, a, b) in enumerate(zip(boxes.tolist(), blur, first.tolist(), starts[1:].tolist())):
         p = 3
         if coc is not None:
             if d < 1.0:
                 continue
             p = math.ceil(d / 2) + 1
         win = (slice(max(y0 - p, 0), min(y1 + p, h)), slice(max(x0 - p, 0), min(x1 + p, w)))
-        mask = np.zeros((win[0].stop - win[0].start, win[1].stop - win[1].start), bool)
-        mask[ys[a:b] - win[0].start, xs[a:b] - win[1].start] = True
-        yield win, mask, mask[..., None] & (img[win] >= clip_level), clipped[win], d
+        at = (ys[a:b] - win[0].start, xs[a:b] - win[1].start)
+        shape = (win[0].stop - win[0].start, win[1].stop - win[1].start)
+        mask, clipped_ch = np.zeros(shape, bool), np.zeros((*shape, 3), bool)
+        mask[at] = True
+        clipped_ch[at] = flags[a:b]
+        yield win, mask, clipped_ch, clipped[win], d, (counts[i], every[i], keeps[i])
 
 
 def _fill(img, clip_level, levels_for_blob):
@@ -262,7 +275,7 @@ def _fill(img, clip_level, levels_for_blob):
     values and stay. *levels_for_blob(block, mask, ring) -> level*."""
     out = img.copy()
     kernel = np.ones((3, 3), np.uint8)
-    for win, mask, clipped_ch, clipped, _ in _blobs(img, clip_level):
+    for win, mask, clipped_ch, clipped, _, _ in _blobs(img, clip_level):
         block = img[win]
         grown = cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
         ring = grown & ~mask & ~clipped
@@ -525,20 +538,18 @@ def _samples(layers, keeps):
     return base[sel], k[sel], weight, counts
 
 
-def _prior_channels(block, clipped_ch, clipped, d, prior, use_rim):
+def _prior_channels(block, clipped_ch, clipped, d, prior, use_rim, stats):
     """The clipped channels of one blob's window to raise (:func:`reconstruct_prior`; *d*: its blur (px), at
-    least 1; *prior*: (clip level, prior max, channel ratio)): (channel, its clipped mask, edge mask, keep,
-    layers, candidates (1 + T,), probabilities (T,)) each, the layers of :func:`_layers`."""
+    least 1; *prior*: (clip level, prior max, channel ratio); *stats*: the blob's counts and largest values
+    from :func:`_blobs`): (channel, its clipped mask, edge mask, keep, layers, candidates (1 + T,),
+    probabilities (T,)) each, the layers of :func:`_layers`."""
     clip_level, prior_max, max_ratio = prior
     cover, edges = {}, {}  # per mask: its blurred clipped pixels and its edge, shared by channels clipped alike
-    masks = [clipped_ch[..., c] for c in range(3)]
-    counts = [np.count_nonzero(m) for m in masks]
-    every = None
-    for c, m in enumerate(masks):
+    counts, every, keeps = stats
+    for c in range(3):
         if not counts[c]:
             continue
-        if every is None:
-            every = np.count_nonzero(masks[0] & masks[1] & masks[2])
+        m = clipped_ch[..., c]
         # a pixel clipped in c has a measured channel unless every channel clipped: :func:`channel_bound` is
         # inf where at most half of them have one (most blobs: white lights), found without it
         bound = math.inf if 2 * (counts[c] - every) <= counts[c] else channel_bound(block, clipped_ch, c, max_ratio)
@@ -548,7 +559,7 @@ def _prior_channels(block, clipped_ch, clipped, d, prior, use_rim):
         levels = _prior_levels(float(clip_level), float(top), PRIOR_SAMPLES)
         chan, key = block[..., c], m.tobytes()
         edge = edges[key] if key in edges else edges.setdefault(key, _edge(m))
-        keep = float(chan[m].max())
+        keep = keeps[c]  # (the largest value of the channel's clipped pixels)
         # an edge pixel is partly covered: given that it clipped, its coverage is even over (p, 1), so its
         # expected value is (L + clip) / 2 (see the module notes); the interior is L
         probs = (_normalised(rim_likelihood(chan, m, clipped, levels, clip_level)) if use_rim
@@ -628,8 +639,9 @@ def reconstruct_prior(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, pri
              _number("max_channel_ratio", max_channel_ratio, 1.0, inf=True))
     # a blob that is not blurred (d < 1) is left out: its output stays at white whatever the radiance
     raised, layers, cands, probs = [], [], [], []
-    for win, _, clipped_ch, clipped, d in _blobs(img, clip_level, coc):
-        for c, m, edge, keep, lay, cand, prob in _prior_channels(img[win], clipped_ch, clipped, d, prior, use_rim):
+    for win, _, clipped_ch, clipped, d, stats in _blobs(img, clip_level, coc):
+        for c, m, edge, keep, lay, cand, prob in _prior_channels(img[win], clipped_ch, clipped, d, prior, use_rim,
+                                                                 stats):
             raised.append((win, c, m, edge, keep))
             layers.append(lay)
             cands.append(cand)

@@ -60,7 +60,7 @@ def _plain_channel_bound(block, clipped_ch, c, max_ratio):
     return float(max_ratio * np.median(measured[has]))
 
 
-def plain_prior(img, coc, *, clip_level=CLIP_LEVEL, prior_max=PRIOR_MAX, max_ratio=4.0):
+def plain_prior(img, coc, *, clip_level=CLIP_LEVEL, prior_max=PRIOR_MAX, max_ratio=4.0, rim=False):
     """``reconstruct_prior`` blob by blob and channel by channel."""
     out = img.copy()
     clipped = (img >= clip_level).any(axis=2)
@@ -87,7 +87,8 @@ def plain_prior(img, coc, *, clip_level=CLIP_LEVEL, prior_max=PRIOR_MAX, max_rat
             chan, edge = block[..., c], _plain_edge(m)
             keep = float(chan[m].max())
             base, k, weight = _plain_footprint(chan, m, edge, keep, d)
-            level = highlights.expected_best_level(base, k, weight, levels, keep) if base.size else keep
+            lw = highlights.rim_likelihood(chan, m, clipped[win], levels, clip_level) if rim else None
+            level = highlights.expected_best_level(base, k, weight, levels, keep, lw) if base.size else keep
             out[win][..., c][m] = np.maximum(chan, np.where(edge, (level + keep) / 2, level))[m]
     return out
 
@@ -118,6 +119,13 @@ class TestBatchedIsPerBlob:
         img, coc = _frame(seed, h, w, n, coc_max)
         got = highlights.reconstruct_prior(img, coc_px=coc)
         np.testing.assert_array_equal(got, plain_prior(img, coc))
+
+    @settings(max_examples=15, deadline=None)
+    @given(seed=st.integers(0, 2 ** 32 - 1), n=st.integers(1, 14), coc_max=st.sampled_from([3.0, 12.0, 40.0]))
+    def test_random_frames_with_the_rim_evidence(self, seed, n, coc_max):
+        img, coc = _frame(seed, 60, 80, n, coc_max)
+        got = highlights.reconstruct_prior_rim(img, coc_px=coc)
+        np.testing.assert_array_equal(got, plain_prior(img, coc, rim=True))
 
     @pytest.mark.parametrize("ratio", [1.5, 4.0, math.inf])
     def test_coloured_lights_and_wide_blurs(self, ratio):

@@ -239,7 +239,8 @@ def _medians(values, starts):
 def _blobs(img, clip_level, coc=None):
     """Each clipped blob (8-connected pixels with a clipped channel): (window slices, blob mask in the window,
     per-channel clipped mask in the window, every clipped pixel in the window, blur d, (per channel its count of
-    clipped pixels, the count clipped in every channel, per channel its largest clipped value or -inf)). The
+    clipped pixels, the count clipped in every channel, per channel its largest clipped value or -inf, and its
+    pixels' (n, 3) values and clipped flags in raster order)). The
     window is the blob's box widened by 3 px; with *coc*, by ceil(d / 2) + 1 px, d its median CoC (px), and a
     blob with d < 1 (not blurred) is left out."""
     clipped = clipped_mask(img, clip_level)
@@ -267,7 +268,7 @@ def _blobs(img, clip_level, coc=None):
         mask, clipped_ch = np.zeros(shape, bool), np.zeros((*shape, 3), bool)
         mask[at] = True
         clipped_ch[at] = flags[a:b]
-        yield win, mask, clipped_ch, clipped[win], d, (counts[i], every[i], keeps[i])
+        yield win, mask, clipped_ch, clipped[win], d, (counts[i], every[i], keeps[i], values[a:b], flags[a:b])
 
 
 def _fill(img, clip_level, levels_for_blob):
@@ -467,14 +468,26 @@ def channel_bound(block, clipped_ch, c: int, max_ratio: float) -> float:
     *max_ratio* times their median largest unclipped value, over the blob's pixels clipped in *c* that have
     one (inf when fewer than half of them do: mostly every channel clipped)."""
     m = clipped_ch[..., c]
+    return _bound(block[m], clipped_ch[m], c, max_ratio)
+
+
+def _bound(values, clipped, c: int, max_ratio: float) -> float:
+    """:func:`channel_bound` from the (n, 3) values and clipped flags of the blob's pixels clipped in *c*."""
     o1, o2 = [o for o in range(3) if o != c]
-    values, clipped = block[m], clipped_ch[m]  # (n, 3): the pixels clipped in c, in raster order
     has = ~(clipped[:, o1] & clipped[:, o2])
     if 2 * np.count_nonzero(has) <= len(values):
         return math.inf
     measured = np.maximum(np.where(clipped[:, o1], 0.0, values[:, o1]), np.where(clipped[:, o2], 0.0, values[:, o2]))
-    measured = measured[has]
-    return float(max_ratio * _medians(measured, np.array([0, measured.size]))[0])  # (np.median's value)
+    return float(max_ratio * _median(measured[has]))
+
+
+def _median(values):
+    """``np.median`` of a non-empty 1-d float array, by one sort (a zero's sign aside): a scalar of its dtype."""
+    ranked = np.sort(values)
+    n = ranked.size
+    if np.isnan(ranked[-1]):  # (NaN sorts last)
+        return ranked[-1]
+    return ranked[n // 2] if n % 2 else (ranked[n // 2 - 1] + ranked[n // 2]) / ranked.dtype.type(2)
 
 
 def _footprint(chan, m, edge, keep: float, d: float, cover=None):
@@ -545,14 +558,15 @@ def _prior_channels(block, clipped_ch, clipped, d, prior, use_rim, stats):
     probabilities (T,)) each, the layers of :func:`_layers`."""
     clip_level, prior_max, max_ratio = prior
     cover, edges = {}, {}  # per mask: its blurred clipped pixels and its edge, shared by channels clipped alike
-    counts, every, keeps = stats
+    counts, every, keeps, values, flags = stats
     for c in range(3):
         if not counts[c]:
             continue
         m = clipped_ch[..., c]
         # a pixel clipped in c has a measured channel unless every channel clipped: :func:`channel_bound` is
         # inf where at most half of them have one (most blobs: white lights), found without it
-        bound = math.inf if 2 * (counts[c] - every) <= counts[c] else channel_bound(block, clipped_ch, c, max_ratio)
+        bound = math.inf if 2 * (counts[c] - every) <= counts[c] else _bound(values[flags[:, c]], flags[flags[:, c]],
+                                                                             c, max_ratio)
         top = min(prior_max, bound)
         if top <= clip_level:
             continue

@@ -216,3 +216,15 @@ def test_channel_bound_is_the_plain_formula(seed, h, w, ratio, dtype):
         got, want = highlights.channel_bound(block, clipped_ch, c, ratio), \
             _plain_channel_bound(block, clipped_ch, c, ratio)
         assert got == want or (math.isnan(got) and math.isnan(want))
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), n=st.integers(1, 40), dtype=st.sampled_from([np.float32, np.float64]))
+def test_median_is_numpys(seed, n, dtype):
+    rng = np.random.default_rng(seed)
+    values = rng.choice([-1.0, -0.0, 0.0, 0.25, 0.5, 3.0], n) if rng.random() < 0.5 else rng.normal(size=n)
+    values = values.astype(dtype)
+    if rng.random() < 0.1:
+        values[rng.integers(0, n)] = np.nan
+    got, want = highlights._median(values), np.median(values)
+    assert got.dtype == want.dtype and (got == want or (np.isnan(got) and np.isnan(want)))

@@ -238,11 +238,11 @@ def _medians(values, starts):
 
 def _blobs(img, clip_level, coc=None):
     """Each clipped blob (8-connected pixels with a clipped channel): (window slices, blob mask in the window,
-    per-channel clipped mask in the window, every clipped pixel in the window, blur d, (per channel its count of
-    clipped pixels, the count clipped in every channel, per channel its largest clipped value or -inf, and its
-    pixels' (n, 3) values and clipped flags in raster order)). The
-    window is the blob's box widened by 3 px; with *coc*, by ceil(d / 2) + 1 px, d its median CoC (px), and a
-    blob with d < 1 (not blurred) is left out."""
+    per-channel clipped mask in the window, every clipped pixel in the window, blur d, stats). The window is the
+    blob's box widened by 3 px; with *coc*, by ceil(d / 2) + 1 px, d its median CoC (px), and a blob with
+    d < 1 (not blurred) is left out. stats: (per channel the count of its clipped pixels, the count clipped in
+    every channel, per channel the largest clipped value (-inf: none), the blob's pixels' (n, 3) values and
+    clipped flags in raster order), found for every blob at once."""
     clipped = clipped_mask(img, clip_level)
     boxes, ys, xs, starts = _labelled(clipped)
     if not len(boxes):
@@ -582,6 +582,7 @@ def _prior_channels(block, clipped_ch, clipped, d, prior, use_rim, stats):
 
 
 def _normalised(weights):
+    """*weights* (T,) as probabilities (summing to 1)."""
     return weights / weights.sum()
 
 

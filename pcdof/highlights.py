@@ -417,14 +417,18 @@ def _best_levels(base, k, weight, starts, cands, probs) -> np.ndarray:
     table *= k
     table += base
     shown = _display_in_place(np.clip(table, 0.0, 1.0, out=table))
-    ws = shown * weight
     # E_t sum_n w (s_c - s_t)^2 = a2_c - 2 sum_n w s_c E_t[s_t] + E_t[a2_t]: the square is linear in the
     # truths once expanded, so no table of every candidate against every truth (T times the work). einsum and
     # reduceat, not a BLAS product: one thread, and the same sums on every machine
     mean_shown = np.einsum("tn,tn->n", np.repeat(probs.T, counts, axis=1), shown[1:])
     first = starts[:-1]
-    a2 = np.add.reduceat(np.multiply(ws, shown, out=shown), first, axis=1)  # (1 + T, J)
-    cross = np.add.reduceat(np.multiply(ws, mean_shown, out=ws), first, axis=1)
+    if weight.min(initial=1.0) == 1.0 == weight.max(initial=1.0):  # (most batches: w s is s, bit for bit)
+        cross = np.add.reduceat(shown * mean_shown, first, axis=1)
+        a2 = np.add.reduceat(np.multiply(shown, shown, out=shown), first, axis=1)  # (1 + T, J)
+    else:
+        ws = shown * weight
+        a2 = np.add.reduceat(np.multiply(ws, shown, out=shown), first, axis=1)
+        cross = np.add.reduceat(np.multiply(ws, mean_shown, out=ws), first, axis=1)
     expected = a2 - 2 * cross + np.einsum("jt,tj->j", probs, a2[1:])
     # the first candidate within rounding of the least (the expanded square leaves ~1e-12 noise)
     near = expected <= expected.min(axis=0) + 1e-7 * np.maximum(np.add.reduceat(weight, first), 1.0)

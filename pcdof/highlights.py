@@ -470,7 +470,8 @@ def _edge(mask):
 def channel_bound(block, clipped_ch, c: int, max_ratio: float) -> float:
     """Upper bound on the radiance of clipped channel *c* of one blob from its other, measured channels:
     *max_ratio* times their median largest unclipped value, over the blob's pixels clipped in *c* that have
-    one (inf when fewer than half of them do: mostly every channel clipped)."""
+    one (inf when fewer than half of them do: mostly every channel clipped; and when *max_ratio* is inf,
+    no bound, even where the measured channels are 0)."""
     m = clipped_ch[..., c]
     return _bound(block[m], clipped_ch[m], c, max_ratio)
 
@@ -479,7 +480,7 @@ def _bound(values, clipped, c: int, max_ratio: float) -> float:
     """:func:`channel_bound` from the (n, 3) values and clipped flags of the blob's pixels clipped in *c*."""
     o1, o2 = [o for o in range(3) if o != c]
     has = ~(clipped[:, o1] & clipped[:, o2])
-    if 2 * np.count_nonzero(has) <= len(values):
+    if math.isinf(max_ratio) or 2 * np.count_nonzero(has) <= len(values):
         return math.inf
     measured = np.maximum(np.where(clipped[:, o1], 0.0, values[:, o1]), np.where(clipped[:, o2], 0.0, values[:, o2]))
     return float(max_ratio * _median(measured[has]))

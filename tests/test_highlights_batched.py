@@ -55,8 +55,8 @@ def _plain_channel_bound(block, clipped_ch, c, max_ratio):
     others = [o for o in range(3) if o != c]
     measured = np.where(clipped_ch[..., others], 0.0, block[..., others]).max(axis=-1)
     has = m & ~clipped_ch[..., others].all(axis=-1)
-    if 2 * np.count_nonzero(has) <= np.count_nonzero(m):
-        return math.inf
+    if math.isinf(max_ratio) or 2 * np.count_nonzero(has) <= np.count_nonzero(m):
+        return math.inf  # no ratio: no bound (inf times a measured 0 is no number)
     return float(max_ratio * np.median(measured[has]))
 
 

@@ -16,6 +16,7 @@ from .camera import RGBDFrame, check_color
 from .errors import InputError
 from .lens import ThinLens, _depth_array, focus_depth_at
 from .options import as_options
+from .plans import threads_for_load
 from .renderer import check_method, render_image
 
 
@@ -208,6 +209,11 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
     from .kernels import ensure_warm
 
     ensure_warm()  # the first run after an install compiles every stage's kernels, and says so
+    with threads_for_load():  # fewer threads while other processes keep cores busy (same result)
+        return _run_stages(frame, opts)
+
+
+def _run_stages(frame: RGBDFrame, opts) -> RenderResult:
     trace: list[StageTrace] = []
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=opts.fill_method)
@@ -238,6 +244,7 @@ def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "
     if depth.shape != color.shape[:2]:
         raise InputError(f"depth_filled_m must be (H, W) = {color.shape[:2]}; got {depth.shape}")
     trace: list[StageTrace] = []
-    image, _ = render_stages(color, depth, lens, fx, trace, method=method, max_range_m=max_range_m, linear=linear,
-                             quality=quality, highlights=highlights)
+    with threads_for_load():
+        image, _ = render_stages(color, depth, lens, fx, trace, method=method, max_range_m=max_range_m,
+                                 linear=linear, quality=quality, highlights=highlights)
     return image, trace

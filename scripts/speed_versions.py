@@ -10,6 +10,9 @@ speed frames (synthetic portrait, 512x424 depth, the scene's default lens, highl
 load from elsewhere hits every row alike. Printed: whether each revision's image equals the first one's, the
 medians (ms, per stage too), the median of the per-repeat ratios to the paper method and to the revision
 before (per stage too).
+
+The pipeline's adaptation of its thread count to other processes' load (``PCDOF_ADAPT_THREADS``) is switched
+off here unless that variable is set: the rows compare code, on the thread counts asked for.
 """
 
 import argparse
@@ -20,6 +23,8 @@ import subprocess
 import sys
 import tempfile
 import time
+
+os.environ.setdefault("PCDOF_ADAPT_THREADS", "0")  # see the docstring
 
 
 def extract(rev: str) -> str:

@@ -90,18 +90,26 @@ def quartiles(values) -> list[float]:
 
 @contextlib.contextmanager
 def threads(n: int):
-    """Run the block with *n* threads for numba's kernels and OpenCV (each stage's plan reads numba's count)."""
+    """Run the block with *n* threads for numba's kernels and OpenCV (each stage's plan reads numba's count),
+    the pipeline's adaptation to other processes' load switched off (:func:`pcdof.plans.threads_for_load`)."""
     import cv2
     import numba
 
-    before_numba, before_cv = numba.get_num_threads(), cv2.getNumThreads()
+    from ..plans import ADAPT_ENV
+
+    before_numba, before_cv, before_env = numba.get_num_threads(), cv2.getNumThreads(), os.environ.get(ADAPT_ENV)
     numba.set_num_threads(n)
     cv2.setNumThreads(n)
+    os.environ[ADAPT_ENV] = "0"
     try:
         yield
     finally:
         numba.set_num_threads(before_numba)
         cv2.setNumThreads(before_cv)
+        if before_env is None:
+            os.environ.pop(ADAPT_ENV, None)
+        else:
+            os.environ[ADAPT_ENV] = before_env
 
 
 def thread_scaling(*, size=(640, 480), depth_size=(512, 424), scene="portrait", repeats: int = 7,

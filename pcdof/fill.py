@@ -161,7 +161,7 @@ def needs_fill(depth_m) -> tuple[bool, str]:
 # less time but make the fill 5-10 % slower.
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _index(depth):
     """Number the holes and the boundary (known pixels 8-adjacent to a hole) in raster order.
 
@@ -214,7 +214,7 @@ def _index(depth):
     return hole_id, label, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _sweep(hole_id, label, hole_x, row_start, dirs, halves):
     """Per direction k and hole h: label of the nearest known pixel along dirs[k] (-1: none).
 
@@ -282,7 +282,7 @@ def _sweep(hole_id, label, hole_x, row_start, dirs, halves):
     return cand
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _fit_boundary(depth, b_y, b_x, radius, step, edge_ratio, plane):
     """Local plane of 1/z at each boundary pixel: plane[i] = (1/z, d(1/z)/dx, d(1/z)/dy) at (b_y[i], b_x[i]).
 
@@ -524,7 +524,7 @@ def _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, sl
     return best_inv, kind
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
     """Fill each hole from its candidates (module docstring, steps 1-4); per hole, also the
     distance to its nearest candidate (*r_near*, 0 at the border) and its *kind*."""
@@ -588,7 +588,7 @@ def _insert_sorted(win, m, value):
     return m + 1
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _despeckle(out, hole_y, hole_x, edge_ratio):
     """Replace each hole whose depth differs from all of its 8 neighbours by more than *edge_ratio*
     (relative) by their median (one Jacobi pass): an isolated pixel of another surface is a speckle."""
@@ -619,7 +619,7 @@ def _despeckle(out, hole_y, hole_x, edge_ratio):
             out[hole_y[h], hole_x[h]] = new[h]
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _median_far(out, hole_y, hole_x, r_near, min_r, step, edge_ratio, iterations):
     """Replace the holes farther than *min_r* from every candidate by the median of their 5 x 5
     neighbourhood (taps *step* apart) when it spans more than one surface (a relative range over

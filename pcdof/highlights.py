@@ -79,6 +79,8 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -236,26 +238,55 @@ def _medians(values, starts):
     return out
 
 
-def _blobs(img, clip_level, coc=None):
+class _Found(NamedTuple):
+    """A frame's clipped blobs, from its colour alone (:func:`_find_blobs`): the (H, W) bool clipped mask; the
+    blobs of :func:`_labelled` (boxes, ys, xs, starts); the (P, 3) values and clipped flags of their pixels in
+    that order; per blob the count of pixels clipped per channel and in every channel, and per channel the largest
+    clipped value (-inf: none), as lists."""
+
+    clipped: np.ndarray
+    boxes: np.ndarray
+    ys: np.ndarray
+    xs: np.ndarray
+    starts: np.ndarray
+    values: np.ndarray
+    flags: np.ndarray
+    counts: list
+    every: list
+    keeps: list
+
+
+def _find_blobs(img, clip_level, clipped=None) -> _Found:
+    """The clipped blobs of *img* (H, W, 3) float32 linear light and what their channels need, for every blob at
+    once from its pixels (no circle of confusion: this is the part of the reconstruction that reads the colour
+    only). *clipped*: ``clipped_mask(img, clip_level)`` when the caller has it (e.g. from the integer codes)."""
+    clipped = clipped_mask(img, clip_level) if clipped is None else clipped
+    boxes, ys, xs, starts = _labelled(clipped)
+    values = img[ys, xs]
+    flags = values >= clip_level  # (P, 3), as the window's pixels compare
+    if not len(boxes):
+        return _Found(clipped, boxes, ys, xs, starts, values, flags, [], [], [])
+    first = starts[:-1]
+    counts = np.add.reduceat(flags, first, dtype=np.int64).tolist()
+    every = np.add.reduceat(flags[:, 0] & flags[:, 1] & flags[:, 2], first, dtype=np.int64).tolist()
+    keeps = np.maximum.reduceat(np.where(flags, values, -np.inf), first).tolist()
+    return _Found(clipped, boxes, ys, xs, starts, values, flags, counts, every, keeps)
+
+
+def _blobs(img, clip_level, coc=None, found=None):
     """Each clipped blob (8-connected pixels with a clipped channel): (window slices, blob mask in the window,
     per-channel clipped mask in the window, every clipped pixel in the window, blur d, stats). The window is the
     blob's box widened by 3 px; with *coc*, by ceil(d / 2) + 1 px, d its median CoC (px), and a blob with
     d < 1 (not blurred) is left out. stats: (per channel the count of its clipped pixels, the count clipped in
     every channel, per channel the largest clipped value (-inf: none), the blob's pixels' (n, 3) values and
-    clipped flags in raster order), found for every blob at once."""
-    clipped = clipped_mask(img, clip_level)
-    boxes, ys, xs, starts = _labelled(clipped)
+    clipped flags in raster order). *found*: :func:`_find_blobs` of *img*, when the caller has it."""
+    clipped, boxes, ys, xs, starts, values, flags, counts, every, keeps = (
+        _find_blobs(img, clip_level) if found is None else found)
     if not len(boxes):
         return
     h, w = clipped.shape
     blur = [0.0] * len(boxes) if coc is None else _medians(_coc_at(coc, ys, xs), starts).tolist()
-    # what each blob's channels need, for every blob at once from its pixels
-    values = img[ys, xs]
-    flags = values >= clip_level  # (P, 3), as the window's pixels compare
     first = starts[:-1]
-    counts = np.add.reduceat(flags, first, dtype=np.int64).tolist()
-    every = np.add.reduceat(flags[:, 0] & flags[:, 1] & flags[:, 2], first, dtype=np.int64).tolist()
-    keeps = np.maximum.reduceat(np.where(flags, values, -np.inf), first).tolist()
     for i, ((y0, y1, x0, x1), d, a, b) in enumerate(zip(boxes.tolist(), blur, first.tolist(), starts[1:].tolist())):
         p = 3
         if coc is not None:
@@ -271,12 +302,13 @@ def _blobs(img, clip_level, coc=None):
         yield win, mask, clipped_ch, clipped[win], d, (counts[i], every[i], keeps[i], values[a:b], flags[a:b])
 
 
-def _fill(img, clip_level, levels_for_blob):
+def _fill(img, clip_level, levels_for_blob, found=None):
     """Raise each clipped blob's clipped channels to max(input, level * hue); unclipped channels are measured
-    values and stay. *levels_for_blob(block, mask, ring) -> level*."""
+    values and stay. *levels_for_blob(block, mask, ring) -> level*; *found*: :func:`_find_blobs` of *img*.
+    A copy (a blob's rim may reach another blob's pixels, read unraised)."""
     out = img.copy()
     kernel = np.ones((3, 3), np.uint8)
-    for win, mask, clipped_ch, clipped, _, _ in _blobs(img, clip_level):
+    for win, mask, clipped_ch, clipped, _, _ in _blobs(img, clip_level, found=found):
         block = img[win]
         grown = cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
         ring = grown & ~mask & ~clipped
@@ -321,12 +353,15 @@ def reconstruct_rim(linear_rgb, *, gain: float = DEFAULT_GAIN, clip_level: float
     """Each clipped blob raised to its :func:`rim_level` estimate (*gain* where the edge says nothing). (H, W, 3)
     float32."""
     img = _check(linear_rgb, clip_level, gain)
+    return _fill(img, clip_level, _rim_or_gain(gain, clip_level, min_edge))
 
+
+def _rim_or_gain(gain, clip_level, min_edge=MIN_EDGE):
+    """The level of a blob for :func:`_fill`: its :func:`rim_level`, or *gain* where the edge says nothing."""
     def level(block, mask, ring):
         est = rim_level(block, mask, ring, clip_level=clip_level, min_edge=min_edge)
         return float(gain) if est is None else est
-
-    return _fill(img, clip_level, level)
+    return level
 
 
 def disc_kernel(diameter_px: float, *, supersample: int = 4) -> np.ndarray:
@@ -657,16 +692,24 @@ def reconstruct_prior(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, pri
     coc = _check_coc(coc_px, img.shape)
     prior = (clip_level, _number("prior_max", prior_max, clip_level),
              _number("max_channel_ratio", max_channel_ratio, 1.0, inf=True))
+    return _raise_prior(img, img.copy(), coc, prior, use_rim)
+
+
+def _raise_prior(img, out, coc, prior, use_rim, found=None):
+    """:func:`reconstruct_prior` of *img* (H, W, 3) float32 written into *out* (a copy of it, or *img* itself:
+    every read of *img* comes before the first write, and each blob's channel is written once, at its own
+    pixels), with *coc* and *prior* (clip level, prior max, channel ratio) checked; *found*: :func:`_find_blobs`
+    of *img*. Returns *out*."""
+    clip_level = prior[0]
     # a blob that is not blurred (d < 1) is left out: its output stays at white whatever the radiance
     raised, layers, cands, probs = [], [], [], []
-    for win, _, clipped_ch, clipped, d, stats in _blobs(img, clip_level, coc):
+    for win, _, clipped_ch, clipped, d, stats in _blobs(img, clip_level, coc, found):
         for c, m, edge, keep, lay, cand, prob in _prior_channels(img[win], clipped_ch, clipped, d, prior, use_rim,
                                                                  stats):
             raised.append((win, c, m, edge, keep))
             layers.append(lay)
             cands.append(cand)
             probs.append(prob)
-    out = img.copy()
     if not raised:
         return out
     base, k, weight, counts = _samples(layers, [r[4] for r in raised])
@@ -727,14 +770,95 @@ def reconstruct_highlights(linear_rgb, *, method: str = "auto", gain: float = DE
     >>> float(reconstruct_highlights(img, method="gain", gain=5.0)[4, 4, 0])
     5.0
     """
+    _check_options(method, clip_level, gain, prior_max, max_channel_ratio)
+    return HIGHLIGHT_METHODS[method](linear_rgb, gain=gain, clip_level=clip_level, coc_px=coc_px,
+                                     prior_max=prior_max, max_channel_ratio=max_channel_ratio)
+
+
+def _check_options(method, clip_level, gain, prior_max, max_channel_ratio):
+    """InputError naming the first bad option of :func:`reconstruct_highlights`."""
     if not isinstance(method, str) or method not in HIGHLIGHT_METHODS:
         raise InputError(f"method must be one of {', '.join(HIGHLIGHT_METHODS)}; got {method!r}")
     _number("clip_level", clip_level, 0.0, strict=True)
     _number("gain", gain, 1.0)
     _number("prior_max", prior_max, clip_level)
     _number("max_channel_ratio", max_channel_ratio, 1.0, inf=True)
-    return HIGHLIGHT_METHODS[method](linear_rgb, gain=gain, clip_level=clip_level, coc_px=coc_px,
-                                     prior_max=prior_max, max_channel_ratio=max_channel_ratio)
+
+
+@dataclass(frozen=True)
+class ClippedColor:
+    """What the highlights stage needs of the colour alone (:func:`prepare_highlights`), for
+    :func:`reconstruct_prepared`: plain data, found before the circle of confusion is known.
+
+    linear : (H, W, 3) float32 ndarray, the colour decoded to linear light: a fresh array, which
+        :func:`reconstruct_prepared` may raise in place (so it is used once)
+    clip_level : float, linear value at and above which a channel counts as clipped
+    clipped_pixels : int > 0, pixels with a clipped channel
+    found : the clipped blobs and their pixels' statistics (internal)
+    """
+
+    linear: np.ndarray
+    clip_level: float
+    clipped_pixels: int
+    found: _Found = field(repr=False)
+
+
+def prepare_highlights(color) -> ClippedColor | None:
+    """The colour-only part of the highlights stage: decode 8/16-bit sRGB *color* and find its clipped blobs.
+
+    A channel is clipped within half a code of the encoding's top (255 of uint8, 65535 of uint16), counted on
+    the codes: decoding is monotonic, so these are the pixels :func:`clipped_mask` finds in the decoded colour at
+    the decoded clip level (every code is tested), and a frame with nothing clipped is not decoded. Reads the
+    colour only (OpenCV and numpy, no numba kernel), so it can run beside the depth stages.
+
+    Parameters
+    ----------
+    color : (H, W, 3) uint8 or uint16 ndarray, sRGB codes ((H, W) grey: nothing to find, a blob's colour
+        needs three channels)
+
+    Returns
+    -------
+    ClippedColor, or None when no pixel is clipped
+    """
+    c = np.asarray(color)
+    if c.dtype not in (np.uint8, np.uint16) or not (c.ndim == 2 or (c.ndim == 3 and c.shape[2] == 3)):
+        raise InputError(f"color must be an (H, W, 3) or (H, W) uint8 or uint16 sRGB image; got {c.shape} {c.dtype}")
+    if c.ndim == 2:
+        return None
+    from .color import decode_to_linear, srgb_to_linear
+
+    top = float(np.iinfo(c.dtype).max)
+    clipped = clipped_mask(c, top - 0.5)
+    n = int(np.count_nonzero(clipped))
+    if n == 0:
+        return None
+    clip_level = float(srgb_to_linear(np.float32((top - 0.5) / top)))
+    linear = decode_to_linear(c)
+    return ClippedColor(linear, clip_level, n, _find_blobs(linear, clip_level, clipped))
+
+
+def reconstruct_prepared(prepared: ClippedColor, *, method: str = "auto", gain: float = DEFAULT_GAIN, coc_px=None,
+                         prior_max: float = PRIOR_MAX, max_channel_ratio: float = MAX_CHANNEL_RATIO) -> np.ndarray:
+    """:func:`reconstruct_highlights` of ``prepared.linear`` at ``prepared.clip_level``, the same values, from the
+    blobs :func:`prepare_highlights` found; the ``prior`` methods (``auto``) raise ``prepared.linear`` in place
+    instead of a copy. The options are those of :func:`reconstruct_highlights`.
+
+    Returns
+    -------
+    (H, W, 3) float32 ndarray, linear light (``prepared.linear`` itself for ``auto``, ``prior``, ``prior-rim``
+    and ``off``)
+    """
+    if not isinstance(prepared, ClippedColor):
+        raise InputError(f"prepared must be a ClippedColor (from prepare_highlights); got {type(prepared).__name__}")
+    img, clip_level, found = prepared.linear, prepared.clip_level, prepared.found
+    _check_options(method, clip_level, gain, prior_max, max_channel_ratio)
+    if method in NEEDS_COC:
+        return _raise_prior(img, img, _check_coc(coc_px, img.shape), (clip_level, float(prior_max), float(max_channel_ratio)),
+                            HIGHLIGHT_METHODS[method] is reconstruct_prior_rim, found)
+    if method == "off":
+        return img
+    level = (lambda block, mask, ring: float(gain)) if method == "gain" else _rim_or_gain(gain, clip_level)
+    return _fill(img, clip_level, level, found)
 
 
 def parse_highlights(value) -> tuple[str, float]:

@@ -116,41 +116,88 @@ def fill_stage(depth_m: np.ndarray, color: np.ndarray, trace: list, *, method: s
         return fill_depth(depth_m, color, method=method, parallel=plan.threads > 1)
 
 
-def highlights_stage(color, trace: list, *, highlights, method: str, linear: bool, coc_px=None):
+def highlights_stage(color, trace: list, *, highlights, method: str, linear: bool, coc_px=None, prepared=None):
     """Clipped highlights raised to an estimate of their radiance (:mod:`pcdof.highlights`; *coc_px*:
     the render's circle of confusion, which the estimate weighs).
+
+    *prepared*: the function that waits for the stage's colour-only half started on a worker thread
+    (:func:`_start_colour_side`), or None to do that half here. The record's seconds are the time waited for it
+    plus the part that needs the circle of confusion; its detail says how much of it ran meanwhile.
 
     Returns (colour to render, linear flag): linear float32 light when something was reconstructed,
     else *color* and *linear* unchanged (skipped: off, the paper method, linear input, nothing clipped).
     """
-    from .highlights import clipped_mask, needs_reconstruction, parse_highlights, reconstruct_highlights
+    from .highlights import parse_highlights, prepare_highlights, reconstruct_prepared
 
     with _Timer(trace, "highlights") as rec:
         how, gain = parse_highlights(highlights)
-        reason = ("off" if how == "off" else "the paper method blends as written" if method != "physical"
-                  else "linear input is not clipped" if not needs_reconstruction(color, linear=linear) else "")
+        if prepared is not None:  # joined first: a failure on the worker is raised here, in the caller's thread
+            t0 = time.perf_counter()
+            found, took, done = prepared()
+            overlap = {"prepared_ms": took * 1e3, "overlapped_ms": max(0.0, took - max(0.0, done - t0)) * 1e3,
+                       "waited_ms": (time.perf_counter() - t0) * 1e3}
+        reason = _highlights_skip(how, method, color, linear)
         if reason:
             rec.skipped, rec.reason = True, reason
             return color, linear
-        from .color import decode_to_linear, srgb_to_linear
-
-        # clipped: a channel within half a code of the encoding's top (255 of uint8, 65535 of uint16); counted on
-        # the codes (decoding is monotonic), so a frame with nothing clipped is not decoded here
-        top = float(np.iinfo(color.dtype).max)
-        clipped = int(np.count_nonzero(clipped_mask(color, top - 0.5))) if color.ndim == 3 else 0
-        if clipped == 0:
+        if prepared is None:
+            found, overlap = prepare_highlights(color), {}
+        if found is None:
             rec.skipped, rec.reason = True, "nothing clipped"
             return color, linear
-        clip_level = float(srgb_to_linear(np.float32((top - 0.5) / top)))
-        lin = decode_to_linear(color)
-        rec.reason = f"{how}{f' (gain {gain:g})' if how in ('gain', 'rim') else ''}: {clipped} clipped pixels"
-        rec.detail = {"method": how, "gain": gain, "clipped_pixels": clipped}
-        return reconstruct_highlights(lin, method=how, gain=gain, clip_level=clip_level, coc_px=coc_px), True
+        n = found.clipped_pixels
+        rec.reason = f"{how}{f' (gain {gain:g})' if how in ('gain', 'rim') else ''}: {n} clipped pixels"
+        rec.detail = {"method": how, "gain": gain, "clipped_pixels": n, **overlap}
+        return reconstruct_prepared(found, method=how, gain=gain, coc_px=coc_px), True
+
+
+def _highlights_skip(how: str, method: str, color, linear: bool) -> str:
+    """Why the highlights stage has nothing to do before its colour is read ("": it may; then only a clipped
+    pixel decides)."""
+    from .highlights import needs_reconstruction
+
+    return ("off" if how == "off" else "the paper method blends as written" if method != "physical"
+            else "linear input is not clipped" if not needs_reconstruction(color, linear=linear) else "")
+
+
+#: whether :func:`run` prepares the highlights stage's colour-only half on a worker thread while registration and
+#: fill run (False: every stage one after another; the results are the same, bit for bit)
+_OVERLAP = True
+
+
+def _start_colour_side(color, opts):
+    """Start :func:`pcdof.highlights.prepare_highlights` of *color* on a worker thread when the highlights stage
+    will need it: the physical method, highlights not off, 8/16-bit sRGB colour with a channel at its top code.
+    Returns the function that waits for it ((ClippedColor or None, seconds it took, perf_counter when done),
+    raising what the worker raised), or None: such frames start no thread.
+
+    The worker runs OpenCV and numpy only (both release the GIL over whole arrays; no numba kernel, so numba's
+    threading layer and thread count are the main thread's alone), while the depth stages' kernels run without
+    the GIL (registration's on its own threads, the fill's on one thread below its parallel threshold)."""
+    from .highlights import parse_highlights
+    from .renderer import _in_thread
+
+    color = np.asarray(color)
+    how, _ = parse_highlights(opts.highlights)
+    if (not _OVERLAP or _highlights_skip(how, opts.method, color, opts.linear) or color.ndim != 3
+            or not color.size or color.max() < np.iinfo(color.dtype).max):
+        return None
+
+    def work():
+        from .highlights import prepare_highlights
+
+        t0 = time.perf_counter()
+        found = prepare_highlights(color)
+        t1 = time.perf_counter()
+        return found, t1 - t0, t1
+
+    return _in_thread(work)
 
 
 def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False,
-                  quality="balanced", highlights="off"):
-    """Circle of confusion + render stages on registered, filled depth. Returns (image, coc_px)."""
+                  quality="balanced", highlights="off", prepared=None):
+    """Circle of confusion + render stages on registered, filled depth (*prepared*: see
+    :func:`highlights_stage`). Returns (image, coc_px)."""
     coc = signed = None
     if isinstance(lens, ThinLens):
         with _Timer(trace, "coc") as rec:
@@ -160,7 +207,7 @@ def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", 
                           "out_of_focus_share": float(np.mean(coc >= 1.0)) if coc.size else 0.0}
             rec.reason = f"max {rec.detail['max_coc_px']:.2f} px"
     source, source_linear = highlights_stage(color, trace, highlights=highlights, method=method, linear=linear,
-                                             coc_px=coc)
+                                             coc_px=coc, prepared=prepared)
     with _Timer(trace, "render") as rec:
         image, info = render_image(source, depth_filled_m, lens, fx=fx, method=method,
                                    max_range_m=max_range_m, linear=source_linear, quality=quality, signed_coc=signed)
@@ -215,12 +262,14 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
 
 def _run_stages(frame: RGBDFrame, opts) -> RenderResult:
     trace: list[StageTrace] = []
+    # the highlights stage's colour-only half runs on a worker thread meanwhile (when the frame needs it)
+    colour_side = _start_colour_side(frame.color, opts)
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=opts.fill_method)
     lens = _resolve_lens(opts.lens, opts.focus_at, registered, filled)
     image, coc = render_stages(frame.color, filled, lens, frame.rig.color.fx, trace, method=opts.method,
                                max_range_m=frame.rig.max_range_m, linear=opts.linear, quality=opts.quality,
-                               highlights=opts.highlights)
+                               highlights=opts.highlights, prepared=colour_side)
     return RenderResult(image, registered, filled, coc, lens, trace)
 
 

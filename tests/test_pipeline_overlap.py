@@ -1,0 +1,183 @@
+"""The pipeline's schedule: the highlights stage's colour-only half runs on a worker thread while registration and
+fill run, and every result is the one of running the stages one after another."""
+
+import threading
+
+import numpy as np
+import pytest
+
+import pcdof.highlights as highlights
+import pcdof.pipeline as pipeline
+import pcdof.renderer as renderer
+from pcdof.camera import RGBDFrame
+from pcdof.color import decode_to_linear, srgb_to_linear
+from pcdof.errors import InputError
+from pcdof.highlights import (HIGHLIGHT_METHODS, ClippedColor, clipped_mask, prepare_highlights,
+                              reconstruct_highlights, reconstruct_prepared)
+from pcdof.lens import PaperLens, ThinLens
+from pcdof.synth.rig import kinect_rig
+
+
+def _clip_level(dtype):
+    top = float(np.iinfo(dtype).max)
+    return float(srgb_to_linear(np.float32((top - 0.5) / top)))
+
+
+def _color(rng, h, w, dtype=np.uint8, blobs=6):
+    """Random sRGB codes with *blobs* clipped discs and boxes: white, or clipped in one or two channels only."""
+    top = np.iinfo(dtype).max
+    img = (rng.uniform(0.0, 0.8, (h, w, 3)) * top).astype(dtype)
+    yy, xx = np.mgrid[:h, :w]
+    for _ in range(blobs):
+        cy, cx, r = rng.uniform(0, h), rng.uniform(0, w), rng.uniform(0.5, 6.0)
+        inside = ((yy - cy) ** 2 + (xx - cx) ** 2 <= r * r) if rng.random() < 0.7 else \
+            ((abs(yy - cy) <= r) & (abs(xx - cx) <= r / 2))
+        channels = ([0, 1, 2], [0], [1, 2], [2])[rng.choice(4, p=[0.55, 0.15, 0.15, 0.15])]
+        for c in channels:
+            img[..., c][inside] = top
+    return img
+
+
+def _frame(seed, dtype=np.uint8, size=(160, 120), blobs=6):
+    """A Kinect-like frame (registration runs) of random steps of depth with holes, and a clipped colour."""
+    rng = np.random.default_rng(seed)
+    rig = kinect_rig(size, (128, 106))
+    h, w = rig.depth.height, rig.depth.width
+    depth = np.full((h, w), rng.uniform(2.0, 4.0), np.float32)
+    for _ in range(3):
+        y0, x0 = rng.integers(0, h - 10), rng.integers(0, w - 10)
+        depth[y0:y0 + rng.integers(8, 40), x0:x0 + rng.integers(8, 40)] = rng.uniform(0.7, 1.8)
+    depth[rng.random((h, w)) < 0.03] = 0.0
+    return RGBDFrame(_color(rng, size[1], size[0], dtype, blobs), depth, rig)
+
+
+LENS = ThinLens(50.0, 1.4, 1.2)
+
+
+def _sequential(monkeypatch):
+    monkeypatch.setattr(pipeline, "_OVERLAP", False)
+
+
+def _stage(result, name):
+    return next(t for t in result.trace if t.name == name)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_the_clipped_codes_are_the_clipped_decoded_pixels(dtype):
+    """Every code: at the top code exactly where the decoded value reaches the decoded clip level, so the mask
+    counted on the codes is the one the blobs of the decoded colour are found from."""
+    codes = np.arange(np.iinfo(dtype).max + 1, dtype=np.int64)
+    img = np.zeros((codes.size, 3), dtype)
+    for c in range(3):
+        img[:, c] = np.roll(codes, 997 * c)
+    img = img.reshape(-1, 1, 3)
+    top = float(np.iinfo(dtype).max)
+    np.testing.assert_array_equal(clipped_mask(img, top - 0.5), clipped_mask(decode_to_linear(img), _clip_level(dtype)))
+    assert np.count_nonzero(clipped_mask(img, top - 0.5)) == 3
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("seed", range(4))
+def test_prepared_reconstruction_is_the_reconstruction_of_the_decoded_colour(seed, dtype):
+    rng = np.random.default_rng(seed)
+    color = _color(rng, 60, 80, dtype, blobs=8)
+    coc = rng.uniform(0.0, 12.0, (60, 80)).astype(np.float32)
+    lin = decode_to_linear(color)
+    for method in HIGHLIGHT_METHODS:
+        prepared = prepare_highlights(color)
+        assert isinstance(prepared, ClippedColor)
+        assert prepared.clipped_pixels == np.count_nonzero(clipped_mask(lin, _clip_level(dtype)))
+        want = reconstruct_highlights(lin, method=method, clip_level=_clip_level(dtype), coc_px=coc, gain=5.0)
+        got = reconstruct_prepared(prepared, method=method, coc_px=coc, gain=5.0)
+        np.testing.assert_array_equal(got, want)
+        # the prior methods raise the decoded array itself (no copy); the others leave it as decoded
+        assert (got is prepared.linear) == (method in ("auto", "prior", "prior-rim", "off"))
+        if got is not prepared.linear:
+            np.testing.assert_array_equal(prepared.linear, lin)
+    assert method == "prior-rim" and not np.array_equal(want, lin)  # something was raised
+
+
+def test_nothing_clipped_is_not_decoded():
+    color = np.full((8, 9, 3), 254, np.uint8)
+    assert prepare_highlights(color) is None and prepare_highlights(color[..., 0]) is None
+    with pytest.raises(InputError):
+        prepare_highlights(color.astype(np.float32))
+    with pytest.raises(InputError, match="prepared"):
+        reconstruct_prepared(decode_to_linear(color))
+
+
+@pytest.mark.parametrize("seed,dtype,options", [
+    (0, np.uint8, {}), (1, np.uint8, {}), (2, np.uint8, {"highlights": "gain"}), (3, np.uint8, {"highlights": "rim"}),
+    (4, np.uint8, {"highlights": "prior-rim"}), (5, np.uint16, {}), (6, np.uint8, {"quality": "exact"}),
+    (7, np.uint8, {"highlights": 3.0}),
+])
+def test_overlapped_and_sequential_pipelines_give_the_same_bits(monkeypatch, seed, dtype, options):
+    frame = _frame(seed, dtype)
+    got = pipeline.run(frame, LENS, **options)
+    detail = _stage(got, "highlights").detail
+    assert {"prepared_ms", "overlapped_ms", "waited_ms"} <= set(detail)
+    assert 0.0 <= detail["overlapped_ms"] <= detail["prepared_ms"]
+    assert _stage(got, "highlights").seconds * 1e3 >= detail["waited_ms"]
+    _sequential(monkeypatch)
+    want = pipeline.run(frame, LENS, **options)
+    assert "overlapped_ms" not in _stage(want, "highlights").detail
+    assert [(t.name, t.skipped, t.reason) for t in got.trace] == [(t.name, t.skipped, t.reason) for t in want.trace]
+    assert not _stage(got, "highlights").skipped and not _stage(got, "register").skipped
+    for a, b in ((got.image, want.image), (got.depth_filled_m, want.depth_filled_m), (got.coc_px, want.coc_px)):
+        np.testing.assert_array_equal(a, b)
+    assert got.image.dtype == dtype
+
+
+def _counting_threads(monkeypatch):
+    started = []
+    real = renderer._in_thread
+
+    def counted(fn):
+        started.append(fn)
+        return real(fn)
+
+    monkeypatch.setattr(renderer, "_in_thread", counted)
+    return started
+
+
+@pytest.mark.parametrize("change,options", [
+    ("none", {"highlights": "off"}), ("none", {"method": "paper"}), ("linear", {"linear": True}),
+    ("unclipped", {}), ("grey", {}),
+])
+def test_frames_that_do_not_need_the_colour_side_start_no_thread(monkeypatch, change, options):
+    frame = _frame(0)
+    color = {"none": frame.color, "linear": decode_to_linear(frame.color), "unclipped": frame.color // 2,
+             "grey": frame.color[..., 1]}[change]
+    frame = RGBDFrame(color, frame.depth_m, frame.rig)
+    lens = PaperLens(focus_distance_m=1.2) if options.get("method") == "paper" else LENS
+    started = _counting_threads(monkeypatch)
+    result = pipeline.run(frame, lens, **options)
+    assert started == [] and _stage(result, "highlights").skipped
+    pipeline.run(_frame(1), LENS)
+    assert len(started) == 1  # the counter sees a frame that needs it
+
+
+def test_a_failure_on_the_worker_is_raised_in_the_callers_thread(monkeypatch):
+    class Broken(RuntimeError):
+        pass
+
+    where = []
+
+    def broken(color):
+        where.append(threading.current_thread())
+        raise Broken("colour side failed")
+
+    monkeypatch.setattr(highlights, "prepare_highlights", broken)
+    with pytest.raises(Broken, match="colour side failed"):
+        pipeline.run(_frame(0), LENS)
+    assert where and where[0] is not threading.current_thread()
+
+
+def test_the_fill_kernels_release_the_gil():
+    """The fill runs while the worker does: its kernels must not hold the GIL (numba's nogil)."""
+    from pcdof.kernels import _cached_dispatchers
+
+    kernels = _cached_dispatchers("pcdof.fill")
+    assert {k.__name__ for k in kernels} >= {"_index", "_sweep", "_fit_boundary", "_combine", "_despeckle",
+                                             "_median_far"}
+    assert all(k.targetoptions.get("nogil") for k in kernels), [k.__name__ for k in kernels]

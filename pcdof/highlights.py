@@ -853,7 +853,8 @@ def reconstruct_prepared(prepared: ClippedColor, *, method: str = "auto", gain: 
     img, clip_level, found = prepared.linear, prepared.clip_level, prepared.found
     _check_options(method, clip_level, gain, prior_max, max_channel_ratio)
     if method in NEEDS_COC:
-        return _raise_prior(img, img, _check_coc(coc_px, img.shape), (clip_level, float(prior_max), float(max_channel_ratio)),
+        prior = (clip_level, float(prior_max), float(max_channel_ratio))
+        return _raise_prior(img, img, _check_coc(coc_px, img.shape), prior,
                             HIGHLIGHT_METHODS[method] is reconstruct_prior_rim, found)
     if method == "off":
         return img

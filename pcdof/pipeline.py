@@ -7,6 +7,8 @@ work to do, times it, and records what was skipped and why (``pcdof render --exp
 from __future__ import annotations
 
 import dataclasses
+import os
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -160,22 +162,36 @@ def _highlights_skip(how: str, method: str, color, linear: bool) -> str:
             else "linear input is not clipped" if not needs_reconstruction(color, linear=linear) else "")
 
 
-#: whether :func:`run` prepares the highlights stage's colour-only half on a worker thread while registration and
-#: fill run (False: every stage one after another; the results are the same, bit for bit)
+#: whether :func:`run` prepares the highlights stage's colour-only half on a worker thread while the fill runs
+#: (False: every stage one after another; the results are the same, bit for bit)
 _OVERLAP = True
+_pool_lock = threading.Lock()
+_pool_state: list = [None, None]  # the colour side's worker (a one-thread pool) and the process it belongs to
+
+
+def _colour_pool():
+    """The colour side's one worker thread, kept between frames (a thread started per frame kept the caller
+    waiting about 0.3 ms for the GIL); a forked child makes its own."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with _pool_lock:
+        pool, pid = _pool_state
+        if pool is None or pid != os.getpid():
+            pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcdof-colour")
+            _pool_state[:] = [pool, os.getpid()]
+        return pool
 
 
 def _start_colour_side(color, opts):
-    """Start :func:`pcdof.highlights.prepare_highlights` of *color* on a worker thread when the highlights stage
-    will need it: the physical method, highlights not off, 8/16-bit sRGB colour with a channel at its top code.
+    """Start :func:`pcdof.highlights.prepare_highlights` of *color* on a worker thread (during the fill) when the
+    highlights stage will need it: the physical method, highlights not off, 8/16-bit sRGB colour with a channel at its top code.
     Returns the function that waits for it ((ClippedColor or None, seconds it took, perf_counter when done),
-    raising what the worker raised), or None: such frames start no thread.
+    raising what the worker raised), or None: such frames use no thread (nor does a call at interpreter exit).
 
     The worker runs OpenCV and numpy only (both release the GIL over whole arrays; no numba kernel, so numba's
-    threading layer and thread count are the main thread's alone), while the depth stages' kernels run without
-    the GIL (registration's on its own threads, the fill's on one thread below its parallel threshold)."""
-    from .highlights import parse_highlights
-    from .renderer import _in_thread
+    threading layer and thread count are the main thread's alone), while the fill's kernels run without the GIL
+    (on one thread below its parallel threshold; its first kernel, the hole index, on one thread always)."""
+    from .highlights import parse_highlights, prepare_highlights
 
     color = np.asarray(color)
     how, _ = parse_highlights(opts.highlights)
@@ -184,14 +200,15 @@ def _start_colour_side(color, opts):
         return None
 
     def work():
-        from .highlights import prepare_highlights
-
         t0 = time.perf_counter()
         found = prepare_highlights(color)
         t1 = time.perf_counter()
         return found, t1 - t0, t1
 
-    return _in_thread(work)
+    try:
+        return _colour_pool().submit(work).result
+    except RuntimeError:  # interpreter shutting down: no new threads; the stage does it in the caller's thread
+        return None
 
 
 def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False,
@@ -262,9 +279,11 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
 
 def _run_stages(frame: RGBDFrame, opts) -> RenderResult:
     trace: list[StageTrace] = []
-    # the highlights stage's colour-only half runs on a worker thread meanwhile (when the frame needs it)
-    colour_side = _start_colour_side(frame.color, opts)
     registered = register_stage(frame, trace)
+    # the highlights stage's colour-only half runs on a worker thread while the fill runs (when the frame needs
+    # it): the fill's first kernels run on one thread, registration's on all (started before it, the worker
+    # took a core from registration and gave no time back)
+    colour_side = _start_colour_side(frame.color, opts)
     filled = fill_stage(registered, frame.color, trace, method=opts.fill_method)
     lens = _resolve_lens(opts.lens, opts.focus_at, registered, filled)
     image, coc = render_stages(frame.color, filled, lens, frame.rig.color.fx, trace, method=opts.method,

@@ -1,5 +1,5 @@
-"""The pipeline's schedule: the highlights stage's colour-only half runs on a worker thread while registration and
-fill run, and every result is the one of running the stages one after another."""
+"""The pipeline's schedule: the highlights stage's colour-only half runs on a worker thread while the fill runs, and
+every result is the one of running the stages one after another."""
 
 import threading
 
@@ -8,7 +8,6 @@ import pytest
 
 import pcdof.highlights as highlights
 import pcdof.pipeline as pipeline
-import pcdof.renderer as renderer
 from pcdof.camera import RGBDFrame
 from pcdof.color import decode_to_linear, srgb_to_linear
 from pcdof.errors import InputError
@@ -129,14 +128,16 @@ def test_overlapped_and_sequential_pipelines_give_the_same_bits(monkeypatch, see
 
 
 def _counting_threads(monkeypatch):
+    """The work handed to the colour side's worker thread, as a list that grows."""
     started = []
-    real = renderer._in_thread
+    real = pipeline._colour_pool
 
-    def counted(fn):
-        started.append(fn)
-        return real(fn)
+    class Counted:
+        def submit(self, fn):
+            started.append(fn)
+            return real().submit(fn)
 
-    monkeypatch.setattr(renderer, "_in_thread", counted)
+    monkeypatch.setattr(pipeline, "_colour_pool", Counted)
     return started
 
 
@@ -144,7 +145,7 @@ def _counting_threads(monkeypatch):
     ("none", {"highlights": "off"}), ("none", {"method": "paper"}), ("linear", {"linear": True}),
     ("unclipped", {}), ("grey", {}),
 ])
-def test_frames_that_do_not_need_the_colour_side_start_no_thread(monkeypatch, change, options):
+def test_frames_that_do_not_need_the_colour_side_use_no_thread(monkeypatch, change, options):
     frame = _frame(0)
     color = {"none": frame.color, "linear": decode_to_linear(frame.color), "unclipped": frame.color // 2,
              "grey": frame.color[..., 1]}[change]

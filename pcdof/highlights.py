@@ -7,6 +7,11 @@ right amount of light. They only apply to clipped input (8-bit or 16-bit sRGB, c
 data); linear/HDR input (EXR, float TIFF/NPY, 16-bit linear) must be passed through untouched
 (:func:`needs_reconstruction` says which).
 
+The work is in two halves: what reads the colour only (decoding 8/16-bit codes, the clipped mask,
+the blobs and their pixels' statistics: :func:`prepare_highlights`) and what needs the circle of
+confusion (each blob's blur and level: :func:`reconstruct_prepared`), so the pipeline can do the
+first while the depth stages run. Together they give :func:`reconstruct_highlights`' values.
+
 Only clipped channels change, and only upwards: a channel below the clip level was measured. So a
 render from the reconstruction, encoded with clipping at white again, keeps every output pixel
 within the input's per-channel range (a raised channel already held the encoding's top code).

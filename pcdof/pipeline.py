@@ -2,6 +2,11 @@
 
 Stages are pure functions from the stage modules; this module decides whether each one has
 work to do, times it, and records what was skipped and why (``pcdof render --explain``).
+
+The stages run one after another, except the part of the highlights stage that reads the colour
+only (decoding it, finding its clipped blobs: :func:`pcdof.highlights.prepare_highlights`), which
+runs on a worker thread while the fill runs, for frames that need it; the stage waits for it and
+finishes with the circle of confusion. The results are those of the stages run one after another.
 """
 
 from __future__ import annotations

@@ -72,6 +72,8 @@ class RenderResult:
         lines = [f"{'stage':<10} {'ms':>9}  what happened"]
         for t in self.trace:
             what = ("skipped: " + t.reason) if t.skipped else (t.reason or "ran")
+            if "overlapped_ms" in t.detail:
+                what += f"; {t.detail['overlapped_ms']:.2f} ms more ran beside the fill"
             lines.append(f"{t.name:<10} {t.seconds * 1e3:9.2f}  {what}")
         lines.append(f"{'total':<10} {self.total_seconds * 1e3:9.2f}")
         return "\n".join(lines)
@@ -189,19 +191,23 @@ def _colour_pool():
 
 def _start_colour_side(color, opts):
     """Start :func:`pcdof.highlights.prepare_highlights` of *color* on a worker thread (during the fill) when the
-    highlights stage will need it: the physical method, highlights not off, 8/16-bit sRGB colour with a channel at its top code.
+    highlights stage will need it (the physical method, highlights not off, 8/16-bit sRGB colour with a channel at
+    its top code) and a second thread may run (numba's thread count for this thread; 1, e.g. in a batch worker
+    process: serial).
     Returns the function that waits for it ((ClippedColor or None, seconds it took, perf_counter when done),
     raising what the worker raised), or None: such frames use no thread (nor does a call at interpreter exit).
 
     The worker runs OpenCV and numpy only (both release the GIL over whole arrays; no numba kernel, so numba's
     threading layer and thread count are the main thread's alone), while the fill's kernels run without the GIL
     (on one thread below its parallel threshold; its first kernel, the hole index, on one thread always)."""
+    import numba
+
     from .highlights import parse_highlights, prepare_highlights
 
     color = np.asarray(color)
     how, _ = parse_highlights(opts.highlights)
     if (not _OVERLAP or _highlights_skip(how, opts.method, color, opts.linear) or color.ndim != 3
-            or not color.size or color.max() < np.iinfo(color.dtype).max):
+            or not color.size or color.max() < np.iinfo(color.dtype).max or numba.get_num_threads() < 2):
         return None
 
     def work():

@@ -3,6 +3,7 @@ every result is the one of running the stages one after another."""
 
 import threading
 
+import numba
 import numpy as np
 import pytest
 
@@ -113,6 +114,7 @@ def test_nothing_clipped_is_not_decoded():
 def test_overlapped_and_sequential_pipelines_give_the_same_bits(monkeypatch, seed, dtype, options):
     frame = _frame(seed, dtype)
     got = pipeline.run(frame, LENS, **options)
+    assert "ms more ran beside the fill" in got.explain()
     detail = _stage(got, "highlights").detail
     assert {"prepared_ms", "overlapped_ms", "waited_ms"} <= set(detail)
     assert 0.0 <= detail["overlapped_ms"] <= detail["prepared_ms"]
@@ -143,19 +145,25 @@ def _counting_threads(monkeypatch):
 
 @pytest.mark.parametrize("change,options", [
     ("none", {"highlights": "off"}), ("none", {"method": "paper"}), ("linear", {"linear": True}),
-    ("unclipped", {}), ("grey", {}),
+    ("unclipped", {}), ("grey", {}), ("one thread", {}),
 ])
 def test_frames_that_do_not_need_the_colour_side_use_no_thread(monkeypatch, change, options):
     frame = _frame(0)
-    color = {"none": frame.color, "linear": decode_to_linear(frame.color), "unclipped": frame.color // 2,
-             "grey": frame.color[..., 1]}[change]
+    color = {"linear": decode_to_linear(frame.color), "unclipped": frame.color // 2,
+             "grey": frame.color[..., 1]}.get(change, frame.color)
     frame = RGBDFrame(color, frame.depth_m, frame.rig)
     lens = PaperLens(focus_distance_m=1.2) if options.get("method") == "paper" else LENS
     started = _counting_threads(monkeypatch)
-    result = pipeline.run(frame, lens, **options)
-    assert started == [] and _stage(result, "highlights").skipped
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1 if change == "one thread" else threads)
+    try:
+        result = pipeline.run(frame, lens, **options)
+    finally:
+        numba.set_num_threads(threads)
+    assert started == []
+    assert _stage(result, "highlights").skipped == (change != "one thread")
     pipeline.run(_frame(1), LENS)
-    assert len(started) == 1  # the counter sees a frame that needs it
+    assert len(started) == (threads > 1)  # the counter sees a frame that needs it
 
 
 def test_a_failure_on_the_worker_is_raised_in_the_callers_thread(monkeypatch):

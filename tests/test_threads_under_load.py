@@ -139,6 +139,7 @@ class TestThreadsForLoad:
         assert numba.get_num_threads() == 2 and cv2.getNumThreads() == cv_before
 
     def test_idle_cores_and_the_switch_change_nothing(self, monkeypatch):
+        monkeypatch.delenv(plans.ADAPT_ENV, raising=False)
         numba.set_num_threads(2)
         with threads_for_load(_FixedLoad(0.1)) as n:
             assert n == 2 and numba.get_num_threads() == 2
@@ -146,7 +147,8 @@ class TestThreadsForLoad:
         with threads_for_load(_FixedLoad(1.5)) as n:
             assert n == 2 and numba.get_num_threads() == 2
 
-    def test_the_count_is_restored_after_an_error(self):
+    def test_the_count_is_restored_after_an_error(self, monkeypatch):
+        monkeypatch.delenv(plans.ADAPT_ENV, raising=False)
         numba.set_num_threads(2)
         with pytest.raises(RuntimeError):
             with threads_for_load(_FixedLoad(1.0)):

@@ -24,7 +24,7 @@ from .errors import InputError
 from .lens import ThinLens, _depth_array, focus_depth_at
 from .options import as_options
 from .plans import threads_for_load
-from .renderer import check_method, render_image
+from .renderer import SHARP_COC_PX, check_method, render_image
 
 
 @dataclass
@@ -134,7 +134,8 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
     plus the part that needs the circle of confusion; its detail says how much of it ran meanwhile.
 
     Returns (colour to render, linear flag): linear float32 light when something was reconstructed,
-    else *color* and *linear* unchanged (skipped: off, the paper method, linear input, nothing clipped).
+    else *color* and *linear* unchanged (skipped: off, the paper method, linear input, nothing clipped, nothing
+    out of focus).
     """
     from .highlights import parse_highlights, prepare_highlights, reconstruct_prepared
 
@@ -146,6 +147,9 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
             overlap = {"prepared_ms": took * 1e3, "overlapped_ms": max(0.0, took - max(0.0, done - t0)) * 1e3,
                        "waited_ms": (time.perf_counter() - t0) * 1e3}
         reason = _highlights_skip(how, method, color, linear)
+        if not reason and coc_px is not None and np.size(coc_px) and float(np.max(coc_px)) < SHARP_COC_PX:
+            # the render returns the input as it is: estimating radiance it would not blur is work for nothing
+            reason = f"nothing to blur (largest circle of confusion {float(np.max(coc_px)):.3f} px < {SHARP_COC_PX} px)"
         if reason:
             rec.skipped, rec.reason = True, reason
             return color, linear

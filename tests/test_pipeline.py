@@ -68,6 +68,28 @@ class TestSkipping:
         assert res.image is not f.color
         np.testing.assert_array_equal(res.image, f.color)
 
+    @pytest.mark.parametrize("overlap", [True, False])
+    def test_sharp_frame_with_clipped_lights_skips_the_highlights_estimate(self, monkeypatch, overlap):
+        import pcdof.highlights as highlights_module
+        import pcdof.pipeline as pipeline_module
+
+        def forbidden(*a, **k):
+            raise AssertionError("radiance estimated for a frame nothing of which is blurred")
+
+        monkeypatch.setattr(highlights_module, "reconstruct_prepared", forbidden)
+        monkeypatch.setattr(pipeline_module, "_OVERLAP", overlap)
+        f = frame_with(two_planes())
+        f.color[20:24, 30:34] = 255  # a clipped light in the sharp subject
+        res = run(f, ThinLens(50, 5000, 1.0))  # every CoC far below a pixel
+        hl = stage(res, "highlights")
+        assert hl.skipped and "nothing to blur" in hl.reason
+        assert stage(res, "render").skipped
+        np.testing.assert_array_equal(res.image, f.color)
+        # stopped just enough to blur: the estimate runs
+        monkeypatch.undo()
+        res = run(f, ThinLens(50, 1.4, 1.0))
+        assert not stage(res, "highlights").skipped
+
     def test_no_foreground_pass_when_nothing_is_in_front_of_focus(self):
         res = run(frame_with(two_planes()), ThinLens(50, 1.4, 1.0))  # focus on the nearest surface
         detail = stage(res, "render").detail

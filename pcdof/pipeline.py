@@ -147,9 +147,10 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
             overlap = {"prepared_ms": took * 1e3, "overlapped_ms": max(0.0, took - max(0.0, done - t0)) * 1e3,
                        "waited_ms": (time.perf_counter() - t0) * 1e3}
         reason = _highlights_skip(how, method, color, linear)
-        if not reason and coc_px is not None and np.size(coc_px) and float(np.max(coc_px)) < SHARP_COC_PX:
+        cmax = float(np.max(coc_px)) if not reason and coc_px is not None and np.size(coc_px) else None
+        if cmax is not None and cmax < SHARP_COC_PX:
             # the render returns the input as it is: estimating radiance it would not blur is work for nothing
-            reason = f"nothing to blur (largest circle of confusion {float(np.max(coc_px)):.3f} px < {SHARP_COC_PX} px)"
+            reason = f"nothing to blur (largest circle of confusion {cmax:.3f} px < {SHARP_COC_PX} px)"
         if reason:
             rec.skipped, rec.reason = True, reason
             return color, linear

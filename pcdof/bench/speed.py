@@ -149,7 +149,7 @@ def thread_scaling(*, size=(640, 480), depth_size=(512, 424), scene="portrait", 
 
 def _cli(args) -> list[str]:
     """A fresh interpreter running ``pcdof ARGS`` (the console script's own entry point)."""
-    return [sys.executable, "-c", "import sys; from pcdof.cli import main; sys.argv[0] = 'pcdof'; sys.exit(main())",
+    return [sys.executable, "-c", "import sys; from pcdof.cli import console_main; sys.argv[0] = 'pcdof'; console_main()",
             *args]
 
 

@@ -1,0 +1,69 @@
+"""The ``pcdof`` console script (:func:`pcdof.cli.console_main`): exit codes as :func:`pcdof.cli.main`'s, and the
+garbage collector told to leave the process's long-lived objects out of its passes."""
+
+import gc
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+import pcdof.cli as cli
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_console_script_is_console_main():
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["pcdof"] == "pcdof.cli:console_main"
+
+
+@pytest.fixture
+def unfreeze(monkeypatch):
+    """Undo what console_main does to this (test) process."""
+    monkeypatch.setattr(cli, "_own_process", False)
+    yield
+    gc.unfreeze()
+    cli._own_process = False
+
+
+def _console(monkeypatch, *args) -> int:
+    monkeypatch.setattr(sys, "argv", ["pcdof", *args])
+    with pytest.raises(SystemExit) as done:
+        cli.console_main()
+    return done.value.code
+
+
+def test_console_main_freezes_what_the_command_imported(monkeypatch, unfreeze):
+    gc.unfreeze()
+    assert gc.get_freeze_count() == 0
+    assert _console(monkeypatch, "info", "-h") in (0, None)
+    assert gc.get_freeze_count() > 0
+
+
+def test_console_main_keeps_main_s_exit_codes(monkeypatch, unfreeze, capsys):
+    assert _console(monkeypatch, "render", "--no-such-flag") == 2
+    assert "pcdof: error:" in capsys.readouterr().err
+    assert gc.get_freeze_count() > 0  # frozen on the way out of an error too
+
+
+def test_main_alone_leaves_the_collector_as_it_was(unfreeze):
+    from click.testing import CliRunner
+
+    gc.unfreeze()
+    result = CliRunner().invoke(cli.main, ["info", "-h"])
+    assert result.exit_code == 0
+    assert gc.get_freeze_count() == 0
+
+
+def test_a_fresh_console_process_exits_with_the_error_code(tmp_path):
+    missing = tmp_path / "missing.png"
+    done = subprocess.run([sys.executable, "-c", "from pcdof.cli import console_main; console_main()", "render",
+                           str(missing), str(missing), "--calib", str(ROOT / "data" / "sample" / "calib.json"),
+                           "-o", str(tmp_path / "out.png")],
+                          capture_output=True, text=True, cwd=ROOT)
+    assert done.returncode not in (0, 2)  # pcdof's own input error code, not a usage error
+    assert done.stderr.strip().startswith("pcdof: error:")
+    assert len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out.png").exists()

@@ -90,8 +90,17 @@ def cold_stages(stages=tuple(STAGES)) -> list[str]:
     source file). A module with some kernels cached has been run before: kernels of rarer paths compile
     when first needed."""
     stages = check_stages(stages)
-    return [stage for stage, (_, modules) in STAGES.items() if stage in stages
-            and any(not any(_in_cache(d) for d in _cached_dispatchers(m)) for m in modules)]
+    return [stage for stage, (_, modules) in STAGES.items() if stage in stages and any(map(_cold, modules))]
+
+
+def _cold(module_name: str) -> bool:
+    """Whether none of *module_name*'s kernels is in numba's cache nor compiled ahead of time in this process
+    (:mod:`pcdof.ahead`)."""
+    from . import ahead
+
+    if ahead.active() and ahead.covers(module_name):
+        return False
+    return not any(_in_cache(d) for d in _cached_dispatchers(module_name))
 
 
 def estimate_seconds(stages, workers: int | None = None, load: float | None = None) -> float:

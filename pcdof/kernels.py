@@ -13,6 +13,8 @@ bytecode too (:func:`byte_compile`).
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import importlib
 import os
 import sys
@@ -128,12 +130,35 @@ def estimate_seconds(stages, workers: int | None = None, load: float | None = No
     return wall
 
 
-def _warm_stage(stage: str) -> float:
-    """Run *stage*'s warm-up here; returns its seconds."""
+#: the garbage collector's thresholds while numba compiles (generation 0 from 700 allocations): numba's compiler
+#: makes millions of short-lived objects, and each of the collector's passes walks every object that survived;
+#: compiling the fill took 9.3 s instead of 9.9 with these (pairs alternated), and 8% less again with the
+#: modules' objects frozen out of the passes (:func:`_warm_stage`'s *whole_process*)
+_COMPILE_GC_THRESHOLDS = (50_000, 50, 1_000)
+
+
+@contextlib.contextmanager
+def _fewer_collections():
+    """Run the block with the collector's thresholds at :data:`_COMPILE_GC_THRESHOLDS` (then as they were)."""
+    before = gc.get_threshold()
+    gc.set_threshold(*_COMPILE_GC_THRESHOLDS)
+    try:
+        yield
+    finally:
+        gc.set_threshold(*before)
+
+
+def _warm_stage(stage: str, whole_process: bool = False) -> float:
+    """Run *stage*'s warm-up here; returns its seconds. *whole_process*: this process exists to compile (the
+    modules' objects are frozen out of the collector's passes once imported: :func:`gc.freeze`)."""
     _checked.update(STAGES)  # the stage's own calls must not start another warm-up
     t0 = time.perf_counter()
-    for module in STAGES[stage][0]:
-        importlib.import_module(module).warmup()
+    with _fewer_collections():
+        modules = [importlib.import_module(module) for module in STAGES[stage][0]]
+        if whole_process:
+            gc.freeze()
+        for module in modules:
+            module.warmup()
     return time.perf_counter() - t0
 
 
@@ -170,7 +195,7 @@ def _compile_apart(stages, say, t0: float) -> dict:
     running = 0
     for group in _compile_groups(stages, os.cpu_count() or 1):
         code = ("from pcdof.kernels import _warm_stage\n"
-                f"for stage in {group!r}:\n    print(stage, _warm_stage(stage), flush=True)")
+                f"for stage in {group!r}:\n    print(stage, _warm_stage(stage, whole_process=True), flush=True)")
         try:
             proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                     text=True)

@@ -296,3 +296,21 @@ def test_byte_compile_leaves_every_module_with_current_bytecode():
         st = src.stat()
         assert header[:4] == importlib.util.MAGIC_NUMBER and flags == 0, src
         assert (mtime, size) == (int(st.st_mtime) & 0xFFFFFFFF, st.st_size & 0xFFFFFFFF), src
+
+
+def test_compiling_relaxes_the_collector_and_puts_it_back(monkeypatch):
+    import gc
+
+    seen = []
+    monkeypatch.setattr(kernels.importlib, "import_module",
+                        lambda name: type("Stage", (), {"warmup": staticmethod(lambda: seen.append(gc.get_threshold()))}))
+    before = gc.get_threshold()
+    gc.unfreeze()
+    kernels._warm_stage("fill")
+    assert seen == [kernels._COMPILE_GC_THRESHOLDS]
+    assert gc.get_threshold() == before
+    assert gc.get_freeze_count() == 0  # a process that does more than compile keeps its collector as it was
+    kernels._warm_stage("fill", whole_process=True)
+    assert gc.get_freeze_count() > 0  # a process that only compiles leaves the modules out of the passes
+    gc.unfreeze()
+    assert gc.get_threshold() == before

@@ -1250,27 +1250,37 @@ def _ownership(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_
 
 
 @njit(cache=True, nogil=True)
-def _nearest_candidates(layer, li, wy0, wx0, dist, labels, n_cand, hidden, by, bx, part, rd):
-    """The hidden pixels of *part* (y0, y1, x0, x1 inclusive, frame coordinates) within *rd* of their nearest
-    candidate (a pixel of layer *li* or farther) when that candidate is of layer *li*.
-
-    *layer* (H, W) int32 is the frame's layer ids; *hidden* (hb, wb) bool the box at (by, bx); *dist* and
-    *labels* OpenCV's transform of the window at (wy0, wx0) (their shape), whose labels number its *n_cand*
-    candidates in raster order. Returns (py, px, qy, qx, d): the pixels, their candidates (frame
-    coordinates, int64) and their distance (float32).
-    """
-    hw, ww = dist.shape
-    # label - 1 -> the candidate's row and column in the frame; column -1 for a candidate of a farther layer
-    cand_y = np.empty(n_cand, np.int32)
-    cand_x = np.empty(n_cand, np.int32)
+def _candidate_seeds(layer, li, wy0, wy1, wx0, wx1):
+    """The window rows wy0:wy1, columns wx0:wx1 of *layer* (H, W) int32 as OpenCV's source for the candidates'
+    transform: (hw, ww) uint8, 0 at the candidates (pixels of layer *li* or farther), 1 elsewhere; and each
+    candidate's flat index into the window in raster order (label - 1 -> index; (N,) int32), -1 for a candidate
+    of a farther layer. One pass over the window."""
+    hw, ww = wy1 - wy0, wx1 - wx0
+    src = np.empty((hw, ww), np.uint8)
+    pos = np.empty(hw * ww, np.int32)
     k = 0
     for y in range(hw):
         for x in range(ww):
             v = layer[wy0 + y, wx0 + x]
             if v >= li:
-                cand_y[k] = wy0 + y
-                cand_x[k] = wx0 + x if v == li else -1
+                src[y, x] = 0
+                pos[k] = y * ww + x if v == li else -1
                 k += 1
+            else:
+                src[y, x] = 1
+    return src, pos[:k]
+
+
+@njit(cache=True, nogil=True)
+def _nearest_candidates(pos, wy0, wx0, dist, labels, hidden, by, bx, part, rd):
+    """The hidden pixels of *part* (y0, y1, x0, x1 inclusive, frame coordinates) within *rd* of their nearest
+    candidate (a pixel of layer *li* or farther) when that candidate is of layer *li*.
+
+    *hidden* (hb, wb) bool is the box at (by, bx); *dist* and *labels* OpenCV's transform of the window at
+    (wy0, wx0) (their shape), *pos* its candidates' flat indices into it (:func:`_candidate_seeds`). Returns
+    (py, px, qy, qx, d): the pixels, their candidates (frame coordinates, int64) and their distance (float32).
+    """
+    ww = dist.shape[1]
     y0, y1, x0, x1 = part
     n = (y1 + 1 - y0) * (x1 + 1 - x0)
     py, px = np.empty(n, np.int64), np.empty(n, np.int64)
@@ -1282,11 +1292,46 @@ def _nearest_candidates(layer, li, wy0, wx0, dist, labels, n_cand, hidden, by, b
             if hidden[y - by, x - bx]:
                 dd = dist[y - wy0, x - wx0]
                 if dd <= rd:
-                    c = labels[y - wy0, x - wx0] - 1
-                    if cand_x[c] >= 0:
-                        py[i], px[i], qy[i], qx[i], d[i] = y, x, cand_y[c], cand_x[c], dd
+                    q = pos[labels[y - wy0, x - wx0] - 1]
+                    if q >= 0:
+                        py[i], px[i], qy[i], qx[i], d[i] = y, x, wy0 + q // ww, wx0 + q % ww, dd
                         i += 1
     return py[:i], px[:i], qy[:i], qx[:i], d[:i]
+
+
+@njit(cache=True, nogil=True)
+def _tested_box(qy, qx, d):
+    """The candidates (qy, qx) (N,) int64 of the pixels farther than 1 px from them (d (N,) float32): their
+    bounding box (y0, y1, x0, x1 inclusive) and the largest of those distances; y0 > y1 when there is none."""
+    y0, y1, x0, x1 = 2 ** 62, -1, 2 ** 62, -1
+    d_max = np.float32(0.0)
+    for i in range(d.size):
+        if d[i] > 1.0:
+            y0, y1 = min(y0, qy[i]), max(y1, qy[i])
+            x0, x1 = min(x0, qx[i]), max(x1, qx[i])
+            d_max = max(d_max, d[i])
+    return y0, y1, x0, x1, d_max
+
+
+@njit(cache=True, nogil=True)
+def _keep_owned(py, px, qy, qx, d, width, wy0, wx0):
+    """The pixels (py, px) (N,) int64 no farther from their candidate (qy, qx) (N,) int64 than *d* (N,) float32
+    allows: d <= 1, or d at most the candidate's distance to a farther layer (*width*: the transform of the
+    window at (wy0, wx0), at least 1). Returns the kept (py, px, qy, qx, d), in order."""
+    keep = np.empty(d.size, np.bool_)
+    n = 0
+    for i in range(d.size):
+        keep[i] = d[i] <= 1.0 or d[i] <= max(width[qy[i] - wy0, qx[i] - wx0], np.float32(1.0))
+        n += keep[i]
+    out_py, out_px = np.empty(n, np.int64), np.empty(n, np.int64)
+    out_qy, out_qx = np.empty(n, np.int64), np.empty(n, np.int64)
+    out_d = np.empty(n, np.float32)
+    k = 0
+    for i in range(d.size):
+        if keep[i]:
+            out_py[k], out_px[k], out_qy[k], out_qx[k], out_d[k] = py[i], px[i], qy[i], qx[i], d[i]
+            k += 1
+    return out_py, out_px, out_qy, out_qx, out_d
 
 
 def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part, rd: int, bound):
@@ -1295,20 +1340,22 @@ def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part,
     those within *rd* of their nearest candidate, those candidates ((py, px, qy, qx) int64 frame
     coordinates) and their distance (d, float32). The farther layers' transform looks beyond *win*, within
     *bound*."""
-    src = np.less(layer[win], li).view(np.uint8)
-    n_cand = src.size - int(np.count_nonzero(src))
-    if n_cand == 0:  # no candidate within reach of any hidden pixel: nothing to continue
+    layer = read_only(layer)
+    src, pos = _candidate_seeds(layer, int(li), *(int(v) for s in win for v in (s.start, s.stop)))
+    if pos.size == 0:  # no candidate within reach of any hidden pixel: nothing to continue
         return (np.zeros(0, np.int64),) * 4 + (np.zeros(0, np.float32),)
     dist, labels = cv2.distanceTransformWithLabels(src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
-    py, px, qy, qx, d = _nearest_candidates(layer, li, win[0].start, win[1].start, dist, labels, n_cand, hidden,
-                                            origin[0], origin[1], tuple(int(v) for v in part), rd)
-    test = d > 1.0  # within 1 px a candidate of layer li always reaches
-    if test.any():
-        own = np.ones(d.shape, bool)
-        width = _farther_dist(layer, li, qy[test], qx[test], int(math.ceil(float(d[test].max()))) + 3, bound)
-        own[test] = d[test] <= np.maximum(width, 1.0)
-        py, px, qy, qx, d = py[own], px[own], qy[own], qx[own], d[own]
-    return py, px, qy, qx, d
+    found = _nearest_candidates(read_only(pos), int(win[0].start), int(win[1].start), read_only(dist),
+                                read_only(labels), read_only(hidden), int(origin[0]), int(origin[1]),
+                                tuple(int(v) for v in part), int(rd))
+    y0, y1, x0, x1, d_max = _tested_box(*(read_only(v) for v in found[2:]))
+    if y0 > y1:  # within 1 px a candidate of layer li always reaches
+        return found
+    # the farther layers' transform, exact up to the largest distance tested
+    far = int(math.ceil(float(d_max))) + 3
+    fwin = (_span(y0, y1, far, bound[0]), _span(x0, x1, far, bound[1]))
+    width = cv2.distanceTransform(np.less_equal(layer[fwin], li).view(np.uint8), cv2.DIST_L2, 5)
+    return _keep_owned(*(read_only(v) for v in found), read_only(width), int(fwin[0].start), int(fwin[1].start))
 
 
 def _in_thread(fn):
@@ -1331,14 +1378,6 @@ def _in_thread(fn):
             raise exc
         return value
     return result
-
-
-def _farther_dist(layer: np.ndarray, li: int, qy: np.ndarray, qx: np.ndarray, far: int, bound) -> np.ndarray:
-    """Chamfer distance (OpenCV's 5x5) from pixels (qy, qx) to the nearest pixel of a layer farther than
-    *li*, exact up to *far* - 3 px, on the pixels' bounding box widened by *far*, within *bound*."""
-    win = (_span(int(qy.min()), int(qy.max()), far, bound[0]), _span(int(qx.min()), int(qx.max()), far, bound[1]))
-    dist = cv2.distanceTransform(np.less_equal(layer[win], li).view(np.uint8), cv2.DIST_L2, 5)
-    return dist[qy - win[0].start, qx - win[1].start]
 
 
 def _hidden(frame: _Frame, canvas: _Canvas, li: int, box, bbox, reach_px: float, cell_px: int = 1):

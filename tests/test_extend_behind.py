@@ -219,3 +219,25 @@ def test_ownership_transform_labels_the_pixel_the_extension_copies(seed, threads
     order = np.argsort(dst[near])
     np.testing.assert_array_equal(dst[near][order], np.sort(alone[0]))
     np.testing.assert_array_equal(src[near][order], alone[1][np.argsort(alone[0])])
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_candidate_seeds_number_the_candidates_as_opencv_labels_them(seed):
+    """The ownership transform's source and label map, built in one pass: OpenCV's source (1 off the
+    candidates), and label k's candidate at the k-th flat index of the window's candidates in raster order
+    (-1 for a farther layer's), checked against numpy's masks and OpenCV's own labels of its seeds."""
+    _, layer, li, _, _, _ = _layer_case(seed)
+    rng = np.random.default_rng(seed)
+    h, w = layer.shape
+    y0, x0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+    y1, x1 = int(rng.integers(y0 + 1, h + 1)), int(rng.integers(x0 + 1, w + 1))
+    src, pos = renderer._candidate_seeds(renderer.read_only(layer), li, y0, y1, x0, x1)
+    win = layer[y0:y1, x0:x1]
+    np.testing.assert_array_equal(src, (win < li).astype(np.uint8))
+    cand = np.flatnonzero(win >= li)
+    np.testing.assert_array_equal(pos, np.where(win.ravel()[cand] == li, cand, -1))
+    if cand.size:
+        _, labels = cv2.distanceTransformWithLabels(src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+        seeds = src == 0
+        np.testing.assert_array_equal(labels[seeds] - 1, np.arange(cand.size))  # label k - 1: k-th seed

@@ -637,6 +637,15 @@ def _behind_sources(member, hidden, reach_px):
     return (dst, src) if dst.size else None
 
 
+def _found_behind(member, hidden, reach_px):
+    """(dst, src) of :func:`_extend_behind` (each pixel added, once, and the member pixel it copies: (N,) int64
+    flat indices into the box, N > 0), or None when nothing is added; *hidden* None adds nothing."""
+    if hidden is None:
+        return None
+    found = (hidden.dst, hidden.src) if isinstance(hidden, _Behind) else _behind_sources(member, hidden, reach_px)
+    return None if found is None or found[0].size == 0 else found
+
+
 def _extend_behind(lin, radius, member, hidden, reach_px):
     """Extend a layer into the pixels that nearer layers hide, up to *reach_px* from its own pixels.
 
@@ -648,10 +657,10 @@ def _extend_behind(lin, radius, member, hidden, reach_px):
     (lin, radius, mask) with the extension filled in (C-contiguous copies; the inputs themselves when
     nothing is extended; inputs are never modified).
     """
-    found = hidden if isinstance(hidden, _Behind) else _behind_sources(member, hidden, reach_px)
+    found = _found_behind(member, hidden, reach_px)
     if found is None:
         return lin, radius, member
-    dst, src = (found.dst, found.src) if isinstance(found, _Behind) else found
+    dst, src = found
     lin, radius, member = lin.copy(), radius.copy(), member.copy()
     _copy_pixels(lin.reshape(-1, lin.shape[2]), radius.reshape(-1), member.reshape(-1), dst, src)
     return lin, radius, member
@@ -972,10 +981,10 @@ class _Grid:
 def _extended(lin, radius, member, hidden, reach_px):
     """(lin, radius, member, extended): the layer extended behind *hidden* (or None) up to *reach_px*, at full
     resolution, and whether that added any pixel."""
-    n_members = int(np.count_nonzero(member))
-    if hidden is not None:
-        lin, radius, member = _extend_behind(lin, radius, member, hidden, reach_px)
-    return lin, radius, member, int(np.count_nonzero(member)) > n_members
+    found = _found_behind(member, hidden, reach_px)
+    if found is None:
+        return lin, radius, member, False
+    return (*_extend_behind(lin, radius, member, _Behind(*found), reach_px), True)
 
 
 def _full_grid(lin, radius, member, hidden, reach_px) -> _Grid:

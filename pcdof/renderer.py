@@ -1202,7 +1202,8 @@ def _ownership(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_
     from their nearest candidate (the chamfer distance is at least the max-norm).
     Each transform runs on the window that decides those pixels: their candidates within ``rd``, then
     the farther layers within the largest distance tested of the candidates that are tested, inside
-    the box widened by twice the reach. There every answer the extension uses is the one the
+    the box widened by twice the reach, each cut to the bounding box of its seeds and the pixels it decides
+    (:func:`_cut`: rows and columns of no seed beyond those pixels are work for nothing). There every answer the extension uses is the one the
     transforms give on the whole widened box; the others are not decided (the render does not read them).
     *threads*: the hidden pixels' box is cut into up to that many strips along its longer side, each
     decided on its own windows on its own thread (OpenCV releases the GIL): the same answer.
@@ -1261,35 +1262,80 @@ def _ownership(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_
 @njit(cache=True, nogil=True)
 def _candidate_seeds(layer, li, wy0, wy1, wx0, wx1):
     """The window rows wy0:wy1, columns wx0:wx1 of *layer* (H, W) int32 as OpenCV's source for the candidates'
-    transform: (hw, ww) uint8, 0 at the candidates (pixels of layer *li* or farther), 1 elsewhere; and each
-    candidate's flat index into the window in raster order (label - 1 -> index; (N,) int32), -1 for a candidate
-    of a farther layer. One pass over the window."""
+    transform: (hw, ww) uint8, 0 at the candidates (pixels of layer *li* or farther), 1 elsewhere; each
+    candidate's flat index into the frame in raster order (label - 1 -> index; (N,) int64), -1 for a candidate
+    of a farther layer; and the candidates' bounding box in the window (r0, r1, c0, c1 inclusive; r0 > r1
+    when there is none). One pass over the window."""
     hw, ww = wy1 - wy0, wx1 - wx0
+    w = layer.shape[1]
     src = np.empty((hw, ww), np.uint8)
-    pos = np.empty(hw * ww, np.int32)
+    pos = np.empty(hw * ww, np.int64)
     k = 0
+    r0, r1, c0, c1 = hw, -1, ww, -1
     for y in range(hw):
+        k_row = k
         for x in range(ww):
             v = layer[wy0 + y, wx0 + x]
             if v >= li:
                 src[y, x] = 0
-                pos[k] = y * ww + x if v == li else -1
+                pos[k] = (wy0 + y) * w + wx0 + x if v == li else -1
                 k += 1
+                c0, c1 = min(c0, x), max(c1, x)
             else:
                 src[y, x] = 1
-    return src, pos[:k]
+        if k > k_row:
+            r0, r1 = min(r0, y), y
+    return src, pos[:k], (r0, r1, c0, c1)
 
 
 @njit(cache=True, nogil=True)
-def _nearest_candidates(pos, wy0, wx0, dist, labels, hidden, by, bx, part, rd):
+def _farther_seeds(layer, li, wy0, wy1, wx0, wx1):
+    """The window rows wy0:wy1, columns wx0:wx1 of *layer* (H, W) int32 as OpenCV's source for the farther
+    layers' transform: (hw, ww) uint8, 0 at the pixels of layers farther than *li*, 1 elsewhere; and their
+    bounding box in the window (r0, r1, c0, c1 inclusive; r0 > r1 when there is none)."""
+    hw, ww = wy1 - wy0, wx1 - wx0
+    src = np.empty((hw, ww), np.uint8)
+    r0, r1, c0, c1 = hw, -1, ww, -1
+    for y in range(hw):
+        c_row = c1
+        first = ww
+        for x in range(ww):
+            far = layer[wy0 + y, wx0 + x] > li
+            src[y, x] = not far
+            if far:
+                first = min(first, x)
+                c_row = x
+        if first < ww:
+            r0, r1 = min(r0, y), y
+            c0, c1 = min(c0, first), max(c1, c_row)
+    return src, (r0, r1, c0, c1)
+
+
+def _cut(win, seeds, keep):
+    """The window *win* (y0, y1, x0, x1: rows y0:y1, columns x0:x1 of the frame) cut to the bounding box of its
+    *seeds* (r0, r1, c0, c1 inclusive, in the window; at least one) and of the pixels *keep* (y0, y1, x0, x1
+    inclusive, frame, inside the window): (y0, y1, x0, x1) as *win*.
+
+    A chamfer transform of the cut window gives every pixel of *keep* the distance and label that the window's
+    own gives it (where its nearest seed is within the window's reach): every seed of the window is in the cut
+    one, and so is the rectangle spanned by the pixel and its nearest seed, where a shortest chamfer path
+    between them lies; a path that leaves it costs more (see :func:`_ownership`). Rows or columns of the window
+    beyond its seeds and *keep* are transform work for nothing."""
+    (wy0, wy1, wx0, wx1), (r0, r1, c0, c1), (ky0, ky1, kx0, kx1) = win, seeds, keep
+    return (max(wy0, min(wy0 + r0, ky0)), min(wy1, max(wy0 + r1, ky1) + 1),
+            max(wx0, min(wx0 + c0, kx0)), min(wx1, max(wx0 + c1, kx1) + 1))
+
+
+@njit(cache=True, nogil=True)
+def _nearest_candidates(pos, wy0, wx0, dist, labels, hidden, by, bx, part, rd, w):
     """The hidden pixels of *part* (y0, y1, x0, x1 inclusive, frame coordinates) within *rd* of their nearest
     candidate (a pixel of layer *li* or farther) when that candidate is of layer *li*.
 
     *hidden* (hb, wb) bool is the box at (by, bx); *dist* and *labels* OpenCV's transform of the window at
-    (wy0, wx0) (their shape), *pos* its candidates' flat indices into it (:func:`_candidate_seeds`). Returns
-    (py, px, qy, qx, d): the pixels, their candidates (frame coordinates, int64) and their distance (float32).
+    (wy0, wx0) (their shape), *pos* its candidates' flat indices into the frame, of width *w*
+    (:func:`_candidate_seeds`). Returns (py, px, qy, qx, d): the pixels, their candidates (frame coordinates,
+    int64) and their distance (float32).
     """
-    ww = dist.shape[1]
     y0, y1, x0, x1 = part
     n = (y1 + 1 - y0) * (x1 + 1 - x0)
     py, px = np.empty(n, np.int64), np.empty(n, np.int64)
@@ -1303,7 +1349,7 @@ def _nearest_candidates(pos, wy0, wx0, dist, labels, hidden, by, bx, part, rd):
                 if dd <= rd:
                     q = pos[labels[y - wy0, x - wx0] - 1]
                     if q >= 0:
-                        py[i], px[i], qy[i], qx[i], d[i] = y, x, wy0 + q // ww, wx0 + q % ww, dd
+                        py[i], px[i], qy[i], qx[i], d[i] = y, x, q // w, q % w, dd
                         i += 1
     return py[:i], px[:i], qy[:i], qx[:i], d[:i]
 
@@ -1348,23 +1394,30 @@ def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part,
     (row, column)) of *part* (y0, y1, x0, x1 inclusive, frame coordinates) that layer *li* continues, deciding
     those within *rd* of their nearest candidate, those candidates ((py, px, qy, qx) int64 frame
     coordinates) and their distance (d, float32). The farther layers' transform looks beyond *win*, within
-    *bound*."""
+    *bound*. Each transform runs on its window cut to its seeds and the pixels it decides (:func:`_cut`)."""
     layer = read_only(layer)
-    src, pos = _candidate_seeds(layer, int(li), *(int(v) for s in win for v in (s.start, s.stop)))
+    box = tuple(int(v) for s in win for v in (s.start, s.stop))
+    src, pos, seeds = _candidate_seeds(layer, int(li), *box)
     if pos.size == 0:  # no candidate within reach of any hidden pixel: nothing to continue
         return (np.zeros(0, np.int64),) * 4 + (np.zeros(0, np.float32),)
-    dist, labels = cv2.distanceTransformWithLabels(src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
-    found = _nearest_candidates(read_only(pos), int(win[0].start), int(win[1].start), read_only(dist),
-                                read_only(labels), read_only(hidden), int(origin[0]), int(origin[1]),
-                                tuple(int(v) for v in part), int(rd))
-    y0, y1, x0, x1, d_max = _tested_box(*(read_only(v) for v in found[2:]))
-    if y0 > y1:  # within 1 px a candidate of layer li always reaches
+    y0, y1, x0, x1 = _cut(box, seeds, part)
+    dist, labels = cv2.distanceTransformWithLabels(src[y0 - box[0]:y1 - box[0], x0 - box[2]:x1 - box[2]], cv2.DIST_L2,
+                                                   5, labelType=cv2.DIST_LABEL_PIXEL)
+    found = _nearest_candidates(read_only(pos), y0, x0, read_only(dist), read_only(labels), read_only(hidden),
+                                int(origin[0]), int(origin[1]), tuple(int(v) for v in part), int(rd), layer.shape[1])
+    tested = _tested_box(*(read_only(v) for v in found[2:]))
+    if tested[0] > tested[1]:  # within 1 px a candidate of layer li always reaches
         return found
     # the farther layers' transform, exact up to the largest distance tested
-    far = int(math.ceil(float(d_max))) + 3
-    fwin = (_span(y0, y1, far, bound[0]), _span(x0, x1, far, bound[1]))
-    width = cv2.distanceTransform(np.less_equal(layer[fwin], li).view(np.uint8), cv2.DIST_L2, 5)
-    return _keep_owned(*(read_only(v) for v in found), read_only(width), int(fwin[0].start), int(fwin[1].start))
+    far = int(math.ceil(float(tested[4]))) + 3
+    box = tuple(int(v) for s in (_span(tested[0], tested[1], far, bound[0]), _span(tested[2], tested[3], far, bound[1]))
+                for v in (s.start, s.stop))
+    src, seeds = _farther_seeds(layer, int(li), *box)
+    if seeds[0] > seeds[1]:  # no farther layer there: each candidate's width is unbounded, every pixel kept
+        return found
+    y0, y1, x0, x1 = _cut(box, seeds, tested[:4])
+    width = cv2.distanceTransform(src[y0 - box[0]:y1 - box[0], x0 - box[2]:x1 - box[2]], cv2.DIST_L2, 5)
+    return _keep_owned(*(read_only(v) for v in found), read_only(width), y0, x0)
 
 
 def _in_thread(fn):
@@ -1649,6 +1702,7 @@ def warmup() -> None:
     depth = np.full((h, w), 2.0, np.float32)
     depth[:, 40:48] = 1.0  # in front of focus: blurred, extends the layers behind it
     depth[:, 56:] = 50.0  # far behind: a large blur, uniform tiles, reduced resolution
+    depth[16:32, 50:56] = 50.0  # and beside the foreground: what the middle layer continues behind it is cut short
     color = (np.indices((h, w)).sum(axis=0) % 7 * 36).astype(np.uint8)[:, :, None].repeat(3, axis=2)
     lens = ThinLens(50.0, 1.4, 2.0)
     # a plan that reduces from 2 px cells, so that this small blur takes the reduced path whatever the tiers'

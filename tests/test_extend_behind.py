@@ -221,23 +221,75 @@ def test_ownership_transform_labels_the_pixel_the_extension_copies(seed, threads
     np.testing.assert_array_equal(src[near][order], alone[1][np.argsort(alone[0])])
 
 
+def _bbox(mask):
+    """(r0, r1, c0, c1) inclusive of the True pixels of *mask*, or None."""
+    if not mask.any():
+        return None
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    return rows[0], rows[-1], cols[0], cols[-1]
+
+
 @settings(max_examples=200, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
-def test_candidate_seeds_number_the_candidates_as_opencv_labels_them(seed):
-    """The ownership transform's source and label map, built in one pass: OpenCV's source (1 off the
-    candidates), and label k's candidate at the k-th flat index of the window's candidates in raster order
-    (-1 for a farther layer's), checked against numpy's masks and OpenCV's own labels of its seeds."""
+def test_seeds_are_the_transforms_sources(seed):
+    """The transforms' sources built in one pass: OpenCV's source (1 off the seeds), the candidates' flat
+    frame indices in raster order (-1 for a farther layer's; label k's candidate is the k-th, as OpenCV
+    numbers its seeds) and the seeds' bounding boxes, against numpy's masks."""
     _, layer, li, _, _, _ = _layer_case(seed)
     rng = np.random.default_rng(seed)
     h, w = layer.shape
     y0, x0 = int(rng.integers(0, h)), int(rng.integers(0, w))
     y1, x1 = int(rng.integers(y0 + 1, h + 1)), int(rng.integers(x0 + 1, w + 1))
-    src, pos = renderer._candidate_seeds(renderer.read_only(layer), li, y0, y1, x0, x1)
+    src, pos, seeds = renderer._candidate_seeds(renderer.read_only(layer), li, y0, y1, x0, x1)
     win = layer[y0:y1, x0:x1]
     np.testing.assert_array_equal(src, (win < li).astype(np.uint8))
-    cand = np.flatnonzero(win >= li)
-    np.testing.assert_array_equal(pos, np.where(win.ravel()[cand] == li, cand, -1))
-    if cand.size:
+    ys, xs = np.nonzero(win >= li)
+    np.testing.assert_array_equal(pos, np.where(win[ys, xs] == li, (ys + y0) * w + xs + x0, -1))
+    assert (seeds if seeds[0] <= seeds[1] else None) == _bbox(win >= li)
+    if ys.size:
         _, labels = cv2.distanceTransformWithLabels(src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
-        seeds = src == 0
-        np.testing.assert_array_equal(labels[seeds] - 1, np.arange(cand.size))  # label k - 1: k-th seed
+        np.testing.assert_array_equal(labels[src == 0] - 1, np.arange(ys.size))  # label k - 1: k-th seed
+    src, seeds = renderer._farther_seeds(renderer.read_only(layer), li, y0, y1, x0, x1)
+    np.testing.assert_array_equal(src, (win <= li).astype(np.uint8))
+    assert (seeds if seeds[0] <= seeds[1] else None) == _bbox(win > li)
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_transforms_of_the_cut_window_are_the_windows_own(seed):
+    """OpenCV's 5x5 chamfer transforms (with labels, and without) of a window cut to its seeds and the pixels
+    kept give each kept pixel the window's own distance and nearest seed, ties included, wherever that seed is
+    within the reach the window is made for (random layers: straight edges, corners, specks, equal distances)."""
+    rng, layer, li, _, _, _ = _layer_case(seed)
+    h, w = layer.shape
+    seeds = layer >= li if rng.random() < 0.5 else layer > li
+    if not seeds.any():
+        return
+    reach = int(rng.integers(1, 30))
+    ky0, kx0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+    ky1, kx1 = int(rng.integers(ky0, min(h, ky0 + 30))), int(rng.integers(kx0, min(w, kx0 + 30)))
+    win = (max(0, ky0 - reach - 3), min(h, ky1 + reach + 4), max(0, kx0 - reach - 3), min(w, kx1 + reach + 4))
+    box = seeds[win[0]:win[1], win[2]:win[3]]
+    found = _bbox(box)
+    if found is None:
+        return
+    cut = renderer._cut(win, found, (ky0, ky1, kx0, kx1))
+    keep = (slice(ky0, ky1 + 1), slice(kx0, kx1 + 1))
+
+    def transforms(y0, y1, x0, x1):
+        src = (~seeds[y0:y1, x0:x1]).astype(np.uint8)
+        d, lab = cv2.distanceTransformWithLabels(src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+        ys, xs = np.nonzero(src == 0)
+        nearest = (ys[lab - 1] + y0) * w + xs[lab - 1] + x0  # each pixel's nearest seed, frame flat index
+        at = (slice(ky0 - y0, ky1 + 1 - y0), slice(kx0 - x0, kx1 + 1 - x0))
+        return d[at], nearest[at], cv2.distanceTransform(src, cv2.DIST_L2, 5)[at]
+
+    d_win, q_win, f_win = transforms(*win)
+    d_cut, q_cut, f_cut = transforms(*cut)
+    near = d_win <= reach
+    np.testing.assert_array_equal(d_cut[near], d_win[near])
+    np.testing.assert_array_equal(q_cut[near], q_win[near])
+    near = f_win <= reach
+    np.testing.assert_array_equal(f_cut[near], f_win[near])
+    assert (keep[0].start >= cut[0] and keep[0].stop <= cut[1] and keep[1].start >= cut[2]
+            and keep[1].stop <= cut[3])

@@ -1,0 +1,108 @@
+"""Where the renderer's time goes, layer by layer and pass by pass, on the benchmark's speed frames.
+
+    python scripts/profile_render.py --sizes 640x480,1920x1080 --repeats 7
+
+The pipeline renders the speed frame (synthetic portrait, 512x424 depth, the scene's default lens) once to
+warm up, then *repeats* times with the renderer's passes wrapped by timers: per layer (near to far) its
+bounding box, grid scale and the medians (ms) of the passes it ran: ``hidden`` (which hidden pixels the layer
+continues, :func:`pcdof.renderer._hidden`; OpenCV's transforms in it are also counted apart as
+``transforms``, summed over the threads that run them), ``extend`` (the extended copy), ``reduce`` (cell
+means), ``plan`` (uniform tiles' cells and kernels), ``scatter``, ``convolve``, ``upsample`` and
+``composite``. Other processes on the machine inflate every number alike: compare rows of one run, not runs.
+"""
+
+import argparse
+import collections
+import statistics
+import time
+
+#: renderer function -> the pass its time counts in (nested calls count in the outermost)
+PASSES = {"_hidden": "hidden", "_extended": "extend", "_reduce_cells": "reduce", "_convolved_cells": "plan",
+          "_scatter_sources": "scatter", "_convolve_uniform": "convolve", "upsample_cells": "upsample",
+          "_composite_under": "composite", "_composite_sharp": "composite"}
+
+
+class _Timers:
+    """Wraps the renderer's passes and OpenCV's transforms; collects each render's times per layer."""
+
+    def __init__(self, renderer):
+        import cv2
+
+        self.layer = -1
+        self.times = collections.defaultdict(float)  # (layer, pass) -> seconds
+        self.boxes = {}
+        self.depth = 0
+        for name, what in PASSES.items():
+            setattr(renderer, name, self._wrap(getattr(renderer, name), what))
+        for name in ("_blur_layer", "_sharp_layer"):
+            setattr(renderer, name, self._layer(getattr(renderer, name)))
+        # the renderer reads cv2 through its module: a namespace whose transforms are timed
+        timed = type("cv2", (), {})()
+        for k in dir(cv2):
+            if not k.startswith("__"):
+                setattr(timed, k, getattr(cv2, k))
+        for k in ("distanceTransform", "distanceTransformWithLabels"):
+            setattr(timed, k, self._wrap(getattr(cv2, k), "transforms", nested=True))
+        renderer.cv2 = timed
+
+    def _wrap(self, fn, what, nested=False):
+        def inner(*a, **k):
+            if self.depth and not nested:
+                return fn(*a, **k)
+            self.depth += 1
+            t0 = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                self.times[self.layer, what] += time.perf_counter() - t0
+                self.depth -= 1
+        return inner
+
+    def _layer(self, fn):
+        def inner(frame, canvas, li, *a):
+            self.layer = li
+            t0 = time.perf_counter()
+            record = fn(frame, canvas, li, *a)
+            self.times[li, "total"] += time.perf_counter() - t0
+            self.boxes[li] = (record["scale"], a[-1])
+            return record
+        return inner
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="640x480,1920x1080")
+    ap.add_argument("--repeats", type=int, default=7)
+    args = ap.parse_args(argv)
+
+    import pcdof.pipeline as pipeline
+    from pcdof import renderer
+    from pcdof.synth import generate_scene
+
+    timers = _Timers(renderer)
+    columns = ["total", "hidden", "transforms", "extend", "reduce", "plan", "scatter", "convolve", "upsample",
+               "composite"]
+    for size in [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]:
+        sf = generate_scene("portrait", color_size=size, depth_size=(512, 424), seed=0)
+        pipeline.run(sf.frame, sf.default_lens)  # warm-up
+        runs = []
+        for _ in range(args.repeats):
+            timers.times.clear()
+            stages = {t.name: t.seconds for t in pipeline.run(sf.frame, sf.default_lens).trace}
+            runs.append((dict(timers.times), stages["render"]))
+        print(f"{size[0]}x{size[1]}: render {statistics.median(r for _, r in runs) * 1e3:.1f} ms, medians of "
+              f"{args.repeats} (ms)")
+        print(f"  {'layer':>5s} {'s':>2s} {'bbox rows x cols':>16s} " + " ".join(f"{c:>10s}" for c in columns))
+        sums = collections.defaultdict(list)
+        for li in sorted(timers.boxes):
+            s, box = timers.boxes[li]
+            cells = [statistics.median(t.get((li, c), 0.0) for t, _ in runs) * 1e3 for c in columns]
+            for c, v in zip(columns, cells):
+                sums[c].append(v)
+            shape = f"{int(box[1]) - int(box[0]) + 1}x{int(box[3]) - int(box[2]) + 1}"
+            print(f"  {li:5d} {s:2d} {shape:>16s} " + " ".join(f"{v:10.2f}" for v in cells))
+        print(f"  {'sum':>5s} {'':2s} {'':>16s} " + " ".join(f"{sum(sums[c]):10.2f}" for c in columns))
+
+
+if __name__ == "__main__":
+    main()

@@ -1259,58 +1259,6 @@ def _ownership(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_
     return (py - by) * wb + px - bx, (qy - by) * wb + qx - bx, d
 
 
-@njit(cache=True, nogil=True)
-def _candidate_seeds(layer, li, wy0, wy1, wx0, wx1):
-    """The window rows wy0:wy1, columns wx0:wx1 of *layer* (H, W) int32 as OpenCV's source for the candidates'
-    transform: (hw, ww) uint8, 0 at the candidates (pixels of layer *li* or farther), 1 elsewhere; each
-    candidate's flat index into the frame in raster order (label - 1 -> index; (N,) int64), -1 for a candidate
-    of a farther layer; and the candidates' bounding box in the window (r0, r1, c0, c1 inclusive; r0 > r1
-    when there is none). One pass over the window."""
-    hw, ww = wy1 - wy0, wx1 - wx0
-    w = layer.shape[1]
-    src = np.empty((hw, ww), np.uint8)
-    pos = np.empty(hw * ww, np.int64)
-    k = 0
-    r0, r1, c0, c1 = hw, -1, ww, -1
-    for y in range(hw):
-        k_row = k
-        for x in range(ww):
-            v = layer[wy0 + y, wx0 + x]
-            if v >= li:
-                src[y, x] = 0
-                pos[k] = (wy0 + y) * w + wx0 + x if v == li else -1
-                k += 1
-                c0, c1 = min(c0, x), max(c1, x)
-            else:
-                src[y, x] = 1
-        if k > k_row:
-            r0, r1 = min(r0, y), y
-    return src, pos[:k], (r0, r1, c0, c1)
-
-
-@njit(cache=True, nogil=True)
-def _farther_seeds(layer, li, wy0, wy1, wx0, wx1):
-    """The window rows wy0:wy1, columns wx0:wx1 of *layer* (H, W) int32 as OpenCV's source for the farther
-    layers' transform: (hw, ww) uint8, 0 at the pixels of layers farther than *li*, 1 elsewhere; and their
-    bounding box in the window (r0, r1, c0, c1 inclusive; r0 > r1 when there is none)."""
-    hw, ww = wy1 - wy0, wx1 - wx0
-    src = np.empty((hw, ww), np.uint8)
-    r0, r1, c0, c1 = hw, -1, ww, -1
-    for y in range(hw):
-        c_row = c1
-        first = ww
-        for x in range(ww):
-            far = layer[wy0 + y, wx0 + x] > li
-            src[y, x] = not far
-            if far:
-                first = min(first, x)
-                c_row = x
-        if first < ww:
-            r0, r1 = min(r0, y), y
-            c0, c1 = min(c0, first), max(c1, c_row)
-    return src, (r0, r1, c0, c1)
-
-
 def _cut(win, seeds, keep):
     """The window *win* (y0, y1, x0, x1: rows y0:y1, columns x0:x1 of the frame) cut to the bounding box of its
     *seeds* (r0, r1, c0, c1 inclusive, in the window; at least one) and of the pixels *keep* (y0, y1, x0, x1
@@ -1326,16 +1274,30 @@ def _cut(win, seeds, keep):
             max(wx0, min(wx0 + c0, kx0)), min(wx1, max(wx0 + c1, kx1) + 1))
 
 
+def _seeds_cut(seeds, win, keep):
+    """The window *win* (y0, y1, x0, x1: rows y0:y1, columns x0:x1 of the frame) cut (:func:`_cut`) to its
+    *seeds* ((y1 - y0, x1 - x0) bool) and the pixels *keep*: (the cut window, its seeds), or None when the
+    window holds no seed."""
+    rows = np.flatnonzero(seeds.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(seeds.any(axis=0))
+    cut = _cut(win, (int(rows[0]), int(rows[-1]), int(cols[0]), int(cols[-1])), keep)
+    return cut, seeds[cut[0] - win[0]:cut[1] - win[0], cut[2] - win[2]:cut[3] - win[2]]
+
+
 @njit(cache=True, nogil=True)
-def _nearest_candidates(pos, wy0, wx0, dist, labels, hidden, by, bx, part, rd, w):
+def _nearest_candidates(layer, li, pos, wy0, wx0, dist, labels, hidden, by, bx, part, rd):
     """The hidden pixels of *part* (y0, y1, x0, x1 inclusive, frame coordinates) within *rd* of their nearest
-    candidate (a pixel of layer *li* or farther) when that candidate is of layer *li*.
+    candidate (a pixel of layer *li* or farther) when that candidate is of layer *li* (*layer* (H, W) int32:
+    the frame's layer ids).
 
     *hidden* (hb, wb) bool is the box at (by, bx); *dist* and *labels* OpenCV's transform of the window at
-    (wy0, wx0) (their shape), *pos* its candidates' flat indices into the frame, of width *w*
-    (:func:`_candidate_seeds`). Returns (py, px, qy, qx, d): the pixels, their candidates (frame coordinates,
-    int64) and their distance (float32).
+    (wy0, wx0) (their shape), whose labels number its candidates in raster order: label k is the candidate at
+    flat index pos[k - 1] of the window. Returns (py, px, qy, qx, d): the pixels, their candidates (frame
+    coordinates, int64) and their distance (float32).
     """
+    ww = dist.shape[1]
     y0, y1, x0, x1 = part
     n = (y1 + 1 - y0) * (x1 + 1 - x0)
     py, px = np.empty(n, np.int64), np.empty(n, np.int64)
@@ -1348,8 +1310,9 @@ def _nearest_candidates(pos, wy0, wx0, dist, labels, hidden, by, bx, part, rd, w
                 dd = dist[y - wy0, x - wx0]
                 if dd <= rd:
                     q = pos[labels[y - wy0, x - wx0] - 1]
-                    if q >= 0:
-                        py[i], px[i], qy[i], qx[i], d[i] = y, x, q // w, q % w, dd
+                    sy, sx = wy0 + q // ww, wx0 + q % ww
+                    if layer[sy, sx] == li:
+                        py[i], px[i], qy[i], qx[i], d[i] = y, x, sy, sx, dd
                         i += 1
     return py[:i], px[:i], qy[:i], qx[:i], d[:i]
 
@@ -1397,26 +1360,26 @@ def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part,
     *bound*. Each transform runs on its window cut to its seeds and the pixels it decides (:func:`_cut`)."""
     layer = read_only(layer)
     box = tuple(int(v) for s in win for v in (s.start, s.stop))
-    src, pos, seeds = _candidate_seeds(layer, int(li), *box)
-    if pos.size == 0:  # no candidate within reach of any hidden pixel: nothing to continue
+    found = _seeds_cut(layer[win] >= li, box, part)
+    if found is None:  # no candidate within reach of any hidden pixel: nothing to continue
         return (np.zeros(0, np.int64),) * 4 + (np.zeros(0, np.float32),)
-    y0, y1, x0, x1 = _cut(box, seeds, part)
-    dist, labels = cv2.distanceTransformWithLabels(src[y0 - box[0]:y1 - box[0], x0 - box[2]:x1 - box[2]], cv2.DIST_L2,
-                                                   5, labelType=cv2.DIST_LABEL_PIXEL)
-    found = _nearest_candidates(read_only(pos), y0, x0, read_only(dist), read_only(labels), read_only(hidden),
-                                int(origin[0]), int(origin[1]), tuple(int(v) for v in part), int(rd), layer.shape[1])
+    (y0, _, x0, _), cand = found
+    dist, labels = cv2.distanceTransformWithLabels(np.logical_not(cand).view(np.uint8), cv2.DIST_L2, 5,
+                                                   labelType=cv2.DIST_LABEL_PIXEL)
+    found = _nearest_candidates(layer, int(li), read_only(np.flatnonzero(cand)), y0, x0, read_only(dist),
+                                read_only(labels), read_only(hidden), int(origin[0]), int(origin[1]),
+                                tuple(int(v) for v in part), int(rd))
     tested = _tested_box(*(read_only(v) for v in found[2:]))
     if tested[0] > tested[1]:  # within 1 px a candidate of layer li always reaches
         return found
     # the farther layers' transform, exact up to the largest distance tested
     far = int(math.ceil(float(tested[4]))) + 3
-    box = tuple(int(v) for s in (_span(tested[0], tested[1], far, bound[0]), _span(tested[2], tested[3], far, bound[1]))
-                for v in (s.start, s.stop))
-    src, seeds = _farther_seeds(layer, int(li), *box)
-    if seeds[0] > seeds[1]:  # no farther layer there: each candidate's width is unbounded, every pixel kept
+    win = (_span(tested[0], tested[1], far, bound[0]), _span(tested[2], tested[3], far, bound[1]))
+    farther = _seeds_cut(layer[win] > li, tuple(int(v) for s in win for v in (s.start, s.stop)), tested[:4])
+    if farther is None:  # no farther layer there: each candidate's width is unbounded, every pixel kept
         return found
-    y0, y1, x0, x1 = _cut(box, seeds, tested[:4])
-    width = cv2.distanceTransform(src[y0 - box[0]:y1 - box[0], x0 - box[2]:x1 - box[2]], cv2.DIST_L2, 5)
+    (y0, _, x0, _), seeds = farther
+    width = cv2.distanceTransform(np.logical_not(seeds).view(np.uint8), cv2.DIST_L2, 5)
     return _keep_owned(*(read_only(v) for v in found), read_only(width), y0, x0)
 
 

@@ -231,27 +231,28 @@ def _bbox(mask):
 
 @settings(max_examples=200, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
-def test_seeds_are_the_transforms_sources(seed):
-    """The transforms' sources built in one pass: OpenCV's source (1 off the seeds), the candidates' flat
-    frame indices in raster order (-1 for a farther layer's; label k's candidate is the k-th, as OpenCV
-    numbers its seeds) and the seeds' bounding boxes, against numpy's masks."""
-    _, layer, li, _, _, _ = _layer_case(seed)
-    rng = np.random.default_rng(seed)
+def test_cut_window_holds_its_seeds_in_opencv_label_order(seed):
+    """A window cut to its seeds and the pixels kept (the renderer's view into the seeds' mask, as OpenCV gets
+    it): the kept pixels and every seed are inside it, and OpenCV numbers its seeds in raster order (label k
+    is the k-th seed), the order the renderer reads each label's candidate in."""
+    rng, layer, li, _, _, _ = _layer_case(seed)
     h, w = layer.shape
     y0, x0 = int(rng.integers(0, h)), int(rng.integers(0, w))
     y1, x1 = int(rng.integers(y0 + 1, h + 1)), int(rng.integers(x0 + 1, w + 1))
-    src, pos, seeds = renderer._candidate_seeds(renderer.read_only(layer), li, y0, y1, x0, x1)
-    win = layer[y0:y1, x0:x1]
-    np.testing.assert_array_equal(src, (win < li).astype(np.uint8))
-    ys, xs = np.nonzero(win >= li)
-    np.testing.assert_array_equal(pos, np.where(win[ys, xs] == li, (ys + y0) * w + xs + x0, -1))
-    assert (seeds if seeds[0] <= seeds[1] else None) == _bbox(win >= li)
-    if ys.size:
-        _, labels = cv2.distanceTransformWithLabels(src, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
-        np.testing.assert_array_equal(labels[src == 0] - 1, np.arange(ys.size))  # label k - 1: k-th seed
-    src, seeds = renderer._farther_seeds(renderer.read_only(layer), li, y0, y1, x0, x1)
-    np.testing.assert_array_equal(src, (win <= li).astype(np.uint8))
-    assert (seeds if seeds[0] <= seeds[1] else None) == _bbox(win > li)
+    ky0, kx0 = int(rng.integers(y0, y1)), int(rng.integers(x0, x1))
+    keep = (ky0, int(rng.integers(ky0, y1)), kx0, int(rng.integers(kx0, x1)))
+    seeds = layer[y0:y1, x0:x1] >= li
+    found = renderer._seeds_cut(seeds, (y0, y1, x0, x1), keep)
+    if not seeds.any():
+        assert found is None
+        return
+    (cy0, cy1, cx0, cx1), cut = found
+    assert y0 <= cy0 <= keep[0] and keep[1] < cy1 <= y1 and x0 <= cx0 <= keep[2] and keep[3] < cx1 <= x1
+    assert cut.sum() == seeds.sum()  # every seed of the window
+    np.testing.assert_array_equal(cut, layer[cy0:cy1, cx0:cx1] >= li)
+    _, labels = cv2.distanceTransformWithLabels(np.logical_not(cut).view(np.uint8), cv2.DIST_L2, 5,
+                                                labelType=cv2.DIST_LABEL_PIXEL)
+    np.testing.assert_array_equal(labels.ravel()[np.flatnonzero(cut)] - 1, np.arange(int(cut.sum())))
 
 
 @settings(max_examples=300, deadline=None)

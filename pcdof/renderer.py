@@ -727,32 +727,54 @@ def _footprint_kernel(r: float, symmetric: bool, table: np.ndarray) -> np.ndarra
 
 
 @njit(cache=True)
-def _whole_cells(fast, member, s):
-    """:func:`_fast_cells` for s > 1, cell by cell; *fast* C-contiguous."""
-    h, w = fast.shape
+def _tile_cells(tiles, tile_px, y0, x0, h, w, member, s):
+    """(hs, ws) bool: the member cells (*member* (hs, ws) bool) of the 1/s grid of the h x w box at row y0,
+    column x0 whose s x s pixels all lie in tiles set in *tiles* ((th, tw) bool, tiles of *tile_px* pixels);
+    cells cut by the box's border are never fast. A cell's pixels cover a block of whole tiles' rows and
+    columns, so the tiles decide it (a few lookups per cell, not s^2 pixels)."""
     hs, ws = member.shape
+    th, tw = tiles.shape
     out = np.zeros((hs, ws), np.bool_)
-    for cy in range(hs):
-        if (cy + 1) * s > h:  # cells cut by the border are never fast
-            break
-        for cx in range(ws):
-            if (cx + 1) * s > w or not member[cy, cx]:
-                continue
-            ok = True
-            for y in range(cy * s, (cy + 1) * s):
-                for x in range(cx * s, (cx + 1) * s):
-                    ok &= fast[y, x]
-            out[cy, cx] = ok
+    n_cols = min(ws, w // s)
+    col_lo, col_hi = np.empty(n_cols, np.int64), np.empty(n_cols, np.int64)  # each cell column's tile columns
+    for cx in range(n_cols):
+        col_lo[cx], col_hi[cx] = (x0 + cx * s) // tile_px, (x0 + cx * s + s - 1) // tile_px
+    fast_col = np.empty(tw, np.bool_)  # tile columns all set over the current cell row's tile rows
+    rows = (-1, -1)
+    for cy in range(min(hs, h // s)):
+        ta, tb = (y0 + cy * s) // tile_px, (y0 + cy * s + s - 1) // tile_px
+        if (ta, tb) != rows:
+            rows = (ta, tb)
+            for tx in range(tw):
+                ok = True
+                for ty in range(ta, tb + 1):
+                    ok &= tiles[ty, tx]
+                fast_col[tx] = ok
+        for cx in range(n_cols):
+            if member[cy, cx]:
+                ok = True
+                for tx in range(col_lo[cx], col_hi[cx] + 1):
+                    ok &= fast_col[tx]
+                out[cy, cx] = ok
     return out
 
 
-def _fast_cells(fast, member, s):
-    """(hs, ws) bool: member cells of the 1/s grid whose s x s pixels of *fast* (H, W) bool are all set;
-    cells cut by the border are never fast. At full resolution that is fast & member, which numpy does
-    25 times faster than a loop over cells."""
-    if s == 1:
-        return np.logical_and(fast, member)
-    return _whole_cells(np.ascontiguousarray(fast), member, s)
+@dataclass(frozen=True)
+class _Uniform:
+    """The uniform tiles ((th, tw) bool) of a blur layer, on the frame's tile map, and the layer's box."""
+
+    tiles: np.ndarray
+    tile_map: TileMap
+    box: tuple
+
+    def cells(self, member: np.ndarray, s: int) -> np.ndarray:
+        """(hs, ws) bool: the member cells (*member*, the box's 1/s grid) whose s x s pixels all lie in uniform
+        tiles; cells cut by the box's border are never fast. At full resolution, the pixel mask & member."""
+        if s == 1:
+            return np.logical_and(self.tile_map.pixel_mask(self.tiles, self.box), member)
+        (y0, y1), (x0, x1) = ((b.start, b.stop) for b in self.box)
+        return _tile_cells(read_only(self.tiles), self.tile_map.tile_px, y0, x0, y1 - y0, x1 - x0,
+                           read_only(np.ascontiguousarray(member)), s)
 
 
 @njit(cache=True)
@@ -1056,7 +1078,7 @@ def _convolved_cells(grid: _Grid, fast, s):
     none), and the member cells left to the scatter: those whose footprint reaches another cell."""
     if fast is None:
         return None, [], grid.member
-    fast_cells = _fast_cells(fast, grid.member, s)
+    fast_cells = fast.cells(grid.member, s)
     if not fast_cells.any():
         return None, [], grid.member
     bins, groups = _uniform_plan(fast_cells, grid.radius)
@@ -1098,8 +1120,8 @@ def _scatter_layer(lin, radius, member, s, aperture: _Aperture, hidden=None, rea
     (cells of the 1/s grid).
 
     With *hidden* (pixels of nearer, not yet opaque layers) the layer is first extended behind them
-    up to *reach_px* (:func:`_extend_behind`). *fast* (H, W) bool or None marks the pixels of uniform
-    tiles (:meth:`pcdof.tiles.TileMap.uniform`): there the layer is computed as a convolution
+    up to *reach_px* (:func:`_extend_behind`). *fast* (a :class:`_Uniform` or None) holds the
+    uniform tiles (:meth:`pcdof.tiles.TileMap.uniform`): there the layer is computed as a convolution
     (:func:`_convolve_uniform`), and only the sources whose footprint reaches another pixel are scattered.
     """
     h, w, nc = lin.shape
@@ -1450,7 +1472,7 @@ def _blur_layer(frame: _Frame, canvas: _Canvas, li: int, key: int, n_members: in
     uniform = np.zeros_like(frame.tiles.copy)
     if plan.convolve_uniform and lo / (2 * s) >= plan.uniform_min_radius_px:
         uniform = frame.tiles.uniform(lo, hi, 1 if key > 0 else -1, r_max + 2 * s + 2)
-    fast = frame.tiles.pixel_mask(uniform, box) if uniform.any() else None
+    fast = _Uniform(uniform, frame.tiles, box) if uniform.any() else None
     buf, extended, n_kernels, n_scattered = _scatter_layer(frame.lin[box], frame.radius[box], m, s, frame.aperture,
                                                            hidden, ext_reach, fast)
     with _serial_if(buf.shape[0] * buf.shape[1] < SERIAL_BELOW_PX):

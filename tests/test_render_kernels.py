@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 
 from pcdof import renderer
 from pcdof.apertures import Disc, Polygon
+from pcdof.tiles import classify_tiles
 
 #: Apertures of both kinds of strip: centred (the disc) and off-centre (odd polygons, turned).
 APERTURES = {"disc": Disc(), "pentagon": Polygon(blades=5, vertex_angle_rad=0.3),
@@ -272,11 +273,17 @@ class TestConvolveUniform:
 
 class TestFastCells:
     @settings(max_examples=60, deadline=None)
-    @given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 40), w=st.integers(1, 40), s=st.sampled_from([1, 2, 3, 4]))
-    def test_cells_whose_pixels_are_all_fast(self, seed, h, w, s):
+    @given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 40), w=st.integers(1, 40), s=st.sampled_from([1, 2, 3, 4]),
+           tile_px=st.sampled_from([1, 2, 3, 5, 8]))
+    def test_cells_whose_pixels_are_all_fast(self, seed, h, w, s, tile_px):
+        """The member cells of a box's 1/s grid whose s x s pixels all lie in uniform tiles (decided from the
+        tiles), against the tiles' pixel mask cell by cell; cells cut by the box's border are never fast."""
         rng = np.random.default_rng(seed)
-        full = rng.random((h + 7, w + 5)) < 0.9
-        fast = full[3:3 + h, 2:2 + w]  # a window's view, as TileMap.pixel_mask gives it
+        y0, x0 = (int(v) for v in rng.integers(0, 9, 2))
+        tile_map = classify_tiles(np.zeros((h + y0 + 4, w + x0 + 3), np.float32), tile_px=tile_px)
+        uniform = rng.random(tile_map.copy.shape) < 0.8
+        box = (slice(y0, y0 + h), slice(x0, x0 + w))
+        fast = tile_map.pixel_mask(uniform, box)
         hs, ws = -(-h // s), -(-w // s)
         member = rng.random((hs, ws)) < 0.8
         expected = np.zeros((hs, ws), bool)
@@ -284,7 +291,7 @@ class TestFastCells:
             for cx in range(ws):
                 block = fast[cy * s:(cy + 1) * s, cx * s:(cx + 1) * s]
                 expected[cy, cx] = member[cy, cx] and block.shape == (s, s) and block.all()
-        np.testing.assert_array_equal(renderer._fast_cells(fast, member, s), expected)
+        np.testing.assert_array_equal(renderer._Uniform(uniform, tile_map, box).cells(member, s), expected)
 
 
 class TestCompositeUnder:

@@ -1225,8 +1225,9 @@ def _ownership(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_
     Each transform runs on the window that decides those pixels: their candidates within ``rd``, then
     the farther layers within the largest distance tested of the candidates that are tested, inside
     the box widened by twice the reach, each cut to the bounding box of its seeds and the pixels it decides
-    (:func:`_cut`: rows and columns of no seed beyond those pixels are work for nothing). There every answer the extension uses is the one the
-    transforms give on the whole widened box; the others are not decided (the render does not read them).
+    (:func:`_cut`: rows and columns of no seed beyond those pixels are work for nothing). There every answer
+    the extension uses is the one the transforms give on the whole widened box; the others are not decided
+    (the render does not read them).
     *threads*: the hidden pixels' box is cut into up to that many strips along its longer side, each
     decided on its own windows on its own thread (OpenCV releases the GIL): the same answer.
 

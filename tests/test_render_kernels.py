@@ -273,8 +273,8 @@ class TestConvolveUniform:
 
 class TestFastCells:
     @settings(max_examples=60, deadline=None)
-    @given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 40), w=st.integers(1, 40), s=st.sampled_from([1, 2, 3, 4]),
-           tile_px=st.sampled_from([1, 2, 3, 5, 8]))
+    @given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 40), w=st.integers(1, 40),
+           s=st.sampled_from([1, 2, 3, 4]), tile_px=st.sampled_from([1, 2, 3, 5, 8]))
     def test_cells_whose_pixels_are_all_fast(self, seed, h, w, s, tile_px):
         """The member cells of a box's 1/s grid whose s x s pixels all lie in uniform tiles (decided from the
         tiles), against the tiles' pixel mask cell by cell; cells cut by the box's border are never fast."""

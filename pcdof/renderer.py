@@ -733,7 +733,7 @@ def _tile_cells(tiles, tile_px, y0, x0, h, w, member, s):
     cells cut by the box's border are never fast. A cell's pixels cover a block of whole tiles' rows and
     columns, so the tiles decide it (a few lookups per cell, not s^2 pixels)."""
     hs, ws = member.shape
-    th, tw = tiles.shape
+    tw = tiles.shape[1]
     out = np.zeros((hs, ws), np.bool_)
     n_cols = min(ws, w // s)
     col_lo, col_hi = np.empty(n_cols, np.int64), np.empty(n_cols, np.int64)  # each cell column's tile columns
@@ -1270,7 +1270,7 @@ def _ownership(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_
     strips = [(y0, y1, int(a), int(b) - 1) if along else (int(a), int(b) - 1, x0, x1) for a, b in zip(cuts, cuts[1:])]
 
     def strip(sy0, sy1, sx0, sx1):
-        win = (_span(sy0, sy1, rd + 3, whole[0]), _span(sx0, sx1, rd + 3, whole[1]))
+        win = (_span(sy0, sy1, rd, whole[0]), _span(sx0, sx1, rd, whole[1]))
         return _owned_in(layer, li, win, hidden, (by, bx), (sy0, sy1, sx0, sx1), rd, whole)
 
     others = [_in_thread(lambda box=box: strip(*box)) for box in strips[1:]]
@@ -1396,7 +1396,7 @@ def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part,
     if tested[0] > tested[1]:  # within 1 px a candidate of layer li always reaches
         return found
     # the farther layers' transform, exact up to the largest distance tested
-    far = int(math.ceil(float(tested[4]))) + 3
+    far = int(math.ceil(float(tested[4])))
     win = (_span(tested[0], tested[1], far, bound[0]), _span(tested[2], tested[3], far, bound[1]))
     farther = _seeds_cut(layer[win] > li, tuple(int(v) for s in win for v in (s.start, s.stop)), tested[:4])
     if farther is None:  # no farther layer there: each candidate's width is unbounded, every pixel kept

@@ -16,6 +16,7 @@ import dataclasses
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -94,27 +95,64 @@ def _depth_array(depth_m, name: str = "depth_m") -> np.ndarray:
     return z
 
 
+@njit(cache=True, inline="always")
+def _coc_at(z, scale, inv_focus):
+    """scale * (inv_focus - 1/z) in float64, 0 where z is not > 0 (also NaN) or the point is exactly in focus,
+    NaN as 0 and saturated at the float32 range."""
+    d = np.float64(z)
+    if not d > 0.0:
+        return 0.0
+    term = inv_focus - 1.0 / d  # d = inf: 1/d = 0
+    if term == 0.0:  # exactly in focus (also for an infinite scale)
+        return 0.0
+    v = scale * term
+    if v != v:
+        return 0.0
+    return min(max(v, -_F32_MAX), _F32_MAX)
+
+
 @njit(cache=True, parallel=True)
 def _signed_coc(z, scale, inv_focus, out):
-    """out = scale * (inv_focus - 1/z) in float64 per pixel, 0 where z is not > 0 (also NaN) or the
-    point is exactly in focus, NaN as 0 and saturated at the float32 range."""
+    """out = :func:`_coc_at` per pixel (written as float32)."""
     for i in prange(z.size):
-        d = np.float64(z[i])
-        if not d > 0.0:
-            out[i] = 0.0
-            continue
-        term = inv_focus - 1.0 / d  # d = inf: 1/d = 0
-        if term == 0.0:  # exactly in focus (also for an infinite scale)
-            out[i] = 0.0
-            continue
-        v = scale * term
-        if v != v:
-            v = 0.0
-        elif v > _F32_MAX:
-            v = _F32_MAX
-        elif v < -_F32_MAX:
-            v = -_F32_MAX
-        out[i] = v
+        out[i] = _coc_at(z[i], scale, inv_focus)
+
+
+@njit(cache=True, parallel=True)
+def _coc_maps(z, scale, inv_focus, signed, size):
+    """signed = :func:`_coc_at` per pixel (float32), size = |signed|, in one pass; returns (largest size,
+    how many sizes are >= 1): per chunk of pixels, then over the chunks (exact whatever the order)."""
+    n = z.size
+    n_chunks = max(1, min(n, 256))
+    top = np.zeros(n_chunks, np.float32)
+    count = np.zeros(n_chunks, np.int64)
+    for c in prange(n_chunks):
+        m = np.float32(0.0)
+        k = 0
+        for i in range(c * n // n_chunks, (c + 1) * n // n_chunks):
+            v = np.float32(_coc_at(z[i], scale, inv_focus))
+            a = abs(v)
+            signed[i] = v
+            size[i] = a
+            m = max(m, a)
+            k += a >= 1.0
+        top[c] = m
+        count[c] = k
+    largest = np.float32(0.0)
+    total = 0
+    for c in range(n_chunks):
+        largest = max(largest, top[c])
+        total += count[c]
+    return largest, total
+
+
+class CocMaps(NamedTuple):
+    """A frame's circle of confusion (:meth:`ThinLens.coc_maps_px`): *signed* and *size* (= |signed|) (H, W)
+    float32 pixels, the largest size (pixels) and the share of pixels whose size is at least 1 px."""
+    signed: np.ndarray
+    size: np.ndarray
+    max_px: float
+    out_of_focus_share: float
 
 
 @dataclass(frozen=True)
@@ -205,6 +243,24 @@ class ThinLens:
         _signed_coc(read_only(np.ascontiguousarray(z).reshape(-1)), scale, 1.0 / self.focus_distance_m,
                     out.reshape(-1))
         return out
+
+    def coc_maps_px(self, depth_m, fx: float) -> CocMaps:
+        """:meth:`signed_coc_px`, its absolute value (:meth:`coc_px`), the largest value of that and the share of
+        pixels at 1 px or more, from one pass over *depth_m* (the same values as each computed alone).
+
+        *depth_m* and *fx* as in :meth:`signed_coc_px`; returns a :class:`CocMaps` (shares of an empty map are 0).
+        """
+        scale = self.aperture_m * _focal_px(fx)
+        z = _depth_array(depth_m)
+        if z.dtype not in (np.float32, np.float64):
+            z = z.astype(np.float64)
+        signed = np.empty(z.shape, np.float32)
+        size = np.empty(z.shape, np.float32)
+        if z.size == 0:
+            return CocMaps(signed, size, 0.0, 0.0)
+        largest, n_out = _coc_maps(read_only(np.ascontiguousarray(z).reshape(-1)), scale, 1.0 / self.focus_distance_m,
+                                   signed.reshape(-1), size.reshape(-1))
+        return CocMaps(signed, size, float(largest), n_out / z.size)
 
     def coc_px(self, depth_m, fx: float) -> np.ndarray:
         """Circle-of-confusion diameter c(z) = A*fx*|1/d_f - 1/z|, pixels (0 where depth is 0).

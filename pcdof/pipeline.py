@@ -125,9 +125,10 @@ def fill_stage(depth_m: np.ndarray, color: np.ndarray, trace: list, *, method: s
         return fill_depth(depth_m, color, method=method, parallel=plan.threads > 1)
 
 
-def highlights_stage(color, trace: list, *, highlights, method: str, linear: bool, coc_px=None, prepared=None):
+def highlights_stage(color, trace: list, *, highlights, method: str, linear: bool, coc_px=None, prepared=None,
+                     coc_max_px=None):
     """Clipped highlights raised to an estimate of their radiance (:mod:`pcdof.highlights`; *coc_px*:
-    the render's circle of confusion, which the estimate weighs).
+    the render's circle of confusion, which the estimate weighs; *coc_max_px*: its largest value where known).
 
     *prepared*: the function that waits for the stage's colour-only half started on a worker thread
     (:func:`_start_colour_side`), or None to do that half here. The record's seconds are the time waited for it
@@ -147,7 +148,9 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
             overlap = {"prepared_ms": took * 1e3, "overlapped_ms": max(0.0, took - max(0.0, done - t0)) * 1e3,
                        "waited_ms": (time.perf_counter() - t0) * 1e3}
         reason = _highlights_skip(how, method, color, linear)
-        cmax = float(np.max(coc_px)) if not reason and coc_px is not None and np.size(coc_px) else None
+        cmax = None
+        if not reason and coc_px is not None and np.size(coc_px):
+            cmax = float(np.max(coc_px)) if coc_max_px is None else float(coc_max_px)
         if cmax is not None and cmax < SHARP_COC_PX:
             # the render returns the input as it is: estimating radiance it would not blur is work for nothing
             reason = f"nothing to blur (largest circle of confusion {cmax:.3f} px < {SHARP_COC_PX} px)"
@@ -231,16 +234,15 @@ def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", 
                   quality="balanced", highlights="off", prepared=None):
     """Circle of confusion + render stages on registered, filled depth (*prepared*: see
     :func:`highlights_stage`). Returns (image, coc_px)."""
-    coc = signed = None
+    coc = signed = coc_max = None
     if isinstance(lens, ThinLens):
         with _Timer(trace, "coc") as rec:
-            signed = lens.signed_coc_px(depth_filled_m, fx)  # computed once, for the map and the renderer
-            coc = np.abs(signed)
-            rec.detail = {"max_coc_px": float(coc.max()) if coc.size else 0.0,
-                          "out_of_focus_share": float(np.mean(coc >= 1.0)) if coc.size else 0.0}
+            # computed once, in one pass, for the map, the highlights and the renderer
+            signed, coc, coc_max, share = lens.coc_maps_px(depth_filled_m, fx)
+            rec.detail = {"max_coc_px": coc_max, "out_of_focus_share": share}
             rec.reason = f"max {rec.detail['max_coc_px']:.2f} px"
     source, source_linear = highlights_stage(color, trace, highlights=highlights, method=method, linear=linear,
-                                             coc_px=coc, prepared=prepared)
+                                             coc_px=coc, prepared=prepared, coc_max_px=coc_max)
     with _Timer(trace, "render") as rec:
         image, info = render_image(source, depth_filled_m, lens, fx=fx, method=method,
                                    max_range_m=max_range_m, linear=source_linear, quality=quality, signed_coc=signed)

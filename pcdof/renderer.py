@@ -1691,6 +1691,7 @@ def warmup() -> None:
     depth[16:32, 50:56] = 50.0  # and beside the foreground: what the middle layer continues behind it is cut short
     color = (np.indices((h, w)).sum(axis=0) % 7 * 36).astype(np.uint8)[:, :, None].repeat(3, axis=2)
     lens = ThinLens(50.0, 1.4, 2.0)
+    lens.coc_maps_px(depth, 300.0)  # the pipeline's CoC stage (the renderer's own calls take the signed map)
     # a plan that reduces from 2 px cells, so that this small blur takes the reduced path whatever the tiers'
     # thresholds
     plan = RenderPlan(threads=plan_render().threads, reduce_min_coc_px=2.0)

@@ -3,8 +3,9 @@
 numba keeps each compiled kernel in its on-disk cache, but loading one is not free: the first load sets
 up numba's typing and target registries, and each kernel's machine code is then unpacked and linked:
 about 0.25 s for the 25 kernels a frame runs, half of a one-shot ``pcdof render``. numba's ahead-of-time
-compiler (``numba.pycc``) builds the same kernels, each with the one signature the stage warm-ups compile,
-into one extension module, which loads in a millisecond.
+compiler (``numba.pycc``) builds the same kernels, with the signatures the stage warm-ups compile (and the
+paths a stage leaves out of its warm-up to spare a first frame the compile: its ``warmup_ahead()``), into one
+extension module, which loads in a millisecond.
 
 Its functions run on one thread (it compiles ``prange`` loops as plain loops; kernels marked ``nogil``
 still release the GIL) and give the same answer as numba's kernels up to floating-point reassociation
@@ -52,16 +53,18 @@ _replaced: list = []
 class AheadKernel:
     """A kernel compiled ahead of time, called like the numba dispatcher it stands in for.
 
-    *function*: the compiled function; *dispatcher*: numba's; *argtypes*: the numba type names of the
-    arguments it was compiled for. A call with other argument types (another dtype, a non-contiguous
-    or writeable array where a read-only contiguous one was compiled) goes to *dispatcher*.
+    *variants*: (argtypes, function) pairs, the numba type names of the arguments each compiled *function* takes
+    (one per signature the warm-ups compiled); *dispatcher*: numba's. A call with other argument types (another
+    dtype, a non-contiguous or writeable array where a read-only contiguous one was compiled) goes to
+    *dispatcher*.
     """
 
-    __slots__ = ("function", "dispatcher", "argtypes", "_types")
+    __slots__ = ("variants", "dispatcher", "_known")
 
-    def __init__(self, function, dispatcher, argtypes):
-        self.function, self.dispatcher, self.argtypes = function, dispatcher, tuple(argtypes)
-        self._types = None  # the argument types as numba types, once a call has matched them
+    def __init__(self, variants, dispatcher):
+        self.variants = [(tuple(argtypes), function) for argtypes, function in variants]
+        self.dispatcher = dispatcher
+        self._known = {}  # argument types (numba types) -> the function compiled for them, as calls find them
 
     @property
     def py_func(self):
@@ -72,12 +75,16 @@ class AheadKernel:
         from numba.core.typing.typeof import Purpose
 
         types = tuple(typeof(a, Purpose.argument) for a in args)
-        if types == self._types or (self._types is None and tuple(map(str, types)) == self.argtypes):
-            self._types = types
-            return self.function(*args)
-        logger.debug("%s: arguments %s, compiled ahead for %s; numba's kernel runs it",
-                     self.dispatcher.py_func.__qualname__, [str(t) for t in types], list(self.argtypes))
-        return self.dispatcher(*args)
+        function = self._known.get(types)
+        if function is None:
+            names = tuple(map(str, types))
+            function = next((f for argtypes, f in self.variants if argtypes == names), None)
+            if function is None:
+                logger.debug("%s: arguments %s, compiled ahead for %s; numba's kernel runs it",
+                             self.dispatcher.py_func.__qualname__, list(names), [list(a) for a, _ in self.variants])
+                return self.dispatcher(*args)
+            self._known[types] = function
+        return function(*args)
 
     def __repr__(self) -> str:
         return f"AheadKernel({self.dispatcher.py_func.__module__}.{self.dispatcher.py_func.__qualname__})"
@@ -182,12 +189,14 @@ def build(progress=None) -> Path | None:
     except ImportError as err:
         say(f"  kernels ahead of time: not built (this numba has no pycc: {err})")
         return None
-    from .kernels import warmup
+    from .kernels import STAGES, warmup
 
     warmup()
+    for module in {m for warm, _ in STAGES.values() for m in warm}:  # paths too slow to compile at a first frame
+        getattr(importlib.import_module(module), "warmup_ahead", lambda: None)()
     digest = fingerprint()
     target, manifest = _paths(digest)
-    entries = [(m, name, d) for m, name, d in _entry_kernels() if len(d.nopython_signatures) == 1]
+    entries = [(m, name, d, sig) for m, name, d in _entry_kernels() for sig in d.nopython_signatures]
     t0 = time.perf_counter()
     say(f"  kernels ahead of time: compiling {len(entries)} ...")
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -195,13 +204,12 @@ def build(progress=None) -> Path | None:
         cc = CC(target.name.split(".")[0])
         cc.output_dir, cc.output_file, cc.verbose = tmp, target.name, False
         exports = []
-        for i, (module, name, dispatcher) in enumerate(entries):
-            signature = dispatcher.nopython_signatures[0]
+        for i, (module, name, dispatcher, signature) in enumerate(entries):
             cc.export(f"k{i}", signature)(dispatcher.py_func)
             exports.append({"module": module, "name": name, "export": f"k{i}",
                             "argtypes": [str(t) for t in signature.args]})
         try:
-            with _each_with_its_options({d.py_func: d for _, _, d in entries}), open(os.devnull, "w") as quiet, \
+            with _each_with_its_options({d.py_func: d for _, _, d, _ in entries}), open(os.devnull, "w") as quiet, \
                     contextlib.redirect_stdout(quiet):
                 cc.compile()
         except Exception as err:  # no C compiler or linker, or a toolchain numba cannot drive
@@ -254,13 +262,17 @@ def activate() -> bool:
         logger.warning("kernels compiled ahead of time not used (%s: %s); run 'pcdof warmup' to build them again",
                        type(err).__name__, err)
         return False
+    variants: dict = {}  # (module, name) -> [(argtypes, function)]
     for item in exports:
-        module = importlib.import_module(item["module"])
-        dispatcher = getattr(module, item["name"], None)
+        variants.setdefault((item["module"], item["name"]), []).append((item["argtypes"],
+                                                                         getattr(library, item["export"])))
+    for (module_name, name), found in variants.items():
+        module = importlib.import_module(module_name)
+        dispatcher = getattr(module, name, None)
         if dispatcher is None or isinstance(dispatcher, AheadKernel):
             continue
-        setattr(module, item["name"], AheadKernel(getattr(library, item["export"]), dispatcher, item["argtypes"]))
-        _replaced.append((item["module"], item["name"], dispatcher))
+        setattr(module, name, AheadKernel(found, dispatcher))
+        _replaced.append((module_name, name, dispatcher))
     return bool(_replaced)
 
 

@@ -1002,3 +1002,10 @@ def warmup() -> None:
     d = np.array([[1.0, 0.0, 2.0], [1.0, 0.0, 2.0]], np.float32)
     fill_joint_bilateral(d, np.zeros((2, 3, 3), np.uint8), parallel=False)
     fill_nearest_background(d, None, parallel=False)
+
+
+def warmup_ahead() -> None:
+    """The other colour path too (float64, for 16-bit and float colour), for the kernels compiled ahead of time
+    (:mod:`pcdof.ahead`: built once at install, where its 5 s of compiling keep no frame waiting)."""
+    d = np.array([[1.0, 0.0, 2.0], [1.0, 0.0, 2.0]], np.float32)
+    fill_joint_bilateral(d, np.zeros((2, 3, 3), np.uint16), parallel=False)

@@ -2,6 +2,7 @@
 floating-point reassociation), every kernel a one-frame process calls served by them, other argument types
 passed on to numba, never stale code, and the planner's choice of when to use them."""
 
+import dataclasses
 import json
 import logging
 import os
@@ -42,7 +43,9 @@ def _frames():
     from pcdof.synth import generate_scene
 
     sample = ROOT / "data" / "sample"
-    yield "sample", load_frame(sample / "color.png", sample / "depth.png", sample / "calib.json"), None
+    frame = load_frame(sample / "color.png", sample / "depth.png", sample / "calib.json")
+    yield "sample", frame, None
+    yield "sample-16-bit", dataclasses.replace(frame, color=frame.color.astype(np.uint16) * 257), None
     for scene, size, seed in (("portrait", (640, 480), 3), ("highlights", (512, 384), 101), ("fence", (320, 240), 7)):
         sf = generate_scene(scene, color_size=size, depth_size=(512, 424) if size[0] >= 512 else (320, 240), seed=seed)
         yield f"{scene}-{seed}", sf.frame, sf.default_lens
@@ -115,9 +118,8 @@ def test_other_argument_types_go_to_numba(built, numba_after, caplog):
     assert ahead.activate()
     compiled = lens_module._signed_coc
     calls = []  # numba's dispatcher stands in: a new specialisation would outlive this test
-    kernel = ahead.AheadKernel(compiled.function, type("Numba", (), {"py_func": compiled.py_func,
-                                                                       "__call__": lambda self, *a: calls.append(a)})(),
-                               compiled.argtypes)
+    kernel = ahead.AheadKernel(compiled.variants, type("Numba", (), {"py_func": compiled.py_func,
+                                                                       "__call__": lambda self, *a: calls.append(a)})())
     got = np.empty_like(z)
     kernel(read_only(z), 40.0, 0.5, got)  # the compiled types: the module's function
     np.testing.assert_allclose(got, want, rtol=1e-6)
@@ -215,12 +217,16 @@ def test_pcdof_render_says_which_kernels_ran(built, tmp_path, setting):
                        ["kernels: numba's"])
 
 
-def test_the_manifest_names_each_kernel_once(built):
+def test_the_manifest_names_each_signature_once(built):
     _, manifest = ahead._paths(ahead.fingerprint())
     exports = json.loads(manifest.read_text())["exports"]
-    names = [(e["module"], e["name"]) for e in exports]
-    assert len(names) == len(set(names)) > 20
-    assert {m for m, _ in names} == set(ahead.MODULES)
+    signatures = [(e["module"], e["name"], tuple(e["argtypes"])) for e in exports]
+    assert len(signatures) == len(set(signatures)) > 20
+    assert len({e["export"] for e in exports}) == len(exports)
+    assert {m for m, _, _ in signatures} == set(ahead.MODULES)
+    # the fill's colour paths: 8-bit (the warm-up's) and float64 (16-bit and float colour: its warmup_ahead)
+    combine = [a[1] for m, name, a in signatures if name == "_combine"]
+    assert sorted(combine) == ["readonly array(float64, 3d, C)", "readonly array(uint8, 3d, C)"]
 
 
 def test_without_a_compiler_build_says_why_and_leaves_nothing(tmp_path, monkeypatch):

@@ -330,8 +330,9 @@ def threads_for_load(meter: CoreLoad | None = None):
 AHEAD_ENV = "PCDOF_AHEAD"
 #: A process that renders one frame of at most this many colour pixels runs the kernels compiled ahead of time
 #: (:mod:`pcdof.ahead`) where they are built: they load in a millisecond where numba's cached kernels take about
-#: 0.25 s, and run on one thread, which costs a 640x480 frame about 20 ms and a 1920x1080 frame about 0.1 s
-#: (measured on two cores: ``python scripts/ahead_side_by_side.py``); beyond this the lost threads cost more.
+#: 0.26 s, and run on one thread, which cost a 640x480 frame 19 ms, a 1920x1080 frame 95 ms and a 2560x1440
+#: frame 130 ms more on two cores (``python scripts/ahead_side_by_side.py --sizes 640x480,1920x1080,2560x1440``);
+#: beyond this (a 3840x2160 frame: about 4 times the 1920x1080 one's) the lost threads cost more.
 AHEAD_MAX_PX = 2560 * 1440
 
 

@@ -260,3 +260,18 @@ def test_warmup_command_builds_them_unless_told_not_to(built, tmp_path, monkeypa
     result = CliRunner().invoke(main, ["warmup", "--stages", "fill", "--no-ahead"])
     assert result.exit_code == 0, result.output
     assert "ahead of time" not in result.output and list(tmp_path.iterdir()) == []
+
+
+def test_pcdof_register_gives_numba_s_depth_either_way(built, tmp_path):
+    sample = ROOT / "data" / "sample"
+    out = {}
+    for setting in ("1", "0"):
+        out[setting] = tmp_path / f"depth{setting}.npy"
+        done = subprocess.run([sys.executable, "-c", "from pcdof.cli import console_main; console_main()", "register",
+                               str(sample / "color.png"), str(sample / "depth.png"), "--calib",
+                               str(sample / "calib.json"), "-o", str(out[setting]), "-q"], capture_output=True,
+                              text=True, cwd=ROOT, env={**os.environ, "PCDOF_AHEAD": setting})
+        assert done.returncode == 0, done.stderr
+    ahead_depth, numba_depth = np.load(out["1"]), np.load(out["0"])
+    assert (ahead_depth > 0).mean() > 0.9
+    np.testing.assert_allclose(ahead_depth, numba_depth, rtol=1e-5, atol=1e-6)

@@ -106,9 +106,11 @@ _MEDIAN_ITERATIONS = 2
 # farthest surface without a colour vote, so the gap does not alternate between the two.
 _GAP_PX = 48.0
 _GAP_MIN_PAIRS = 4
-# Below this many holes the kernels run on one thread: starting threads costs more than it saves
-# (and on a busy machine a parallel region waits for its slowest thread).
-_PARALLEL_MIN_HOLES = 20000
+# Below this many holes the kernels run on one thread: starting threads costs more than it saves (on two
+# idle cores the crossover lay near 400 holes; 2,000 holes took 1.60 ms on one thread and 1.32 on two,
+# 9,200 holes 8.96 and 5.38 ms). On a busy machine a parallel region waits for its slowest thread, but there
+# the pipeline runs on the threads other processes leave free (pcdof.plans.threads_for_load): one, so one here.
+_PARALLEL_MIN_HOLES = 1000
 
 # Sweep directions (dx, dy) and the Bresenham half step checked between two knight steps.
 _DIRS = np.array([

@@ -91,7 +91,7 @@ class AheadKernel:
 
 
 def fingerprint() -> str:
-    """A hex digest of what the compiled module depends on: the source of every pcdof module holding
+    """A hex digest of what the compiled module depends on: the source of every pcdof module defining
     numba kernels, and the Python, numpy, numba and llvmlite versions and the machine's architecture."""
     import llvmlite
     import numba
@@ -102,7 +102,7 @@ def fingerprint() -> str:
         digest.update(part.encode() + b"\0")
     for path in sorted(_PACKAGE.rglob("*.py")):
         text = path.read_bytes()
-        if b"njit" in text:
+        if b"@njit" in text:  # the modules that define kernels (this one only names them)
             digest.update(path.relative_to(_PACKAGE).as_posix().encode() + b"\0" + text + b"\0")
     return digest.hexdigest()
 
@@ -199,8 +199,13 @@ def build(progress=None) -> Path | None:
     entries = [(m, name, d, sig) for m, name, d in _entry_kernels() for sig in d.nopython_signatures]
     t0 = time.perf_counter()
     say(f"  kernels ahead of time: compiling {len(entries)} ...")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=target.parent, prefix=".build-") as tmp:
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        folder = tempfile.TemporaryDirectory(dir=target.parent, prefix=".build-")
+    except OSError as err:
+        say(f"  kernels ahead of time: not built (cannot write {target.parent}: {err.strerror or err})")
+        return None
+    with folder as tmp:
         cc = CC(target.name.split(".")[0])
         cc.output_dir, cc.output_file, cc.verbose = tmp, target.name, False
         exports = []

@@ -148,8 +148,16 @@ def test_an_edited_kernel_source_is_never_served_old_code(built, numba_after, tm
     source.write_text(source.read_text() + "\n# edited\n")
     assert ahead.fingerprint() != before
     assert not ahead.available() and not ahead.activate() and not ahead.active()
-    source = package / "synth" / "render.py"  # a module with no kernel compiled in counts too: conservative
-    assert b"njit" in source.read_bytes()
+    edited = ahead.fingerprint()
+    # every module defining kernels counts, even one whose kernels are not compiled in (conservative) ...
+    source = package / "synth" / "render.py"
+    source.write_text(source.read_text() + "\n# edited\n")
+    assert ahead.fingerprint() != edited
+    # ... and a module defining none does not
+    edited = ahead.fingerprint()
+    source = package / "plans.py"
+    source.write_text(source.read_text() + "\n# edited\n")
+    assert ahead.fingerprint() == edited
 
 
 def test_versions_are_in_the_fingerprint(monkeypatch):
@@ -275,3 +283,12 @@ def test_pcdof_register_gives_numba_s_depth_either_way(built, tmp_path):
     ahead_depth, numba_depth = np.load(out["1"]), np.load(out["0"])
     assert (ahead_depth > 0).mean() > 0.9
     np.testing.assert_allclose(ahead_depth, numba_depth, rtol=1e-5, atol=1e-6)
+
+
+def test_an_unwritable_cache_folder_is_said_and_nothing_fails(tmp_path, monkeypatch):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("PCDOF_CACHE_DIR", str(blocker / "cache"))
+    lines = []
+    assert ahead.build(progress=lines.append) is None
+    assert any("not built (cannot write" in line for line in lines)

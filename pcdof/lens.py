@@ -234,14 +234,9 @@ class ThinLens:
         InputError
             *depth_m* is not a rectangular array of numbers.
         """
-        scale = self.aperture_m * _focal_px(fx)
-        z = _depth_array(depth_m)
-        if z.dtype not in (np.float32, np.float64):
-            z = z.astype(np.float64)
+        z, args = self._kernel_args(depth_m, fx)
         out = np.empty(z.shape, np.float32)
-        # float32 (the pipeline's depth) or float64 (everything else), read-only: two kernel types at most
-        _signed_coc(read_only(np.ascontiguousarray(z).reshape(-1)), scale, 1.0 / self.focus_distance_m,
-                    out.reshape(-1))
+        _signed_coc(*args, out.reshape(-1))
         return out
 
     def coc_maps_px(self, depth_m, fx: float) -> CocMaps:
@@ -250,17 +245,23 @@ class ThinLens:
 
         *depth_m* and *fx* as in :meth:`signed_coc_px`; returns a :class:`CocMaps` (shares of an empty map are 0).
         """
-        scale = self.aperture_m * _focal_px(fx)
-        z = _depth_array(depth_m)
-        if z.dtype not in (np.float32, np.float64):
-            z = z.astype(np.float64)
+        z, args = self._kernel_args(depth_m, fx)
         signed = np.empty(z.shape, np.float32)
         size = np.empty(z.shape, np.float32)
         if z.size == 0:
             return CocMaps(signed, size, 0.0, 0.0)
-        largest, n_out = _coc_maps(read_only(np.ascontiguousarray(z).reshape(-1)), scale, 1.0 / self.focus_distance_m,
-                                   signed.reshape(-1), size.reshape(-1))
+        largest, n_out = _coc_maps(*args, signed.reshape(-1), size.reshape(-1))
         return CocMaps(signed, size, float(largest), n_out / z.size)
+
+    def _kernel_args(self, depth_m, fx: float):
+        """(*depth_m* checked, the CoC kernels' leading arguments: the depth flat, scale and 1/focus).
+
+        The depth is float32 (the pipeline's) or float64 (everything else), read-only: two kernel types at most."""
+        scale = self.aperture_m * _focal_px(fx)
+        z = _depth_array(depth_m)
+        if z.dtype not in (np.float32, np.float64):
+            z = z.astype(np.float64)
+        return z, (read_only(np.ascontiguousarray(z).reshape(-1)), scale, 1.0 / self.focus_distance_m)
 
     def coc_px(self, depth_m, fx: float) -> np.ndarray:
         """Circle-of-confusion diameter c(z) = A*fx*|1/d_f - 1/z|, pixels (0 where depth is 0).

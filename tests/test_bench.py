@@ -309,6 +309,10 @@ def test_speed_part_reports_spread_threads_and_start_up(quick_report):
         lo, hi = row["ratio_quartiles"]
         assert 0 < lo <= row["ratio_paired"] <= hi
         assert row["pcdof_ms_quartiles"][0] <= row["pcdof_ms"] <= row["pcdof_ms_quartiles"][1]
+        # the target's own baseline (cv2.registerDepth, no fill), measured in the same alternation
+        lo, hi = row["ratio_cv2_quartiles"]
+        assert 0 < lo <= row["ratio_cv2_paired"] <= hi
+        assert row["paper_cv2_ms_quartiles"][0] <= row["paper_cv2_ms"] <= row["paper_cv2_ms_quartiles"][1]
     threads = report["threads"]
     assert threads[0]["threads"] == 1 and threads[0]["speedup"] == 1.0
     assert [r["threads"] for r in threads] == sorted({r["threads"] for r in threads})
@@ -321,6 +325,7 @@ def test_speed_part_reports_spread_threads_and_start_up(quick_report):
         assert "numba's cached kernels (PCDOF_AHEAD=0)" in (out / "report.md").read_text()
     md = (out / "report.md").read_text()
     assert "speed-up over 1 thread" in md and "python -c 'import pcdof'" in md
+    assert "paper method on cv2.registerDepth depth, no fill" in md
 
 
 def test_quartiles():
@@ -329,3 +334,22 @@ def test_quartiles():
     assert quartiles([5.0]) == [5.0, 5.0]
     assert quartiles([1, 2, 3, 4, 5]) == [2.0, 4.0]
     assert quartiles([4, 1, 3, 2]) == [1.75, 3.25]
+
+
+def test_paper_on_opencv_depth_is_the_paper_method_on_cv2_registered_depth():
+    """The speed target's baseline: the paper renderer fed cv2.registerDepth's depth (holes kept), nothing else."""
+    import numpy as np
+
+    from pcdof.bench.registration import register_cv2
+    from pcdof.bench.speed import paper_on_opencv_depth
+    from pcdof.lens import PaperLens
+    from pcdof.renderer import render_paper
+    from pcdof.synth import generate_scene
+
+    sf = generate_scene("portrait", color_size=(96, 72), depth_size=(64, 53), seed=1)
+    lens = PaperLens(focus_distance_m=sf.default_lens.focus_distance_m, blur_sigma_px=2.0)
+    depth = register_cv2(sf.frame.depth_m, sf.rig)
+    assert (depth == 0).any()  # a point splat leaves holes, and the baseline does not fill them
+    expected, _ = render_paper(sf.frame.color, depth, lens, fx=sf.rig.color.fx, max_range_m=sf.rig.max_range_m)
+    got = paper_on_opencv_depth(sf.frame, lens)
+    assert got.dtype == sf.frame.color.dtype and np.array_equal(got, expected)

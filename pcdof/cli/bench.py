@@ -218,6 +218,11 @@ def _speed_lines(rows, scaling, start) -> list[str]:
           q(r["pcdof_ms_quartiles"]), f"{r['paper_ms']:.1f} ({_stage_sum(r['paper_stages_ms'], PAPER_STAGES)})",
           q(r["paper_ms_quartiles"]), f"{r['ratio_paired']:.2f} ({q(r['ratio_quartiles'], '{:.2f}')})",
           f"{r['paper_stages_ms'].get('render', 0):.1f}") for r in rows))
+    lines += ["", *table_lines(
+        ("colour", "pcdof ms", "paper method on cv2.registerDepth depth, no fill, ms", "quartiles",
+         "ratio (per repeat: median, quartiles)"),
+        ((r["color_size"], f"{r['pcdof_ms']:.1f}", f"{r['paper_cv2_ms']:.1f}", q(r["paper_cv2_ms_quartiles"]),
+          f"{r['ratio_cv2_paired']:.2f} ({q(r['ratio_cv2_quartiles'], '{:.2f}')})") for r in rows))]
     lines += ["", *table_lines(("threads", "colour", "pipeline ms", "quartiles", "speed-up over 1 thread"), (
         (str(r["threads"]), r["color_size"], f"{r['ms']:.1f}", q(r["ms_quartiles"]), f"{r['speedup']:.2f}")
         for r in scaling))]

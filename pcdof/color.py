@@ -61,67 +61,80 @@ def decode_to_linear(image: np.ndarray) -> np.ndarray:
     return srgb_to_linear(to_float(image))
 
 
-#: bins of the uint8 encoder's lookup: finer than the smallest linear step between two codes (~3e-4)
-_ENCODE_BINS = 8192
+#: The uint8 encoder's lookup is indexed by the top 16 bits of a float32 value (sign, exponent and 7 bits of
+#: mantissa): buckets of relative width 2^-7, narrower than the linear-light step between two codes anywhere in
+#: (0, 1) (at least 0.6 % of the value), so at most one code boundary falls inside a bucket.
+_ENCODE_SHIFT = 16
 _ENCODE8 = None
 
 
-def _encode8_tables() -> tuple[np.ndarray, np.ndarray]:
-    """(threshold, code at bin start) for uint8 sRGB encoding.
+def _code_thresholds() -> np.ndarray:
+    """(255,) float32: threshold[k - 1] is the smallest float32 linear value that :func:`linear_to_srgb` +
+    rounding maps to code k or above (k = 1..255), found by bisection on float32 values, so a table built on
+    them reproduces the reference arithmetic exactly."""
+    def code(x):
+        return np.clip(np.rint(linear_to_srgb(x) * 255), 0, 255).astype(np.int64)
 
-    threshold[k] is the smallest float32 linear value that :func:`linear_to_srgb` + rounding maps to
-    code k or above (k = 1..255; threshold[0] = -inf, threshold[256] = inf), found by bisection on
-    float32 values, so the table reproduces the reference arithmetic exactly.
-    """
+    lo = np.zeros(255, np.float32)
+    hi = np.ones(255, np.float32)
+    target = np.arange(1, 256)
+    for _ in range(40):  # bisection on float32 values: converges to adjacent floats
+        mid = ((lo.astype(np.float64) + hi) / 2).astype(np.float32)
+        up = code(mid) >= target
+        hi = np.where(up, mid, hi)
+        lo = np.where(up, lo, mid)
+    for _ in range(4):  # step hi down while the float just below still reaches the code
+        below = np.nextafter(hi, np.float32(0))
+        hi = np.where(code(below) >= target, below, hi)
+    return hi
+
+
+def _encode8_tables() -> tuple[np.ndarray, np.ndarray]:
+    """(code at bucket start (B,) int32, the bucket's code boundary (B,) float32 or inf) for uint8 sRGB encoding,
+    one entry per bucket of float32 values in [0, 1) sharing their top :data:`_ENCODE_SHIFT` bits: the code of
+    x in bucket b is ``base[b] + (x >= boundary[b])`` (:func:`_code_thresholds`)."""
     global _ENCODE8
     if _ENCODE8 is None:
-        def code(x):
-            return np.clip(np.rint(linear_to_srgb(x) * 255), 0, 255).astype(np.int64)
-
-        lo = np.zeros(255, np.float32)
-        hi = np.ones(255, np.float32)
-        target = np.arange(1, 256)
-        for _ in range(40):  # bisection on float32 values: converges to adjacent floats
-            mid = ((lo.astype(np.float64) + hi) / 2).astype(np.float32)
-            up = code(mid) >= target
-            hi = np.where(up, mid, hi)
-            lo = np.where(up, lo, mid)
-        for _ in range(4):  # step hi down while the float just below still reaches the code
-            below = np.nextafter(hi, np.float32(0))
-            hi = np.where(code(below) >= target, below, hi)
-        thresholds = np.concatenate([[-np.inf], hi.astype(np.float64), [np.inf]])
-        starts = code((np.arange(_ENCODE_BINS + 1) / _ENCODE_BINS).astype(np.float32)).astype(np.int32)
-        _ENCODE8 = (thresholds, starts)
+        thresholds = _code_thresholds()
+        n = int(np.float32(1.0).view(np.uint32)) >> _ENCODE_SHIFT  # buckets below 1.0
+        first = (np.arange(n + 1, dtype=np.uint32) << _ENCODE_SHIFT).view(np.float32)  # each bucket's first value
+        base = np.searchsorted(thresholds, first[:-1], side="right").astype(np.int32)
+        inside = np.searchsorted(thresholds, first[1:], side="left") - base  # boundaries in (first, next first)
+        if inside.max() > 1:  # the bucket width's premise (see _ENCODE_SHIFT) is wrong
+            raise AssertionError("uint8 encoder: a bucket holds two code boundaries")
+        boundary = np.full(n, np.inf, np.float32)
+        boundary[inside == 1] = thresholds[base[inside == 1]]
+        _ENCODE8 = (base, boundary)
     return _ENCODE8
 
 
 @njit(parallel=True, cache=True)
-def _encode8(flat, thresholds, starts, out):
-    n_bins = starts.size - 1
+def _encode8(flat, bits, base, boundary, out):
+    """uint8 codes of the float32 linear values *flat* (N,) (*bits*: the same memory as uint32) into *out* (N,)."""
+    n_buckets = base.size
     for i in prange(flat.size):
         x = flat[i]
         if not x > 0.0:  # also NaN
             out[i] = 0
             continue
-        if x >= 1.0:
+        b = bits[i] >> _ENCODE_SHIFT
+        if b >= n_buckets:  # 1.0 and above (inf included)
             out[i] = 255
             continue
-        c = starts[int(x * n_bins)]
-        while c < 255 and x >= thresholds[c + 1]:
-            c += 1
-        out[i] = c
+        out[i] = base[b] + (1 if x >= boundary[b] else 0)
 
 
 def encode_from_linear(linear: np.ndarray, dtype: np.dtype) -> np.ndarray:
     """float32 linear light -> sRGB-encoded image of *dtype* (values above 1 clip, as on a sensor).
 
-    uint8 goes through a threshold table that reproduces the float32 formula exactly, several times
-    faster than evaluating the power law per pixel.
+    uint8 goes through a table of code boundaries indexed by the value's top bits (:func:`_encode8_tables`),
+    which reproduces the float32 formula exactly, several times faster than evaluating the power law per pixel.
     """
     if np.dtype(dtype) == np.uint8:
         lin = np.ascontiguousarray(linear, np.float32)
         out = np.empty(lin.shape, np.uint8)
-        _encode8(read_only(lin.reshape(-1)), *_encode8_tables(), out.reshape(-1))  # one kernel type
+        flat = read_only(lin.reshape(-1))
+        _encode8(flat, flat.view(np.uint32), *_encode8_tables(), out.reshape(-1))  # one kernel type
         return out
     enc = linear_to_srgb(np.clip(linear, 0.0, None))
     if np.dtype(dtype).kind != "f":

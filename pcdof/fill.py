@@ -163,61 +163,105 @@ def needs_fill(depth_m) -> tuple[bool, str]:
 # less time but make the fill 5-10 % slower.
 
 
+#: What :func:`_index`'s code map holds at a hole, and at a known pixel with no hole among its 8 neighbours
+#: (at a boundary pixel: its number, >= 0).
+HOLE, INSIDE = -2, -1
+
+
+@njit(cache=True, inline="always")
+def _with_room(a, n, more):
+    """*a* if it has room for *more* values after its first *n*, else a copy of those in a larger array."""
+    if a.shape[0] - n >= more:
+        return a
+    b = np.empty(max(2 * a.shape[0], n + more), dtype=a.dtype)
+    b[:n] = a[:n]
+    return b
+
+
+@njit(cache=True, nogil=True)
+def _index_holes(depth, y, near, hole_y, hole_x, n_holes, zmin, zmax):
+    """Row *y* of :func:`_index`: its holes appended from *n_holes* on, their neighbours marked in *near*,
+    and the range of its known depths joined to [zmin, zmax]. Returns n_holes, zmin, zmax."""
+    W = depth.shape[1]
+    above = near[(y + 2) % 3]
+    here = near[y % 3]
+    below = near[(y + 1) % 3]
+    below[:] = 0
+    for x in range(W):
+        z = depth[y, x]
+        if z > 0.0:
+            zmin = min(zmin, z)
+            zmax = max(zmax, z)
+            continue
+        hole_y[n_holes] = y
+        hole_x[n_holes] = x
+        n_holes += 1
+        for u in range(x, x + 3):
+            above[u] = 1
+            here[u] = 1
+            below[u] = 1
+    return n_holes, zmin, zmax
+
+
+@njit(cache=True, nogil=True)
+def _index_boundary(depth, y, near, code, b_y, b_x, n_b):
+    """Row *y* of :func:`_index`'s code map, once the holes of rows y - 1 to y + 1 are marked in *near*; its
+    boundary pixels appended from *n_b* on. Returns n_b."""
+    W = depth.shape[1]
+    marks = near[y % 3]
+    for x in range(W):
+        if not depth[y, x] > 0.0:
+            code[y, x] = HOLE
+        elif marks[x + 1]:
+            code[y, x] = n_b
+            b_y[n_b] = y
+            b_x[n_b] = x
+            n_b += 1
+        else:
+            code[y, x] = INSIDE
+    return n_b
+
+
 @njit(cache=True, nogil=True)
 def _index(depth):
-    """Number the holes and the boundary (known pixels 8-adjacent to a hole) in raster order.
+    """Number the holes and the boundary (known pixels 8-adjacent to a hole) in raster order, in one pass.
 
-    Returns hole_id and label, (H, W) int32 (-1 elsewhere); the (y, x) of each hole and each
-    boundary pixel; row_start, (H + 1,) int64: the holes of row y are row_start[y]:row_start[y + 1];
-    and the smallest and largest known depth.
+    Returns code, (H, W) int32: ``HOLE`` at holes, the boundary pixel's number at boundary pixels and
+    ``INSIDE`` at the other known pixels; the (y, x) of each hole and each boundary pixel; row_start,
+    (H + 1,) int64: the holes of row y are row_start[y]:row_start[y + 1]; and the smallest and largest
+    known depth. A row's boundary pixels are numbered once the next row's holes are found (near, a ring of
+    three rows, says which known pixels have a hole among their neighbours).
     """
     H, W = depth.shape
-    hole_id = np.empty((H, W), dtype=np.int32)
-    label = np.full((H, W), -1, dtype=np.int32)
+    code = np.empty((H, W), dtype=np.int32)
     row_start = np.empty(H + 1, dtype=np.int64)
+    near = np.zeros((3, W + 2), dtype=np.uint8)  # rows y - 1, y, y + 1 at y % 3; column x at x + 1
+    cap = max(W, H * W // 64)
+    hole_y = np.empty(cap, dtype=np.int64)
+    hole_x = np.empty(cap, dtype=np.int64)
+    b_y = np.empty(cap, dtype=np.int64)
+    b_x = np.empty(cap, dtype=np.int64)
     n_holes = 0
     n_b = 0
     zmin = np.inf
     zmax = -np.inf
-    for y in range(H):
-        row_start[y] = n_holes
-        for x in range(W):
-            z = depth[y, x]
-            if z > 0.0:
-                hole_id[y, x] = -1
-                zmin = min(zmin, z)
-                zmax = max(zmax, z)
-                continue
-            hole_id[y, x] = n_holes
-            n_holes += 1
-            for v in range(max(y - 1, 0), min(y + 2, H)):
-                for u in range(max(x - 1, 0), min(x + 2, W)):
-                    if depth[v, u] > 0.0 and label[v, u] < 0:
-                        label[v, u] = 0
-                        n_b += 1
+    for y in range(H + 1):
+        if y < H:
+            row_start[y] = n_holes
+            hole_y = _with_room(hole_y, n_holes, W)
+            hole_x = _with_room(hole_x, n_holes, W)
+            n_holes, zmin, zmax = _index_holes(depth, y, near, hole_y, hole_x, n_holes, zmin, zmax)
+        if y > 0:  # row y - 1 has the holes of all its neighbours marked
+            b_y = _with_room(b_y, n_b, W)
+            b_x = _with_room(b_x, n_b, W)
+            n_b = _index_boundary(depth, y - 1, near, code, b_y, b_x, n_b)
     row_start[H] = n_holes
-    hole_y = np.empty(n_holes, dtype=np.int64)
-    hole_x = np.empty(n_holes, dtype=np.int64)
-    b_y = np.empty(n_b, dtype=np.int64)
-    b_x = np.empty(n_b, dtype=np.int64)
-    i = 0
-    j = 0
-    for y in range(H):
-        for x in range(W):
-            if hole_id[y, x] >= 0:
-                hole_y[i] = y
-                hole_x[i] = x
-                i += 1
-            elif label[y, x] == 0:
-                label[y, x] = j
-                b_y[j] = y
-                b_x[j] = x
-                j += 1
-    return hole_id, label, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax
+    return code, hole_y[:n_holes].copy(), hole_x[:n_holes].copy(), b_y[:n_b].copy(), b_x[:n_b].copy(), row_start, \
+        zmin, zmax
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _sweep(hole_id, label, hole_x, row_start, dirs, halves):
+def _sweep(code, hole_x, row_start, dirs, halves):
     """Per direction k and hole h: label of the nearest known pixel along dirs[k] (-1: none).
 
     nearest(p) = p if p is known, else the half step if that is known, else nearest(p + step):
@@ -225,7 +269,7 @@ def _sweep(hole_id, label, hole_x, row_start, dirs, halves):
     known p + step is its own answer). The path is 8-connected, so the pixel found is always
     next to a hole, i.e. on the boundary. Cost: O(directions x holes).
     """
-    H, W = hole_id.shape
+    H, W = code.shape
     K = dirs.shape[0]
     n_holes = hole_x.shape[0]
     cand = np.empty((K, n_holes), dtype=np.int32)
@@ -249,7 +293,7 @@ def _sweep(hole_id, label, hole_x, row_start, dirs, halves):
                     if xn == prev_x:
                         v = prev
                     elif 0 <= xn < W:
-                        v = label[y, xn]
+                        v = max(code[y, xn], -1)
                     else:
                         v = -1
                     cand[k, h] = v
@@ -272,12 +316,13 @@ def _sweep(hole_id, label, hole_x, row_start, dirs, halves):
                     v = -1
                     if has_half:
                         xh = x + hx
-                        if 0 <= xh < W and 0 <= yh < H and hole_id[yh, xh] < 0:
-                            v = label[yh, xh]
+                        if 0 <= xh < W and 0 <= yh < H and code[yh, xh] != HOLE:
+                            v = code[yh, xh]
                     if v < 0:
                         xn = x + dx
                         if ny_ok and 0 <= xn < W:
-                            v = label[yn, xn] if hole_id[yn, xn] < 0 else nrow[xn]
+                            c = code[yn, xn]
+                            v = c if c != HOLE else nrow[xn]
                     row[x] = v
                     cand[k, h] = v
                 y += ys
@@ -469,61 +514,112 @@ def _support_bound(r, order, start, end, support_px):
 
 
 @njit(cache=True, inline="always")
-def _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, z, order):
+def _surface_end(z, start, m, edge_ratio):
+    """End of the surface that starts at *start* among the depths ``z[:m]``, sorted far to near (step 2)."""
+    end = start + 1
+    while end < m and z[end - 1] - z[end] <= edge_ratio * z[end - 1]:
+        end += 1
+    return end
+
+
+@njit(cache=True, inline="always")
+def _interpolate(iv, r, order, start, end):
+    """1/z of the surface order[start:end] at the hole: inverse-distance weights 1/r on 1/z (step 4)."""
+    sw = 0.0
+    swi = 0.0
+    for i in range(start, end):
+        j = order[i]
+        sw += 1.0 / r[j]
+        swi += iv[j] / r[j]
+    return swi / sw
+
+
+@njit(cache=True, inline="always")
+def _color_score(depth, color, bnd, dirs, rules, c0, c1, c2, r, kq, qs, order, start, end, enough):
+    """Colour support of the surface order[start:end] (step 3), summed in that order; the sum stops once it
+    reaches *enough* (every term is >= 0, so a partial sum is a lower bound of the whole)."""
+    score = 0.0
+    i = start
+    while i < end and not score >= enough:
+        j = order[i]
+        k = kq[j]
+        ux = rules.step if dirs[k, 0] > 0 else (-rules.step if dirs[k, 0] < 0 else 0)
+        uy = rules.step if dirs[k, 1] > 0 else (-rules.step if dirs[k, 1] < 0 else 0)
+        sim = _color_sim(color, depth, c0, c1, c2, bnd.y[qs[j]], bnd.x[qs[j]], uy, ux, rules.n_samples,
+                         rules.inv_two_sigma2)
+        score += sim / (r[j] + rules.support_px)
+        i += 1
+    return score
+
+
+@njit(cache=True, inline="always")
+def _sort_far_to_near(iv, m, zu, z, order):
+    """z = 1 / iv[:m] sorted far to near, and order: their indices (a stable sort: equal depths keep their order).
+
+    Each candidate's rank is counted (those farther, and those as far before it): no branch depends on the
+    depths, which an insertion sort's do at every step.
+    """
+    for j in range(m):
+        zu[j] = 1.0 / iv[j]
+    for j in range(m):
+        zj = zu[j]
+        rank = 0
+        for i in range(m):
+            zi = zu[i]
+            rank += (zi > zj) | ((zi == zj) & (i < j))
+        z[rank] = zj
+        order[rank] = j
+
+
+@njit(cache=True, inline="always")
+def _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, zu, z, order, ends, bounds):
     """(1/z, kind) of a hole whose candidates span several surfaces (steps 2-4)."""
-    for j in range(m):  # sort far to near (insertion sort: at most 16 candidates)
-        zq = 1.0 / iv[j]
-        i = j
-        while i > 0 and z[i - 1] < zq:
-            z[i] = z[i - 1]
-            order[i] = order[i - 1]
-            i -= 1
-        z[i] = zq
-        order[i] = j
-    end0 = 1
-    while end0 < m and z[end0 - 1] - z[end0] <= rules.edge_ratio * z[end0 - 1]:
-        end0 += 1
+    _sort_far_to_near(iv, m, zu, z, order)
+    end0 = _surface_end(z, 0, m, rules.edge_ratio)
     # in a narrow gap the foreground around it needs bias**2 times the support (not bias times) of
     # the surface behind: a gap whose colour is ambiguous takes that surface throughout, not per pixel
     kind = GAP if rules.use_color and _gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
+    if not rules.use_color:
+        return _interpolate(iv, r, order, 0, end0), kind  # the farthest surface
     bias = rules.bias * rules.bias if kind == GAP else rules.bias
-    c0 = float(color[py, px, 0]) if rules.use_color else 0.0
-    c1 = float(color[py, px, 1]) if rules.use_color else 0.0
-    c2 = float(color[py, px, 2]) if rules.use_color else 0.0
-    best_score = -1.0
-    best_inv = 0.0
-    start = 0
-    while start < m:  # surfaces from far to near; the best-supported one gives the depth
-        end = start + 1
-        while end < m and z[end - 1] - z[end] <= rules.edge_ratio * z[end - 1]:
-            end += 1
-        if rules.use_color and start > 0 and \
-                _support_bound(r, order, start, end, rules.support_px) / bias <= best_score:
-            start = end  # cannot score more than the best so far, whatever its colours: not sampled
-            continue
-        score = 0.0
-        sw = 0.0
-        swi = 0.0
-        for i in range(start, end):
-            j = order[i]
-            if rules.use_color:
-                k = kq[j]
-                ux = rules.step if dirs[k, 0] > 0 else (-rules.step if dirs[k, 0] < 0 else 0)
-                uy = rules.step if dirs[k, 1] > 0 else (-rules.step if dirs[k, 1] < 0 else 0)
-                sim = _color_sim(color, depth, c0, c1, c2, bnd.y[qs[j]], bnd.x[qs[j]], uy, ux, rules.n_samples,
-                                 rules.inv_two_sigma2)
-                score += sim / (r[j] + rules.support_px)
-            sw += 1.0 / r[j]
-            swi += iv[j] / r[j]
-        if start > 0:
-            score /= bias
-        if score > best_score:
-            best_score = score
-            best_inv = swi / sw
-        if not rules.use_color:
-            break  # the farthest surface
+    # the nearer surfaces and the most each can score (every colour similarity 1), divided by the bias
+    n_near = 0
+    near_max = -np.inf
+    start = end0
+    while start < m:
+        end = _surface_end(z, start, m, rules.edge_ratio)
+        ends[n_near] = end
+        bounds[n_near] = _support_bound(r, order, start, end, rules.support_px) / bias
+        near_max = max(near_max, bounds[n_near])
+        n_near += 1
         start = end
-    return best_inv, kind
+    c0 = float(color[py, px, 0])
+    c1 = float(color[py, px, 1])
+    c2 = float(color[py, px, 2])
+    # the farthest surface wins as soon as its support reaches what any nearer one can score: its
+    # similarities are then not all needed (with an infinite 1 / 2 sigma^2 a similarity can be NaN: all are)
+    score = _color_score(depth, color, bnd, dirs, rules, c0, c1, c2, r, kq, qs, order, 0, end0,
+                         near_max if rules.inv_two_sigma2 < np.inf else np.inf)
+    if score >= near_max:
+        return _interpolate(iv, r, order, 0, end0), kind
+    best_score = -1.0
+    best_start = 0
+    best_end = 0
+    if score > best_score:
+        best_score = score
+        best_end = end0
+    start = end0
+    for s in range(n_near):  # the nearer surfaces, far to near; the best-supported one gives the depth
+        end = ends[s]
+        if bounds[s] > best_score:  # else it cannot score more than the best so far: not sampled
+            score = _color_score(depth, color, bnd, dirs, rules, c0, c1, c2, r, kq, qs, order, start, end,
+                                 np.inf) / bias
+            if score > best_score:
+                best_score = score
+                best_start = start
+                best_end = end
+        start = end
+    return (_interpolate(iv, r, order, best_start, best_end) if best_end > 0 else 0.0), kind
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -539,8 +635,11 @@ def _combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
         kq = np.empty(K, dtype=np.int64)
         qs = np.empty(K, dtype=np.int64)
         slot = np.empty(K, dtype=np.int64)  # per direction: its slot, -1 for none
+        zu = np.empty(K)  # per candidate slot: z
         z = np.empty(K)  # z and slot, sorted far to near
         order = np.empty(K, dtype=np.int64)
+        ends = np.empty(K, dtype=np.int64)  # per nearer surface: its end in order, and its bound
+        bounds = np.empty(K)
         for h in range(c * n // n_chunks, (c + 1) * n // n_chunks):
             py = holes.y[h]
             px = holes.x[h]
@@ -573,7 +672,7 @@ def _combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
                     kind[h] = SURFACE
                 else:
                     inv, kind[h] = _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot,
-                                                   z, order)
+                                                   zu, z, order, ends, bounds)
             if kind[h] != LOST:
                 # zmin, zmax are float32 values: clamping before the cast keeps the result inside them
                 out[py, px] = np.float32(min(max(1.0 / inv, rules.zmin), rules.zmax))
@@ -590,6 +689,22 @@ def _insert_sorted(win, m, value):
     return m + 1
 
 
+@njit(cache=True, inline="always")
+def _alike_neighbour(out, y, x, v, edge_ratio):
+    """Whether one of the (up to 8) neighbours of (y, x) lies within *edge_ratio* (relative) of its depth *v*."""
+    H, W = out.shape
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            yy = y + dy
+            xx = x + dx
+            if (dy == 0 and dx == 0) or not (0 <= yy < H and 0 <= xx < W):
+                continue
+            u = float(out[yy, xx])
+            if max(u, v) <= (1.0 + edge_ratio) * min(u, v):
+                return True
+    return False
+
+
 @njit(cache=True, parallel=True, nogil=True)
 def _despeckle(out, hole_y, hole_x, edge_ratio):
     """Replace each hole whose depth differs from all of its 8 neighbours by more than *edge_ratio*
@@ -603,18 +718,17 @@ def _despeckle(out, hole_y, hole_x, edge_ratio):
             y = hole_y[h]
             x = hole_x[h]
             v = float(out[y, x])
+            if _alike_neighbour(out, y, x, v, edge_ratio):
+                continue
             m = 0
-            alike = False
             for dy in range(-1, 2):
                 for dx in range(-1, 2):
                     yy = y + dy
                     xx = x + dx
                     if (dy == 0 and dx == 0) or not (0 <= yy < H and 0 <= xx < W):
                         continue
-                    u = float(out[yy, xx])
-                    alike = alike or max(u, v) <= (1.0 + edge_ratio) * min(u, v)
-                    m = _insert_sorted(win, m, u)
-            if m > 0 and not alike:
+                    m = _insert_sorted(win, m, float(out[yy, xx]))
+            if m > 0:
                 new[h] = win[(m - 1) // 2]
     for h in range(n):
         if new[h] >= 0.0:
@@ -799,10 +913,10 @@ def _rules(shape, *, use_color, unit, edge_ratio, sigma_color, background_bias, 
 def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, background_bias):
     """Filled depth and each hole's kind (``SURFACE``, ``BORDER``, ``GAP``, ``LOST``), by hole index."""
     depth, guide = read_only(depth), read_only(guide)  # one kernel type whatever the caller's flags
-    hole_id, label, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = _index(depth)
+    code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = _index(depth)
     rules = _rules(depth.shape, use_color=use_color, unit=unit, edge_ratio=edge_ratio, sigma_color=sigma_color,
                    background_bias=background_bias, zmin=zmin, zmax=zmax)
-    holes = _Holes(hole_y, hole_x, _sweep(hole_id, label, hole_x, row_start, _DIRS, _HALF))
+    holes = _Holes(hole_y, hole_x, _sweep(code, hole_x, row_start, _DIRS, _HALF))
     bnd = _Boundary(b_y, b_x, np.empty((b_y.size, 3), np.float64))
     _fit_boundary(depth, b_y, b_x, _FIT_RADIUS_STEPS * rules.step, rules.step, edge_ratio, bnd.plane)
     out = depth.copy()

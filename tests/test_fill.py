@@ -11,6 +11,8 @@ from pcdof.fill import (
     _DIRS,
     _HALF,
     FILL_METHODS,
+    HOLE,
+    INSIDE,
     _index,
     _sweep,
     fill_depth,
@@ -216,10 +218,19 @@ def test_sweep_matches_brute_force(seed, density):
     depth = np.where(rng.random((13, 19)) < density, 1.0, 0.0).astype(np.float32)
     if depth.all():
         depth[0, 0] = 0
-    hole_id, label, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = _index(depth)
+    code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = _index(depth)
     assert zmin == zmax == 1.0 and np.array_equal(np.diff(row_start), (depth == 0).sum(axis=1))
-    cand = _sweep(hole_id, label, hole_x, row_start, _DIRS, _HALF)
     known = depth > 0
+    assert np.array_equal(np.nonzero(~known), (hole_y, hole_x))
+    # the boundary: known pixels with a hole among their 8 neighbours, numbered in raster order
+    near = np.pad(~known, 1)
+    near = np.any([near[1 + dy: 1 + dy + known.shape[0], 1 + dx: 1 + dx + known.shape[1]]
+                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
+    assert np.array_equal(np.nonzero(known & near), (b_y, b_x))
+    expect = np.where(known, HOLE + 1, HOLE)
+    expect[b_y, b_x] = np.arange(b_y.size)
+    assert HOLE + 1 == INSIDE and np.array_equal(code, expect)
+    cand = _sweep(code, hole_x, row_start, _DIRS, _HALF)
     for h in range(hole_y.size):
         for k in range(len(_DIRS)):
             expect = brute_force_candidate(known, int(hole_y[h]), int(hole_x[h]), k)

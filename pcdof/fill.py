@@ -123,13 +123,19 @@ _HALF = np.array([
 ], dtype=np.int64)
 
 
-def _count_holes(depth_m) -> tuple[np.ndarray, int]:
-    """*depth_m* as an array, checked (2-D, numeric), and its number of unknown pixels (0, NaN, inf, negative)."""
+def _checked_depth(depth_m) -> np.ndarray:
+    """*depth_m* as an array, checked (2-D, numeric)."""
     arr = np.asarray(depth_m)
     if arr.ndim != 2:
         raise InputError(f"depth_m must be a 2-D (H, W) array; got shape {arr.shape}")
     if arr.dtype.kind not in "fiub":
         raise InputError(f"depth_m must be numeric; got dtype {arr.dtype}")
+    return arr
+
+
+def _count_holes(depth_m) -> tuple[np.ndarray, int]:
+    """*depth_m* as an array, checked (2-D, numeric), and its number of unknown pixels (0, NaN, inf, negative)."""
+    arr = _checked_depth(depth_m)
     if arr.dtype.kind == "f":
         # known: 0 < z < inf (NaN compares false), two comparisons and no temporary of isfinite
         return arr, int(arr.size - np.count_nonzero((arr > 0) & (arr < np.inf)))
@@ -790,21 +796,44 @@ def _number(name, value, *, minimum, inclusive=False):
     return v
 
 
+@njit(cache=True, nogil=True)
+def _depth_copies(depth_m, depth, out):
+    """*depth* and *out*: float32 *depth_m* with NaN, inf and negative values as 0 (as
+    :func:`pcdof.camera.as_depth_m` converts it), in one pass; returns the number of holes (not > 0)."""
+    H, W = depth_m.shape
+    holes = 0
+    for y in range(H):
+        for x in range(W):
+            z = depth_m[y, x]
+            if not (z >= 0.0 and z < np.inf):
+                z = np.float32(0.0)
+            depth[y, x] = z
+            out[y, x] = z
+            holes += not z > 0.0
+    return holes
+
+
 def _prepare(depth_m, color, *, need_color):
-    """Validated float32 depth and colour, the known mask, and the finished answer when there is no work."""
-    depth, _ = as_depth_m(depth_m, name="depth_m")
-    if depth.size == 0:
-        raise InputError(f"depth_m must not be empty; got shape {depth.shape}")
+    """Validated float32 depth and colour, the number of holes, the finished answer when there is no work,
+    and a copy of the depth for the kernels to fill (None where the depth came converted from another type)."""
+    arr = depth_m
+    if type(arr) is np.ndarray and arr.dtype == np.float32 and arr.ndim == 2 and arr.size and arr.flags.c_contiguous:
+        depth, out = np.empty(arr.shape, np.float32), np.empty(arr.shape, np.float32)
+        holes = _depth_copies(read_only(arr), depth, out)  # as as_depth_m below, in one pass and twice
+    else:
+        depth, _ = as_depth_m(depth_m, name="depth_m")
+        if depth.size == 0:
+            raise InputError(f"depth_m must not be empty; got shape {depth.shape}")
+        holes, out = int(depth.size - np.count_nonzero(depth > 0)), None
     if color is not None or need_color:
         if color is None:
             raise InputError("color must be an (H, W, 3) RGB or (H, W) grey image; got None")
         color = check_color(color, depth.shape, name="color")
-    known = depth > 0
-    if known.all():
-        return depth, color, known, depth
-    if not known.any():
+    if holes == 0:
+        return depth, color, holes, depth, out
+    if holes == depth.size:
         raise InputError("depth_m has no known pixels: there is nothing to fill the holes from")
-    return depth, color, known, None
+    return depth, color, holes, None, out
 
 
 def _color_for_kernel(color) -> tuple[np.ndarray, float]:
@@ -887,6 +916,15 @@ def plan_fill(depth_m, *, parallel: bool | None = None) -> FillPlan:
     return FillPlan(holes, numba.get_num_threads() if parallel else 1, reason)
 
 
+def _planned_threads(depth_m, parallel) -> int:
+    """``plan_fill(depth_m, parallel=parallel).threads``, with the same checks; the holes are counted only
+    where *parallel* is None (they choose)."""
+    if parallel is None or not isinstance(parallel, (bool, np.bool_)):
+        return plan_fill(depth_m, parallel=parallel).threads
+    _checked_depth(depth_m)
+    return numba.get_num_threads() if parallel else 1
+
+
 @contextlib.contextmanager
 def _threads(n: int):
     """Run numba's parallel kernels on *n* threads inside the block (numba's setting is per thread)."""
@@ -910,8 +948,9 @@ def _rules(shape, *, use_color, unit, edge_ratio, sigma_color, background_bias, 
     )
 
 
-def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, background_bias):
-    """Filled depth and each hole's kind (``SURFACE``, ``BORDER``, ``GAP``, ``LOST``), by hole index."""
+def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, background_bias, out=None):
+    """Filled depth and each hole's kind (``SURFACE``, ``BORDER``, ``GAP``, ``LOST``), by hole index; *out*: a
+    copy of *depth* to fill (made here when None)."""
     depth, guide = read_only(depth), read_only(guide)  # one kernel type whatever the caller's flags
     code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = _index(depth)
     rules = _rules(depth.shape, use_color=use_color, unit=unit, edge_ratio=edge_ratio, sigma_color=sigma_color,
@@ -919,7 +958,7 @@ def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, bac
     holes = _Holes(hole_y, hole_x, _sweep(code, hole_x, row_start, _DIRS, _HALF))
     bnd = _Boundary(b_y, b_x, np.empty((b_y.size, 3), np.float64))
     _fit_boundary(depth, b_y, b_x, _FIT_RADIUS_STEPS * rules.step, rules.step, edge_ratio, bnd.plane)
-    out = depth.copy()
+    out = depth.copy() if out is None else out
     r_near = np.empty(hole_y.size, dtype=np.float64)
     kind = np.empty(hole_y.size, dtype=np.int8)
     _combine(depth, guide, holes, bnd, _DIRS, rules, out, r_near, kind)
@@ -942,14 +981,14 @@ def _fill_directional(depth_m, color, *, use_color, edge_ratio, sigma_color, bac
     edge_ratio = _number("edge_ratio", edge_ratio, minimum=0.0)
     sigma_color = _number("sigma_color", sigma_color, minimum=0.0)
     background_bias = _number("background_bias", background_bias, minimum=1.0, inclusive=True)
-    plan = plan_fill(depth_m, parallel=parallel)
-    depth, color, _, done = _prepare(depth_m, color, need_color=use_color)
+    threads = _planned_threads(depth_m, parallel)
+    depth, color, _, done, out = _prepare(depth_m, color, need_color=use_color)
     if done is not None:
         return (done, np.empty(0, np.int8)) if with_kinds else done
     guide, unit = _color_for_kernel(color) if use_color else (np.zeros((1, 1, 3), np.uint8), 1.0)
-    with _threads(plan.threads):
+    with _threads(threads):
         out, kind = _fill_kernels(depth, guide, unit, use_color=use_color, edge_ratio=edge_ratio,
-                                  sigma_color=sigma_color, background_bias=background_bias)
+                                  sigma_color=sigma_color, background_bias=background_bias, out=out)
     return (out, kind) if with_kinds else out
 
 
@@ -1035,9 +1074,10 @@ def fill_telea(depth_m, color=None, *, radius_px: float = DEFAULT_TELEA_RADIUS_P
     """
     radius_px = _number("radius_px", radius_px, minimum=0.0)
     plan_fill(depth_m, parallel=parallel)  # validates parallel and depth_m
-    depth, color, known, done = _prepare(depth_m, color, need_color=False)
+    depth, color, _, done, _ = _prepare(depth_m, color, need_color=False)
     if done is not None:
         return done
+    known = depth > 0
     holes = ~known
     known_vals = depth[known]
     zmin, zmax = float(known_vals.min()), float(known_vals.max())

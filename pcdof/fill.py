@@ -193,11 +193,24 @@ def _index_holes(depth, y, near, hole_y, hole_x, n_holes, zmin, zmax):
     here = near[y % 3]
     below = near[(y + 1) % 3]
     below[:] = 0
+    # the range first, on the bits: positive floats order as their bits do as int32, and a minimum of
+    # integers has no dependence on NaN rules, so the loop runs on vectors
+    bits = depth[y].view(np.int32)
+    lo = np.int32(0x7FFFFFFF)
+    hi = np.int32(0)
     for x in range(W):
-        z = depth[y, x]
-        if z > 0.0:
-            zmin = min(zmin, z)
-            zmax = max(zmax, z)
+        known = depth[y, x] > 0.0
+        lo = min(lo, bits[x] if known else np.int32(0x7FFFFFFF))
+        hi = max(hi, bits[x] if known else np.int32(0))
+    if hi > 0:
+        lo_hi = np.empty(2, dtype=np.int32)
+        lo_hi[0] = lo
+        lo_hi[1] = hi
+        range_z = lo_hi.view(np.float32)
+        zmin = min(zmin, range_z[0])
+        zmax = max(zmax, range_z[1])
+    for x in range(W):
+        if depth[y, x] > 0.0:
             continue
         hole_y[n_holes] = y
         hole_x[n_holes] = x
@@ -216,15 +229,13 @@ def _index_boundary(depth, y, near, code, b_y, b_x, n_b):
     W = depth.shape[1]
     marks = near[y % 3]
     for x in range(W):
-        if not depth[y, x] > 0.0:
-            code[y, x] = HOLE
-        elif marks[x + 1]:
+        code[y, x] = INSIDE if depth[y, x] > 0.0 else HOLE
+    for x in range(W):
+        if marks[x + 1] and code[y, x] == INSIDE:
             code[y, x] = n_b
             b_y[n_b] = y
             b_x[n_b] = x
             n_b += 1
-        else:
-            code[y, x] = INSIDE
     return n_b
 
 

@@ -1,0 +1,327 @@
+"""The fill's fast paths against the plain formulations they replace, bit for bit, on random inputs.
+
+* the colour vote: the farthest surface's support summed only until it reaches what any nearer surface can
+  score, the nearer surfaces' bounds computed once, the winner's depth interpolated once (against the vote
+  that samples every surface it cannot rule out, and interpolates each one it scores);
+* the candidates' sort: ranks counted (against an insertion sort);
+* the index: one pass, the known range on the bits (against numpy);
+* the speckle pass: neighbours sorted only at a speckle (against sorting every hole's);
+* the depth's conversion for the kernels (against :func:`pcdof.camera.as_depth_m` and a copy).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from numba import njit
+
+from pcdof import fill
+from pcdof.camera import as_depth_m
+from pcdof.fill import BORDER, GAP, LOST, SURFACE
+
+# ---------------------------------------------------------------------------------------------
+# the plain formulations
+
+
+@njit
+def _plain_color_sim(color, depth, c0, c1, c2, qy, qx, uy, ux, n_samples, inv_two_sigma2):
+    H, W, _ = color.shape
+    best = np.inf
+    sy = qy
+    sx = qx
+    for _ in range(n_samples):
+        if not (0 <= sy < H and 0 <= sx < W and depth[sy, sx] > 0.0):
+            break
+        d0 = float(color[sy, sx, 0]) - c0
+        d1 = float(color[sy, sx, 1]) - c1
+        d2 = float(color[sy, sx, 2]) - c2
+        best = min(best, d0 * d0 + d1 * d1 + d2 * d2)
+        sy += uy
+        sx += ux
+    return math.exp(-best * inv_two_sigma2)
+
+
+@njit
+def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, z, order):
+    for j in range(m):  # insertion sort, far to near
+        zq = 1.0 / iv[j]
+        i = j
+        while i > 0 and z[i - 1] < zq:
+            z[i] = z[i - 1]
+            order[i] = order[i - 1]
+            i -= 1
+        z[i] = zq
+        order[i] = j
+    end0 = 1
+    while end0 < m and z[end0 - 1] - z[end0] <= rules.edge_ratio * z[end0 - 1]:
+        end0 += 1
+    kind = GAP if rules.use_color and fill._gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
+    bias = rules.bias * rules.bias if kind == GAP else rules.bias
+    c0 = float(color[py, px, 0]) if rules.use_color else 0.0
+    c1 = float(color[py, px, 1]) if rules.use_color else 0.0
+    c2 = float(color[py, px, 2]) if rules.use_color else 0.0
+    best_score = -1.0
+    best_inv = 0.0
+    start = 0
+    while start < m:
+        end = start + 1
+        while end < m and z[end - 1] - z[end] <= rules.edge_ratio * z[end - 1]:
+            end += 1
+        if rules.use_color and start > 0 and \
+                fill._support_bound(r, order, start, end, rules.support_px) / bias <= best_score:
+            start = end
+            continue
+        score = 0.0
+        sw = 0.0
+        swi = 0.0
+        for i in range(start, end):
+            j = order[i]
+            if rules.use_color:
+                k = kq[j]
+                ux = rules.step if dirs[k, 0] > 0 else (-rules.step if dirs[k, 0] < 0 else 0)
+                uy = rules.step if dirs[k, 1] > 0 else (-rules.step if dirs[k, 1] < 0 else 0)
+                sim = _plain_color_sim(color, depth, c0, c1, c2, bnd.y[qs[j]], bnd.x[qs[j]], uy, ux,
+                                       rules.n_samples, rules.inv_two_sigma2)
+                score += sim / (r[j] + rules.support_px)
+            sw += 1.0 / r[j]
+            swi += iv[j] / r[j]
+        if start > 0:
+            score /= bias
+        if score > best_score:
+            best_score = score
+            best_inv = swi / sw
+        if not rules.use_color:
+            break
+        start = end
+    return best_inv, kind
+
+
+@njit
+def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
+    K = holes.cand.shape[0]
+    iv = np.empty(K)
+    r = np.empty(K)
+    kq = np.empty(K, dtype=np.int64)
+    qs = np.empty(K, dtype=np.int64)
+    slot = np.empty(K, dtype=np.int64)
+    z = np.empty(K)
+    order = np.empty(K, dtype=np.int64)
+    for h in range(holes.y.shape[0]):
+        py = holes.y[h]
+        px = holes.x[h]
+        r_near[h] = 0.0
+        inv = fill._border_inv(holes, bnd, h, rules)
+        if inv >= 0.0:
+            kind[h] = BORDER if inv > 0.0 else LOST
+        else:
+            m = fill._candidates(holes, bnd, h, rules, iv, r, kq, qs, slot)
+            if m == 0:
+                kind[h] = LOST
+                continue
+            r_near[h] = r[:m].min()
+            iv_min = iv[:m].min()
+            iv_max = iv[:m].max()
+            if 1.0 / iv_min - 1.0 / iv_max <= rules.edge_ratio / iv_min:
+                sw = 0.0
+                swi = 0.0
+                for i in range(m):
+                    sw += 1.0 / r[i]
+                    swi += iv[i] / r[i]
+                inv = swi / sw
+                kind[h] = SURFACE
+            else:
+                inv, kind[h] = _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot,
+                                                     z, order)
+        if kind[h] != LOST:
+            out[py, px] = np.float32(min(max(1.0 / inv, rules.zmin), rules.zmax))
+
+
+def _insertion_sort(iv):
+    z, order = [], []
+    for j, v in enumerate(iv):
+        zq = 1.0 / v
+        i = len(z)
+        while i > 0 and z[i - 1] < zq:
+            i -= 1
+        z.insert(i, zq)
+        order.insert(i, j)
+    return np.array(z), np.array(order)
+
+
+def _plain_despeckle(out, hole_y, hole_x, edge_ratio):
+    h_, w_ = out.shape
+    new = {}
+    for y, x in zip(hole_y, hole_x):
+        v = float(out[y, x])
+        nb = [float(out[y + dy, x + dx]) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+              if (dy or dx) and 0 <= y + dy < h_ and 0 <= x + dx < w_]
+        if nb and not any(max(u, v) <= (1.0 + edge_ratio) * min(u, v) for u in nb):
+            new[y, x] = sorted(nb)[(len(nb) - 1) // 2]
+    res = out.copy()
+    for (y, x), v in new.items():
+        res[y, x] = v
+    return res
+
+
+# ---------------------------------------------------------------------------------------------
+# random inputs
+
+
+def _frame(rng, h, w, levels, hole_frac, grey, colours=None, noise=40):
+    """A depth map of a few noisy layers (slanted), blocks and speckles of holes, and colour that partly
+    follows the layers (so that colour votes go both ways): *colours* distinct ones (default: one a layer),
+    plus noise up to *noise*; with one colour and no noise every similarity is 1 and every surface scores
+    its bound."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    layer = np.zeros((h, w), np.int64)
+    for lv in range(1, levels):
+        cy, cx = rng.integers(0, h), rng.integers(0, w)
+        ry, rx = rng.integers(2, max(3, h // 2)), rng.integers(2, max(3, w // 2))
+        layer[(np.abs(yy - cy) < ry) & (np.abs(xx - cx) < rx)] = lv
+    base = rng.uniform(0.5, 6.0, levels)
+    depth = (base[layer] * (1 + rng.uniform(-0.004, 0.004) * xx + rng.uniform(-0.004, 0.004) * yy)
+             * (1 + rng.normal(0, 0.003, (h, w)))).astype(np.float32)
+    depth[rng.random((h, w)) < hole_frac] = 0
+    for _ in range(rng.integers(0, 4)):
+        y0, x0 = rng.integers(0, h), rng.integers(0, w)
+        depth[y0: y0 + rng.integers(1, 10), x0: x0 + rng.integers(1, 14)] = 0
+    palette = rng.integers(0, 256, (levels, 3))
+    if colours is not None:
+        palette = palette[rng.integers(0, min(colours, levels), levels)]
+    color = palette[layer] + rng.integers(-noise, noise + 1, (h, w, 3))
+    if grey:
+        color[...] = color[..., :1]
+    color = np.clip(color, 0, 255).astype(np.uint8)
+    if not (depth > 0).any():
+        depth[0, 0] = 1.0
+    return depth, color
+
+
+def _kernel_inputs(depth, color, *, edge_ratio, sigma_color, bias, use_color, sixteen_bit):
+    depth, color, _, _, _ = fill._prepare(depth, color, need_color=True)
+    guide, unit = fill._color_for_kernel(color.astype(np.uint16) * 257 if sixteen_bit else color)
+    depth, guide = fill.read_only(depth), fill.read_only(guide)
+    code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = fill._index(depth)
+    rules = fill._rules(depth.shape, use_color=use_color, unit=unit, edge_ratio=edge_ratio, sigma_color=sigma_color,
+                        background_bias=bias, zmin=zmin, zmax=zmax)
+    holes = fill._Holes(hole_y, hole_x, fill._sweep(code, hole_x, row_start, fill._DIRS, fill._HALF))
+    bnd = fill._Boundary(b_y, b_x, np.empty((b_y.size, 3)))
+    fill._fit_boundary(depth, b_y, b_x, fill._FIT_RADIUS_STEPS * rules.step, rules.step, edge_ratio, bnd.plane)
+    return depth, guide, holes, bnd, rules
+
+
+def _run_combine(fn, depth, guide, holes, bnd, rules):
+    out = depth.copy()
+    r_near = np.full(holes.y.size, np.nan)
+    kind = np.full(holes.y.size, -1, np.int8)
+    fn(depth, guide, holes, bnd, fill._DIRS, rules, out, r_near, kind)
+    return out, r_near, kind
+
+
+# ---------------------------------------------------------------------------------------------
+# tests
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 48), w=st.integers(1, 64), levels=st.integers(1, 5),
+       hole_frac=st.floats(0.0, 0.7), edge_ratio=st.sampled_from([0.01, 0.04, 0.2]),
+       sigma_color=st.sampled_from([0.01, 0.04, 0.3, 3.0]), bias=st.sampled_from([1.0, 1.5, 6.0, 40.0]),
+       use_color=st.booleans(), grey=st.booleans(), colours=st.sampled_from([None, 1, 2]),
+       noise=st.sampled_from([0, 3, 40]), sixteen_bit=st.booleans(), parallel=st.booleans())
+def test_combine_matches_the_plain_vote(seed, h, w, levels, hole_frac, edge_ratio, sigma_color, bias, use_color, grey,
+                                        colours, noise, sixteen_bit, parallel):
+    depth, color = _frame(np.random.default_rng(seed), h, w, levels, hole_frac, grey, colours, noise)
+    if (depth > 0).all() and depth.size > 1:
+        depth[h // 2, w // 2] = 0
+    args = _kernel_inputs(depth, color, edge_ratio=edge_ratio, sigma_color=sigma_color, bias=bias,
+                          use_color=use_color, sixteen_bit=sixteen_bit)
+    with fill._threads(numba.get_num_threads() if parallel else 1):
+        fast = _run_combine(fill._combine, *args)
+    plain = _run_combine(_plain_combine, *args)
+    for a, b in zip(fast, plain):
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True)
+
+
+def test_combine_matches_the_plain_vote_on_a_synthetic_frame():
+    """A registered synthetic frame: disocclusions beside near objects, where the colour vote runs most."""
+    from pcdof.register import register_depth
+    from pcdof.synth import generate_scene
+
+    sf = generate_scene("portrait", color_size=(320, 240), depth_size=(256, 212), seed=3)
+    args = _kernel_inputs(register_depth(sf.frame), sf.frame.color, edge_ratio=fill.DEFAULT_EDGE_RATIO,
+                          sigma_color=fill.DEFAULT_SIGMA_COLOR, bias=fill.DEFAULT_BACKGROUND_BIAS, use_color=True,
+                          sixteen_bit=False)
+    fast, plain = _run_combine(fill._combine, *args), _run_combine(_plain_combine, *args)
+    assert np.count_nonzero(fast[2] == SURFACE) > 1000
+    for a, b in zip(fast, plain):
+        assert np.array_equal(a, b)
+
+
+@settings(max_examples=300, deadline=None)
+@given(m=st.integers(1, 16), seed=st.integers(0, 2**32 - 1), distinct=st.integers(1, 16))
+def test_rank_sort_matches_insertion_sort(m, seed, distinct):
+    rng = np.random.default_rng(seed)
+    values = rng.uniform(0.1, 3.0, distinct)
+    iv = values[rng.integers(0, distinct, m)]  # ties: equal depths keep their order
+    zu, z, order = np.empty(16), np.full(16, np.nan), np.full(16, -1)
+    fill._sort_far_to_near(iv, m, zu, z, order)
+    want_z, want_order = _insertion_sort(iv)
+    assert np.array_equal(z[:m], want_z) and np.array_equal(order[:m], want_order)
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 30), w=st.integers(1, 30), hole_frac=st.floats(0.0, 1.0))
+def test_index_matches_numpy(seed, h, w, hole_frac):
+    rng = np.random.default_rng(seed)
+    depth = rng.choice(np.array([1e-40, 0.3, 0.31, 2.0, 7.5, 3e38, np.inf], np.float32), (h, w))
+    with np.errstate(over="ignore"):  # 3e38 may become inf: known, the largest
+        depth *= rng.uniform(0.5, 1.5, (h, w)).astype(np.float32)
+    depth[rng.random((h, w)) < hole_frac] = rng.choice(np.array([0.0, -0.0, -1.0, np.nan, -np.inf], np.float32))
+    code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = fill._index(depth)
+    known = depth > 0
+    assert np.array_equal(np.nonzero(~known), (hole_y, hole_x))
+    assert np.array_equal(row_start, np.concatenate([[0], np.cumsum((~known).sum(axis=1))]))
+    if known.any():
+        assert (zmin, zmax) == (depth[known].min(), depth[known].max())
+    else:
+        assert (zmin, zmax) == (np.inf, -np.inf)
+    assert np.array_equal(code == fill.HOLE, ~known)
+    assert np.array_equal(code[b_y, b_x], np.arange(b_y.size))
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 20), w=st.integers(1, 20), n=st.integers(0, 400),
+       edge_ratio=st.sampled_from([0.0001, 0.04, 0.5]))
+def test_despeckle_matches_sorting_every_hole(seed, h, w, n, edge_ratio):
+    rng = np.random.default_rng(seed)
+    out = rng.choice(np.array([1.0, 1.01, 2.0, 3.5], np.float32), (h, w)) * rng.uniform(0.98, 1.02, (h, w))
+    out = out.astype(np.float32)
+    flat = np.unique(rng.integers(0, h * w, n))
+    hole_y, hole_x = (flat // w).astype(np.int64), (flat % w).astype(np.int64)
+    want = _plain_despeckle(out, hole_y, hole_x, edge_ratio)
+    got = out.copy()
+    fill._despeckle(got, hole_y, hole_x, edge_ratio)
+    assert np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("layout", ["C", "F", "float64", "int"])
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 12), w=st.integers(1, 12))
+def test_prepared_depth_matches_as_depth_m(layout, seed, h, w):
+    rng = np.random.default_rng(seed)
+    depth = rng.choice(np.array([0.0, -0.0, -2.0, 1e-42, 0.5, 4.0, np.inf, -np.inf, np.nan, 3e38]), (h, w))
+    depth[0, 0] = 1.5  # at least one known pixel
+    depth = {"C": depth.astype(np.float32), "F": np.asfortranarray(depth.astype(np.float32)), "float64": depth,
+             "int": np.clip(np.nan_to_num(depth, posinf=9, neginf=-9), -9, 9).astype(np.int32)}[layout]
+    want, _ = as_depth_m(depth)
+    holes = int(want.size - np.count_nonzero(want > 0))
+    got, _, n_holes, done, out = fill._prepare(depth, None, need_color=False)
+    assert np.array_equal(got.view(np.uint32), want.view(np.uint32)) and n_holes == holes
+    assert (done is got) == (holes == 0)
+    if out is not None:
+        assert out is not got and np.array_equal(out.view(np.uint32), want.view(np.uint32))

@@ -6,6 +6,7 @@
 Both fills run in one process on the benchmark's speed frames (synthetic portrait, 512x424 depth,
 registered by the pipeline's registration), alternated per repeat (ABBA, so neither always goes first),
 as the pipeline's fill stage calls them (needs_fill, plan_fill, then fill_depth with the planned threads).
+With ``--pipeline``, the whole pipeline (pcdof.pipeline.run) with either fill instead.
 Medians in ms and their ratio: wall time, and the CPU time of the process (all its threads; a busy
 machine inflates it less). Before timing, the two are compared bit for bit (``np.array_equal`` of the
 float32 results, and of their bits) on the speed frames, on random synthetic frames (every scene of
@@ -85,6 +86,31 @@ def real_frames():
         yield name, register_depth(frame), frame.color
 
 
+def pipeline_runs(before, size) -> dict:
+    """The whole pipeline on the speed frame at *size*, its fill stage with the fill of *before* or the current
+    one (pcdof.pipeline.fill_stage imports fill_depth, needs_fill and plan_fill from pcdof.fill when it runs)."""
+    import pcdof.fill as now
+    import pcdof.pipeline as pipeline
+    from pcdof.synth import generate_scene
+
+    sf = generate_scene("portrait", color_size=size, depth_size=(512, 424), seed=0)
+    names = ("fill_depth", "needs_fill", "plan_fill")
+    mine = {name: getattr(now, name) for name in names}
+
+    def run(module):
+        def fn():
+            for name in names:
+                setattr(now, name, getattr(module, name))
+            try:
+                return pipeline.run(sf.frame, sf.default_lens)
+            finally:
+                for name, f in mine.items():
+                    setattr(now, name, f)
+        return fn
+
+    return {"before": run(before), "now": run(now)}
+
+
 def same(a, b) -> bool:
     return a.dtype == b.dtype and np.array_equal(a, b) and np.array_equal(a.view(np.uint32), b.view(np.uint32))
 
@@ -111,6 +137,7 @@ def main(argv=None) -> None:
     ap.add_argument("--sizes", default="640x480,1920x1080")
     ap.add_argument("--seeds", default="1,2")
     ap.add_argument("--no-check", action="store_true", help="time only")
+    ap.add_argument("--pipeline", action="store_true", help="time the whole pipeline (pcdof.pipeline.run), not the fill")
     args = ap.parse_args(argv)
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
 
@@ -127,6 +154,8 @@ def main(argv=None) -> None:
         print(f"all bit-identical: {ok}")
     for size, (depth_m, color) in frames.items():
         fns = {"before": lambda: fill_stage(before, depth_m, color), "now": lambda: fill_stage(now, depth_m, color)}
+        if args.pipeline:
+            fns = pipeline_runs(before, size)
         for f in fns.values():
             f()
         ts = {(k, s): [] for k in fns for s in ("wall", "CPU")}
@@ -137,7 +166,8 @@ def main(argv=None) -> None:
                 ts[(k, "wall")].append(time.perf_counter() - t0)
                 ts[(k, "CPU")].append(time.process_time() - c0)
         holes = int((depth_m == 0).sum())
-        print(f"{size[0]}x{size[1]} ({holes} holes), medians of {args.repeats}:", flush=True)
+        what = "pipeline" if args.pipeline else "fill stage"
+        print(f"{size[0]}x{size[1]} ({holes} holes), {what}, medians of {args.repeats}:", flush=True)
         for s in ("wall", "CPU"):
             b, n = (statistics.median(ts[(k, s)]) * 1e3 for k in fns)
             print(f"  {s:4s} before {b:7.2f} ms  now {n:7.2f} ms  now/before {n / b:.3f}", flush=True)

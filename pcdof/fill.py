@@ -184,7 +184,7 @@ def _with_room(a, n, more):
     return b
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
 def _index_holes(depth, y, near, hole_y, hole_x, n_holes, zmin, zmax):
     """Row *y* of :func:`_index`: its holes appended from *n_holes* on, their neighbours marked in *near*,
     and the range of its known depths joined to [zmin, zmax]. Returns n_holes, zmin, zmax."""
@@ -222,7 +222,7 @@ def _index_holes(depth, y, near, hole_y, hole_x, n_holes, zmin, zmax):
     return n_holes, zmin, zmax
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
 def _index_boundary(depth, y, near, code, b_y, b_x, n_b):
     """Row *y* of :func:`_index`'s code map, once the holes of rows y - 1 to y + 1 are marked in *near*; its
     boundary pixels appended from *n_b* on. Returns n_b."""

@@ -114,6 +114,10 @@ MAX_FOOTPRINT_PX = 1024
 #: widest blur kernel (px) the expected loss is computed with; wider blurs shrink the blob's window
 MAX_KERNEL_PX = 32.0
 
+#: the 4-neighbourhood (and the pixel itself), a structuring element
+_CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
+_CROSS.flags.writeable = False
+
 
 def needs_reconstruction(color: np.ndarray, *, linear: bool) -> bool:
     """True for display-referred input that can clip (uint8/uint16 sRGB); False for linear/HDR input."""
@@ -205,18 +209,17 @@ def _labelled(clipped):
 
     Only the box around every clipped pixel is labelled, its corner at an even row and column: OpenCV's labelling
     scans 2 x 2 blocks and numbers the blobs in the order it meets them, the same in the box as in the frame."""
-    u8 = clipped.view(np.uint8)
-    xy = cv2.findNonZero(u8) if clipped.size else None
-    if xy is None:
+    at = np.flatnonzero(clipped)  # (raster order; a quarter of the time of cv2.findNonZero)
+    if not at.size:
         empty = np.zeros(0, np.int64)
         return np.zeros((0, 4), np.int64), empty, empty, np.zeros(1, np.int64)
-    xy = xy.reshape(-1, 2)
-    (x0, y0), (x1, y1) = (xy.min(axis=0) // 2 * 2).tolist(), (xy.max(axis=0) + 1).tolist()
+    ys, xs = np.divmod(at, clipped.shape[1])
+    y0, y1, x0, x1 = int(ys[0]) // 2 * 2, int(ys[-1]) + 1, int(xs.min()) // 2 * 2, int(xs.max()) + 1
     # no stats from OpenCV: they include the background label, a pass over every pixel of the box
-    n, labels = cv2.connectedComponents(u8[y0:y1, x0:x1], connectivity=8)
-    lab = labels[xy[:, 1] - y0, xy[:, 0] - x0]
+    n, labels = cv2.connectedComponents(clipped.view(np.uint8)[y0:y1, x0:x1], connectivity=8)
+    lab = labels.ravel()[(ys - y0) * (x1 - x0) + (xs - x0)]
     order = np.argsort(lab, kind="stable")
-    ys, xs = xy[order, 1].astype(np.int64), xy[order, 0].astype(np.int64)
+    ys, xs = ys[order], xs[order]
     starts = np.concatenate(([0], np.cumsum(np.bincount(lab, minlength=n)[1:])))
     first = starts[:-1]
     boxes = np.stack([np.minimum.reduceat(ys, first), np.maximum.reduceat(ys, first) + 1,
@@ -247,7 +250,11 @@ class _Found(NamedTuple):
     """A frame's clipped blobs, from its colour alone (:func:`_find_blobs`): the (H, W) bool clipped mask; the
     blobs of :func:`_labelled` (boxes, ys, xs, starts); the (P, 3) values and clipped flags of their pixels in
     that order; per blob the count of pixels clipped per channel and in every channel, and per channel the largest
-    clipped value (-inf: none), as lists."""
+    clipped value (-inf: none), as lists; per blob whether its channels are clipped in the same pixels (red and
+    green, red and blue, green and blue), as lists; per blob and channel the median measured value
+    :func:`channel_bound` multiplies ((n, 3) float32, inf where the channel has no bound); and for each of the
+    P * 3 values of the blobs' pixels (int64 each): blob * 3 + channel, and its index in the frame's H * W * 3
+    values."""
 
     clipped: np.ndarray
     boxes: np.ndarray
@@ -259,6 +266,10 @@ class _Found(NamedTuple):
     counts: list
     every: list
     keeps: list
+    alike: list
+    measured: np.ndarray
+    slot: np.ndarray
+    dest: np.ndarray
 
 
 def _find_blobs(img, clip_level, clipped=None) -> _Found:
@@ -270,41 +281,56 @@ def _find_blobs(img, clip_level, clipped=None) -> _Found:
     values = img[ys, xs]
     flags = values >= clip_level  # (P, 3), as the window's pixels compare
     if not len(boxes):
-        return _Found(clipped, boxes, ys, xs, starts, values, flags, [], [], [])
-    first = starts[:-1]
-    counts = np.add.reduceat(flags, first, dtype=np.int64).tolist()
-    every = np.add.reduceat(flags[:, 0] & flags[:, 1] & flags[:, 2], first, dtype=np.int64).tolist()
+        empty = np.zeros(0, np.int64)
+        return _Found(clipped, boxes, ys, xs, starts, values, flags, [], [], [], [], np.zeros((0, 3), np.float32),
+                      empty, empty)
+    first, sizes = starts[:-1], np.diff(starts)
+    counts = np.add.reduceat(flags, first, dtype=np.int64)
+    every = np.add.reduceat(flags[:, 0] & flags[:, 1] & flags[:, 2], first, dtype=np.int64)
     keeps = np.maximum.reduceat(np.where(flags, values, -np.inf), first).tolist()
-    return _Found(clipped, boxes, ys, xs, starts, values, flags, counts, every, keeps)
+    alike = np.logical_and.reduceat(flags[:, [0, 0, 1]] == flags[:, [1, 2, 2]], first, axis=0).tolist()
+    channel = np.tile(np.arange(3), len(ys))
+    slot = np.repeat(np.arange(0, 3 * len(boxes), 3), 3 * sizes) + channel
+    dest = np.repeat((ys * clipped.shape[1] + xs) * 3, 3) + channel
+    return _Found(clipped, boxes, ys, xs, starts, values, flags, counts.tolist(), every.tolist(), keeps, alike,
+                  _measured(values, flags, sizes, counts, every), slot, dest)
 
 
-def _blobs(img, clip_level, coc=None, found=None):
+def _measured(values, flags, sizes, counts, every) -> np.ndarray:
+    """What :func:`channel_bound` multiplies, for every blob and channel at once: the median largest measured
+    value over the blob's pixels clipped in the channel that have a measured one, where more than half of them
+    do; inf elsewhere. (n, 3) float32 from the blobs' pixels' (P, 3) *values* and *flags*, the (n,) *sizes* of
+    the blobs and their (n, 3) *counts* and (n,) *every* of :func:`_find_blobs`; one sort for all
+    (:func:`_medians`)."""
+    measured = np.full(counts.shape, np.inf, np.float32)
+    # a pixel clipped in c has a measured channel unless every channel clipped: no bound where at most half of
+    # them have one (most blobs: white lights)
+    need = 2 * (counts - every[:, None]) > counts
+    if not need.any():
+        return measured
+    o1, o2 = [1, 0, 0], [2, 2, 1]  # each channel's other two
+    unclipped = np.where(flags, 0.0, values)
+    best = np.maximum(unclipped[:, o1], unclipped[:, o2]).T  # (3, P): channel by channel, blob by blob
+    has = (flags & ~(flags[:, o1] & flags[:, o2]) & np.repeat(need, sizes, axis=0)).T
+    runs = (counts - every[:, None]).T[need.T]
+    measured.T[need.T] = _medians(best[has], np.concatenate(([0], np.cumsum(runs))))
+    return measured
+
+
+def _blobs(img, clip_level, found=None):
     """Each clipped blob (8-connected pixels with a clipped channel): (window slices, blob mask in the window,
-    per-channel clipped mask in the window, every clipped pixel in the window, blur d, stats). The window is the
-    blob's box widened by 3 px; with *coc*, by ceil(d / 2) + 1 px, d its median CoC (px), and a blob with
-    d < 1 (not blurred) is left out. stats: (per channel the count of its clipped pixels, the count clipped in
-    every channel, per channel the largest clipped value (-inf: none), the blob's pixels' (n, 3) values and
-    clipped flags in raster order). *found*: :func:`_find_blobs` of *img*, when the caller has it."""
-    clipped, boxes, ys, xs, starts, values, flags, counts, every, keeps = (
-        _find_blobs(img, clip_level) if found is None else found)
-    if not len(boxes):
-        return
-    h, w = clipped.shape
-    blur = [0.0] * len(boxes) if coc is None else _medians(_coc_at(coc, ys, xs), starts).tolist()
-    first = starts[:-1]
-    for i, ((y0, y1, x0, x1), d, a, b) in enumerate(zip(boxes.tolist(), blur, first.tolist(), starts[1:].tolist())):
-        p = 3
-        if coc is not None:
-            if d < 1.0:
-                continue
-            p = math.ceil(d / 2) + 1
-        win = (slice(max(y0 - p, 0), min(y1 + p, h)), slice(max(x0 - p, 0), min(x1 + p, w)))
-        at = (ys[a:b] - win[0].start, xs[a:b] - win[1].start)
+    per-channel clipped mask in the window, every clipped pixel in the window). The window is the blob's box
+    widened by 3 px. *found*: :func:`_find_blobs` of *img*, when the caller has it."""
+    found = _find_blobs(img, clip_level) if found is None else found
+    h, w = found.clipped.shape
+    for (y0, y1, x0, x1), a, b in zip(found.boxes.tolist(), found.starts[:-1].tolist(), found.starts[1:].tolist()):
+        win = (slice(max(y0 - 3, 0), min(y1 + 3, h)), slice(max(x0 - 3, 0), min(x1 + 3, w)))
+        at = (found.ys[a:b] - win[0].start, found.xs[a:b] - win[1].start)
         shape = (win[0].stop - win[0].start, win[1].stop - win[1].start)
         mask, clipped_ch = np.zeros(shape, bool), np.zeros((*shape, 3), bool)
         mask[at] = True
-        clipped_ch[at] = flags[a:b]
-        yield win, mask, clipped_ch, clipped[win], d, (counts[i], every[i], keeps[i], values[a:b], flags[a:b])
+        clipped_ch[at] = found.flags[a:b]
+        yield win, mask, clipped_ch, found.clipped[win]
 
 
 def _fill(img, clip_level, levels_for_blob, found=None):
@@ -313,7 +339,7 @@ def _fill(img, clip_level, levels_for_blob, found=None):
     A copy (a blob's rim may reach another blob's pixels, read unraised)."""
     out = img.copy()
     kernel = np.ones((3, 3), np.uint8)
-    for win, mask, clipped_ch, clipped, _, _ in _blobs(img, clip_level, found=found):
+    for win, mask, clipped_ch, clipped in _blobs(img, clip_level, found=found):
         block = img[win]
         grown = cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
         ring = grown & ~mask & ~clipped
@@ -336,7 +362,7 @@ def _rim_counts(values, mask, ring, clip_level):
     outer = cv2.dilate((mask | ring).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~mask & ~ring
     bg = float(np.median(values[outer])) if outer.any() else 0.0
     n_lit = int(np.count_nonzero(ring & (values > bg + 0.02 * clip_level)))
-    inner = cv2.erode(mask.astype(np.uint8), np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8),
+    inner = cv2.erode(mask.astype(np.uint8), _CROSS,
                       borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
     return min(bg, 0.9 * clip_level), n_lit, int(np.count_nonzero(mask & ~inner))
 
@@ -400,7 +426,13 @@ def _display(linear):
 def _display_in_place(v):
     """:func:`_display` of *v* (float64 ndarray) already clipped to [0, 1], written over *v* (a temporary:
     fresh arrays of a blob batch's size cost more than the arithmetic). The values are the plain formula's: the
-    curve's of every value (at 1 it gives :data:`_WHITE`, as white is defined), the linear segment put back."""
+    curve's of every value (at 1 it gives :data:`_WHITE`, as white is defined), the linear segment put back (where
+    some value lies on it)."""
+    if v.min(initial=1.0) > 0.0031308:  # (none on the linear segment: most tables)
+        np.power(v, 1 / 2.4, out=v)
+        v *= 1.055
+        v -= 0.055
+        return v
     low = v <= 0.0031308
     linear = v[low] * 12.92
     np.power(v, 1 / 2.4, out=v)
@@ -460,7 +492,10 @@ def _best_levels(base, k, weight, starts, cands, probs) -> np.ndarray:
     # E_t sum_n w (s_c - s_t)^2 = a2_c - 2 sum_n w s_c E_t[s_t] + E_t[a2_t]: the square is linear in the
     # truths once expanded, so no table of every candidate against every truth (T times the work). einsum and
     # reduceat, not a BLAS product: one thread, and the same sums on every machine
-    mean_shown = np.einsum("tn,tn->n", np.repeat(probs.T, counts, axis=1), shown[1:])
+    if (probs[1:] == probs[0]).all():  # (one prior for every footprint, ``prior``'s: its T weights, not N T)
+        mean_shown = _mean_over_truths(probs[0], shown[1:])
+    else:
+        mean_shown = np.einsum("tn,tn->n", np.repeat(probs.T, counts, axis=1), shown[1:])
     first = starts[:-1]
     if weight.min(initial=1.0) == 1.0 == weight.max(initial=1.0):  # (most batches: w s is s, bit for bit)
         cross = np.add.reduceat(shown * mean_shown, first, axis=1)
@@ -473,6 +508,13 @@ def _best_levels(base, k, weight, starts, cands, probs) -> np.ndarray:
     # the first candidate within rounding of the least (the expanded square leaves ~1e-12 noise)
     near = expected <= expected.min(axis=0) + 1e-7 * np.maximum(np.add.reduceat(weight, first), 1.0)
     return cands[np.arange(len(cands)), np.argmax(near, axis=0)]
+
+
+def _mean_over_truths(probs, shown):
+    """sum_t probs[t] shown[t, n]: (N,) float64 from *probs* (T,) and *shown* (T, N) float64, the sums of
+    ``np.einsum("tn,tn->n", probs (T, N) repeated over n, shown)`` bit for bit: both accumulate over t in order,
+    one multiply-add per truth and sample."""
+    return np.einsum("t,tn->n", probs, shown)
 
 
 def rim_likelihood(chan, mask, clipped, levels, clip_level: float) -> np.ndarray:
@@ -503,8 +545,7 @@ def rim_likelihood(chan, mask, clipped, levels, clip_level: float) -> np.ndarray
 def _edge(mask):
     """Pixels of *mask* with a 4-neighbour outside it: a source's partly covered edge (beyond the array's
     border the mask continues)."""
-    cross = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
-    return mask & ~cv2.erode(mask.astype(np.uint8), cross, borderType=cv2.BORDER_REPLICATE).astype(bool)
+    return mask & ~cv2.erode(mask.astype(np.uint8), _CROSS, borderType=cv2.BORDER_REPLICATE).astype(bool)
 
 
 def channel_bound(block, clipped_ch, c: int, max_ratio: float) -> float:
@@ -547,12 +588,13 @@ def _footprint(chan, m, edge, keep: float, d: float, cover=None):
     return base, k, weight
 
 
-def _layers(chan, m, edge, d: float, cover=None):
+def _layers(chan, m, edge, d: float, cover=None, key=None):
     """The blurs of one clipped channel of a blob (:func:`_footprint`): (rest, interior, edge, scale), the first
     three (n,) float32: the window without its clipped pixels, the clipped interior and the clipped edge, each
-    blurred by the disc (on the shrunk window where *scale* > 1)."""
+    blurred by the disc (on the shrunk window where *scale* > 1). *key*: what names the mask in *cover* (None:
+    its bytes)."""
     scale = max(1.0, d / MAX_KERNEL_PX)
-    key, cover = (m.shape, m.tobytes()), {} if cover is None else cover
+    key, cover = (m.shape, m.tobytes()) if key is None else key, {} if cover is None else cover
     if scale > 1.0:
         layers = np.stack([np.where(m, 0.0, chan), m & ~edge, edge], axis=-1).astype(np.float32)
         h, w = chan.shape
@@ -580,50 +622,51 @@ def _samples(layers, keeps):
     base = rest + keep / 2 * edge and k = interior + edge / 2 at the pixels the blob reaches (k > 1e-6); of a
     footprint with more than :data:`MAX_FOOTPRINT_PX` of them every step-th, standing for step pixels (times
     scale^2 on a shrunk window). All footprints in a few whole-array operations, each value as one footprint
-    alone gives it."""
-    sizes = np.array([lay[0].size for lay in layers], np.int64)
-    rest, inner, k_edge = (np.concatenate([lay[i] for lay in layers], dtype=np.float64) for i in range(3))
-    base = rest + np.repeat(np.array(keeps, np.float64) / 2, sizes) * k_edge
+    alone gives it; footprints that share their blurred interior and edge (the same arrays: a blob's channels
+    clipped in the same pixels) share its k and the pixels it reaches, found once."""
+    groups, first, group = {}, [], []
+    for j, lay in enumerate(layers):
+        g = groups.setdefault((id(lay[1]), id(lay[2]), lay[3]), len(groups))
+        if g == len(first):
+            first.append(j)
+        group.append(g)
+    group = np.array(group, np.int64)
+    sizes = np.array([layers[j][1].size for j in first], np.int64)
+    inner, k_edge = (np.concatenate([layers[j][i] for j in first], dtype=np.float64) for i in (1, 2))
     k = inner + k_edge / 2
     sel = np.flatnonzero(k > 1e-6)
-    found = np.diff(np.searchsorted(sel, np.concatenate(([0], np.cumsum(sizes)))))
-    steps = np.maximum(1, -(-found // MAX_FOOTPRINT_PX))  # ceil
+    ends = np.cumsum(sizes)
+    reach = np.diff(np.searchsorted(sel, np.concatenate(([0], ends))))
+    steps = np.maximum(1, -(-reach // MAX_FOOTPRINT_PX))  # ceil
     if steps.max(initial=1) > 1:
-        rank = np.arange(sel.size) - np.repeat(np.cumsum(found) - found, found)
-        sel = sel[rank % np.repeat(steps, found) == 0]
-    counts = -(-found // steps)
-    weight = np.repeat([step * lay[3] * lay[3] for step, lay in zip(steps.tolist(), layers)], counts)
-    return base[sel], k[sel], weight, counts
+        rank = np.arange(sel.size) - np.repeat(np.cumsum(reach) - reach, reach)
+        sel = sel[rank % np.repeat(steps, reach) == 0]
+    taken = -(-reach // steps)
+    counts = taken[group]
+    # footprint j's samples: its group's, at the same places of its own rest
+    offsets = np.cumsum(counts) - counts
+    at = sel[np.arange(offsets[-1] + counts[-1]) + np.repeat((np.cumsum(taken) - taken)[group] - offsets, counts)]
+    rest_sizes = np.array([lay[0].size for lay in layers], np.int64)
+    rest = np.concatenate([lay[0].ravel() for lay in layers])
+    shift = (np.cumsum(rest_sizes) - rest_sizes) - (ends - sizes)[group]
+    rest = rest[at + np.repeat(shift, counts)].astype(np.float64)
+    base = rest + np.repeat(np.array(keeps, np.float64) / 2, counts) * k_edge[at]
+    weight = np.repeat([step * lay[3] * lay[3] for step, lay in zip(steps[group].tolist(), layers)], counts)
+    return base, k[at], weight, counts
 
 
-def _prior_channels(block, clipped_ch, clipped, d, prior, use_rim, stats):
-    """The clipped channels of one blob's window to raise (:func:`reconstruct_prior`; *d*: its blur (px), at
-    least 1; *prior*: (clip level, prior max, channel ratio); *stats*: the blob's counts and largest values
-    from :func:`_blobs`): (channel, its clipped mask, edge mask, keep, layers, candidates (1 + T,),
-    probabilities (T,)) each, the layers of :func:`_layers`."""
-    clip_level, prior_max, max_ratio = prior
-    cover, edges = {}, {}  # per mask: its blurred clipped pixels and its edge, shared by channels clipped alike
-    counts, every, keeps, values, flags = stats
-    for c in range(3):
-        if not counts[c]:
-            continue
-        m = clipped_ch[..., c]
-        # a pixel clipped in c has a measured channel unless every channel clipped: :func:`channel_bound` is
-        # inf where at most half of them have one (most blobs: white lights), found without it
-        bound = math.inf if 2 * (counts[c] - every) <= counts[c] else _bound(values[flags[:, c]], flags[flags[:, c]],
-                                                                             c, max_ratio)
-        top = min(prior_max, bound)
-        if top <= clip_level:
-            continue
-        levels = _prior_levels(float(clip_level), float(top), PRIOR_SAMPLES)
-        chan, key = block[..., c], m.tobytes()
-        edge = edges[key] if key in edges else edges.setdefault(key, _edge(m))
-        keep = keeps[c]  # (the largest value of the channel's clipped pixels)
-        # an edge pixel is partly covered: given that it clipped, its coverage is even over (p, 1), so its
-        # expected value is (L + clip) / 2 (see the module notes); the interior is L
-        probs = (_normalised(rim_likelihood(chan, m, clipped, levels, clip_level)) if use_rim
-                 else _uniform(len(levels)))
-        yield c, m, edge, keep, _layers(chan, m, edge, d, cover), np.concatenate(([keep], levels)), probs
+def _tops(found, prior) -> np.ndarray:
+    """The top of each blob channel's prior: *prior_max*, or less where :func:`channel_bound` says so; -inf where
+    the channel has no clipped pixel. (n, 3) float64, from :func:`_find_blobs`' *found* and *prior* (clip level,
+    prior max, channel ratio)."""
+    _, prior_max, max_ratio = prior
+    if math.isinf(max_ratio):
+        bound = np.full(found.measured.shape, math.inf)
+    else:
+        bound = (max_ratio * found.measured).astype(np.float64)  # (as one blob's float32 median gives it)
+    top = np.where(bound < prior_max, bound, prior_max)
+    top[np.array(found.counts, np.int64).reshape(-1, 3) == 0] = -math.inf
+    return top
 
 
 def _normalised(weights):
@@ -652,7 +695,7 @@ def _batches(items, sizes, cap: int):
         yield batch
 
 
-def _chosen_levels(problems, max_samples: int = 4096) -> list:
+def _chosen_levels(problems, max_samples: int = 8192) -> list:
     """The chosen candidate of each (base, k, weight, candidates, probabilities) problem (:func:`_levels_of`)."""
     chosen = [float(p[3][0]) for p in problems]
     for t in sorted({len(p[3]) for p in problems}):  # (one level grid size in a batch; every blob's is T)
@@ -666,11 +709,11 @@ def _chosen_levels(problems, max_samples: int = 4096) -> list:
     return chosen
 
 
-def _levels_of(base, k, weight, counts, cands, probs, max_samples: int = 4096) -> list:
+def _levels_of(base, k, weight, counts, cands, probs, max_samples: int = 8192) -> list:
     """The chosen candidate of J footprints whose samples (*base*, *k*, *weight* (N,) float64) lie one after
     another, *counts* (J,) of them each; *cands* (J, 1 + T), *probs* (J, T): :func:`_best_levels` in batches of
-    about *max_samples* samples, so its (1 + T, N) tables stay about 1 MB (larger ones were slower: fresh
-    memory). A footprint of no samples keeps its value (candidate 0). Returns a list of J floats."""
+    about *max_samples* samples, so its (1 + T, N) tables stay about 2 MB (4096 samples: about 10 % slower, 16384
+    no faster). A footprint of no samples keeps its value (candidate 0). Returns a list of J floats."""
     chosen = cands[:, 0].tolist()
     ends = np.cumsum(counts).tolist()
     todo = np.flatnonzero(counts).tolist()
@@ -706,23 +749,80 @@ def _raise_prior(img, out, coc, prior, use_rim, found=None):
     pixels), with *coc* and *prior* (clip level, prior max, channel ratio) checked; *found*: :func:`_find_blobs`
     of *img*. Returns *out*."""
     clip_level = prior[0]
-    # a blob that is not blurred (d < 1) is left out: its output stays at white whatever the radiance
-    raised, layers, cands, probs = [], [], [], []
-    for win, _, clipped_ch, clipped, d, stats in _blobs(img, clip_level, coc, found):
-        for c, m, edge, keep, lay, cand, prob in _prior_channels(img[win], clipped_ch, clipped, d, prior, use_rim,
-                                                                 stats):
-            raised.append((win, c, m, edge, keep))
-            layers.append(lay)
-            cands.append(cand)
-            probs.append(prob)
-    if not raised:
+    found = _find_blobs(img, clip_level) if found is None else found
+    if not len(found.boxes):
         return out
-    base, k, weight, counts = _samples(layers, [r[4] for r in raised])
-    for (win, c, m, edge, keep), level in zip(raised, _levels_of(base, k, weight, counts, np.array(cands),
-                                                                  np.array(probs))):
-        block = out[win]
-        block[..., c][m] = np.maximum(block[..., c][m], np.where(edge[m], (level + keep) / 2, level))
+    blur = _medians(_coc_at(coc, found.ys, found.xs), found.starts)
+    # a blob that is not blurred (d < 1) is left out: its output stays at white whatever the radiance
+    blurred = blur >= 1.0
+    if not blurred.any():
+        return out
+    tops = _tops(found, prior)
+    todo = np.flatnonzero(blurred & (tops > clip_level).any(axis=1)).tolist()
+    if not todo:
+        return out
+    flags, starts, alike = found.flags, found.starts.tolist(), found.alike
+    interior = np.zeros(flags.shape, bool)  # per pixel and channel: clipped, and so are its 4 neighbours
+    h, w = found.clipped.shape
+    feet, layers, truths, probs = [], [], [], []
+    blur, tops, boxes = blur.tolist(), tops.tolist(), found.boxes.tolist()
+    for i in todo:
+        d, (y0, y1, x0, x1), a, b = blur[i], boxes[i], starts[i], starts[i + 1]
+        p = math.ceil(d / 2) + 1
+        win = (slice(max(y0 - p, 0), min(y1 + p, h)), slice(max(x0 - p, 0), min(x1 + p, w)))
+        at = (found.ys[a:b] - win[0].start, found.xs[a:b] - win[1].start)
+        clipped_ch = np.zeros((win[0].stop - win[0].start, win[1].stop - win[1].start, 3), bool)
+        clipped_ch[at] = flags[a:b]
+        inner = _interior(clipped_ch)
+        interior[a:b] = inner[at]
+        block, cover, same = img[win], {}, {}
+        for c in range(3):
+            if not tops[i][c] > clip_level:
+                continue
+            m = clipped_ch[..., c]
+            # (the blurs of a mask are shared by the channels clipped alike: a white light's, three times)
+            same[c] = next((same[o] for o in same if alike[i][o + c - 1]), c)
+            lay = _layers(block[..., c], m, m & ~inner[..., c], d, cover, same[c])
+            levels = _prior_levels(float(clip_level), float(tops[i][c]), PRIOR_SAMPLES)
+            # (keep: the largest value of the channel's clipped pixels)
+            feet.append((i, c, found.keeps[i][c]))
+            layers.append(lay)
+            truths.append(levels)
+            probs.append(_normalised(rim_likelihood(block[..., c], m, found.clipped[win], levels, clip_level))
+                         if use_rim else _uniform(len(levels)))
+    keeps = [f[2] for f in feet]
+    base, k, weight, counts = _samples(layers, keeps)
+    chosen = np.array(_levels_of(base, k, weight, counts, np.column_stack((keeps, truths)), np.array(probs)))
+    _write_levels(out, found, feet, chosen, interior)
     return out
+
+
+def _interior(clipped_ch):
+    """Pixels of each channel's mask in *clipped_ch* (h, w, 3) bool with their 4 neighbours in it too (beyond the
+    array's border the mask continues): (h, w, 3) bool, the masks less their :func:`_edge`."""
+    return cv2.erode(clipped_ch.view(np.uint8), _CROSS, borderType=cv2.BORDER_REPLICATE).view(bool)
+
+
+def _write_levels(out, found, feet, chosen, interior):
+    """Each footprint's blob channel raised in *out* (H, W, 3) float32 to its *chosen* level L (J,) float64: the
+    pixels of *interior* (P, 3) bool to L, its edge pixels to (L + keep) / 2, none below its value; *feet*:
+    (blob, channel, keep) of each footprint, the blobs those of *found*. All footprints in a few whole-array
+    operations on the blobs' P * 3 values."""
+    # an edge pixel is partly covered: given that it clipped, its coverage is even over (p, 1), so its expected
+    # value is (L + clip) / 2 (see the module notes); the interior is L
+    blob, chan, keep = (np.array(v) for v in zip(*feet))
+    at = blob * 3 + chan
+    slots = 3 * len(found.boxes)
+    level, half, raised = np.zeros(slots), np.zeros(slots), np.zeros(slots, bool)
+    level[at], half[at], raised[at] = chosen, (chosen + keep) / 2, True
+    hit = np.flatnonzero(found.flags.ravel() & raised[found.slot])
+    slot = found.slot[hit]
+    to = np.where(interior.ravel()[hit], level[slot], half[slot])
+    flat = out.reshape(-1) if out.flags.c_contiguous else np.ascontiguousarray(out).reshape(-1)
+    dest = found.dest[hit]
+    flat[dest] = np.maximum(flat[dest], to)
+    if not np.shares_memory(flat, out):
+        out[...] = flat.reshape(out.shape)
 
 
 def reconstruct_prior_rim(linear_rgb, *, coc_px, clip_level: float = CLIP_LEVEL, prior_max: float = PRIOR_MAX,

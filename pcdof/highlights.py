@@ -615,6 +615,20 @@ def _layers(chan, m, edge, d: float, cover=None, key=None):
     return (rest, *cover[key], scale)
 
 
+def _channel_layers(chan, m, inner, d: float, cover: dict, key):
+    """:func:`_layers` of one channel given its mask *m* and the mask's interior *inner* (the mask less its
+    :func:`_edge`), both (h, w) bool, and *chan* float32: the same arrays, the blurred window's inputs made from
+    the two masks directly."""
+    if d > MAX_KERNEL_PX:
+        return _layers(chan, m, m & ~inner, d, cover, key)
+    kern = _disc(d)
+    rest = cv2.filter2D(np.where(m, np.float32(0.0), chan), -1, kern, borderType=cv2.BORDER_REPLICATE).ravel()
+    if key not in cover:
+        cover[key] = tuple(cv2.filter2D(a, -1, kern, borderType=cv2.BORDER_CONSTANT).ravel()
+                           for a in (inner.astype(np.float32), np.subtract(m, inner, dtype=np.float32)))
+    return (rest, *cover[key], 1.0)
+
+
 def _samples(layers, keeps):
     """(base, k, weight) of J footprints one after another, and (J,) int their counts of samples, from each
     one's :func:`_layers` and keep (the value it has unraised).
@@ -782,7 +796,7 @@ def _raise_prior(img, out, coc, prior, use_rim, found=None):
             m = clipped_ch[..., c]
             # (the blurs of a mask are shared by the channels clipped alike: a white light's, three times)
             same[c] = next((same[o] for o in same if alike[i][o + c - 1]), c)
-            lay = _layers(block[..., c], m, m & ~inner[..., c], d, cover, same[c])
+            lay = _channel_layers(block[..., c], m, inner[..., c], d, cover, same[c])
             levels = _prior_levels(float(clip_level), float(tops[i][c]), PRIOR_SAMPLES)
             # (keep: the largest value of the channel's clipped pixels)
             feet.append((i, c, found.keeps[i][c]))

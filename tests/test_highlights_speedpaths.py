@@ -3,9 +3,9 @@
 Each test writes the plain formulation out (blob by blob, channel by channel, footprint by footprint) and
 compares on random inputs: the expected loss of one prior for every footprint (its T weights, not one per
 sample), the display curve of a table with nothing on its linear segment, every channel's interior from one
-erosion, the channel bounds of every blob from one sort (found with the colour, before the circle of
-confusion), the blurs of channels clipped alike counted once, the levels written in one go, the blobs found
-from numpy's nonzero pixels, and the whole stage from 8-bit codes.
+erosion and each channel's blurs from its mask and interior, the channel bounds of every blob from one sort
+(found with the colour, before the circle of confusion), the blurs of channels clipped alike counted once, the
+levels written in one go, the blobs found from numpy's nonzero pixels, and the whole stage from 8-bit codes.
 """
 
 from __future__ import annotations
@@ -109,6 +109,26 @@ def test_interior_of_every_channel_is_each_mask_less_its_edge(seed, h, w):
     for c in range(3):
         m = clipped_ch[..., c]
         np.testing.assert_array_equal(interior[..., c], m & ~_plain_edge(m))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 40), w=st.integers(1, 40),
+       d=st.sampled_from([1.0, 2.5, 9.0, 20.0, 32.0, 33.0, 70.0]))
+def test_channel_layers_from_the_interior_are_the_plain_blurs(seed, h, w, d):
+    """A channel's blurs made from its mask and interior: the arrays :func:`_layers` makes from the mask and its
+    edge, the second channel of the same mask reusing the first one's blurred interior and edge."""
+    rng = np.random.default_rng(seed)
+    block = rng.random((h, w, 2)).astype(np.float32)
+    m = rng.random((h, w)) < rng.uniform(0.1, 0.9)
+    inner = highlights._interior(np.repeat(m[..., None], 3, axis=2))[..., 0]
+    cover = {}
+    for c in range(2):
+        got = highlights._channel_layers(block[..., c], m, inner, d, cover, "mask")
+        want = highlights._layers(block[..., c], m, _plain_edge(m), d)
+        assert got[3] == want[3]
+        for a, b in zip(got[:3], want[:3]):
+            np.testing.assert_array_equal(a, b)
+    assert len(cover) == 1
 
 
 def _blob_windows(img, found):

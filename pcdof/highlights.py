@@ -656,14 +656,16 @@ def _samples(layers, keeps):
         rank = np.arange(sel.size) - np.repeat(np.cumsum(reach) - reach, reach)
         sel = sel[rank % np.repeat(steps, reach) == 0]
     taken = -(-reach // steps)
-    counts = taken[group]
-    # footprint j's samples: its group's, at the same places of its own rest
-    offsets = np.cumsum(counts) - counts
-    at = sel[np.arange(offsets[-1] + counts[-1]) + np.repeat((np.cumsum(taken) - taken)[group] - offsets, counts)]
-    rest_sizes = np.array([lay[0].size for lay in layers], np.int64)
     rest = np.concatenate([lay[0].ravel() for lay in layers])
-    shift = (np.cumsum(rest_sizes) - rest_sizes) - (ends - sizes)[group]
-    rest = rest[at + np.repeat(shift, counts)].astype(np.float64)
+    if len(first) == len(layers):  # (none shared)
+        counts, at, rest_at = taken, sel, sel
+    else:  # footprint j's samples: its group's, at the same places of its own rest
+        counts = taken[group]
+        offsets = np.cumsum(counts) - counts
+        at = sel[np.arange(offsets[-1] + counts[-1]) + np.repeat((np.cumsum(taken) - taken)[group] - offsets, counts)]
+        rest_sizes = np.array([lay[0].size for lay in layers], np.int64)
+        rest_at = at + np.repeat((np.cumsum(rest_sizes) - rest_sizes) - (ends - sizes)[group], counts)
+    rest = rest[rest_at].astype(np.float64)
     base = rest + np.repeat(np.array(keeps, np.float64) / 2, counts) * k_edge[at]
     weight = np.repeat([step * lay[3] * lay[3] for step, lay in zip(steps[group].tolist(), layers)], counts)
     return base, k[at], weight, counts

@@ -11,7 +11,8 @@ colour and circle-of-confusion map, the stage's inputs. Timed: the part of the s
 :func:`reconstruct_prepared` with method ``auto`` (its colour-only half, :func:`prepare_highlights`, runs
 beside the fill; it is timed too, and each module reconstructs from its own). Both modules run in one
 process, alternated per repeat (ABBA, so neither always goes first); medians in ms, their ratio, and whether
-the two outputs are bit-identical (every frame, every repeat).
+the two outputs are bit-identical (every frame, every repeat). --pipeline: also the whole pipeline on the speed
+frames with each module in turn as ``pcdof.highlights`` (the stage's record and the frame's time, and the images).
 """
 
 import argparse
@@ -79,6 +80,7 @@ def main(argv=None) -> None:
     ap.add_argument("--sizes", default="640x480,1920x1080")
     ap.add_argument("--many-size", default="640x480")
     ap.add_argument("--random", type=int, default=9, help="random frames checked for equality")
+    ap.add_argument("--pipeline", action="store_true", help="also the whole pipeline with each module")
     args = ap.parse_args(argv)
 
     from pcdof import highlights
@@ -117,6 +119,40 @@ def main(argv=None) -> None:
         print(f"{name:34s} {blobs:5d}  {b:14.3f} / {n:7.3f} = {ratio}  {med['before'][1]:7.3f} / {med['now'][1]:6.3f}"
               f"  {'yes' if same else 'NO'}{'' if group != 'random' else ' (checked)'}")
     print("every output bit-identical:", "yes" if all_same else "NO")
+    if args.pipeline:
+        pipeline_side_by_side(modules, args)
+
+
+def pipeline_side_by_side(modules, args) -> None:
+    """The whole pipeline on the speed frames with each module as ``pcdof.highlights`` (the pipeline imports the
+    stage's functions when it runs it), alternated per repeat: the highlights record's ms, the frame's ms and
+    whether the images are bit-identical."""
+    from pcdof import pipeline
+    from pcdof.synth import generate_scene
+
+    name = "pcdof.highlights"
+    print(f"\npipeline (medians of {args.repeats}): highlights stage ms before / now = ratio; frame ms before / now")
+    for w, h in [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]:
+        sf = generate_scene("portrait", color_size=(w, h), depth_size=(512, 424), seed=0)
+        ts = {k: ([], []) for k in modules}
+        images = {}
+        try:
+            for i in range(args.repeats + 1):
+                for k, module in list(modules.items())[:: 1 if i % 2 == 0 else -1]:
+                    sys.modules[name] = module
+                    t0 = time.perf_counter()
+                    res = pipeline.run(sf.frame, sf.default_lens)
+                    took = time.perf_counter() - t0
+                    images[k] = res.image
+                    if i:  # (the first: warm-up)
+                        ts[k][0].append(next(t.seconds for t in res.trace if t.name == "highlights"))
+                        ts[k][1].append(took)
+                same = np.array_equal(images["before"], images["now"])
+        finally:
+            sys.modules[name] = modules["now"]
+        (sb, fb), (sn, fn) = ([statistics.median(v) * 1e3 for v in ts[k]] for k in ("before", "now"))
+        print(f"portrait {w}x{h}: {sb:.3f} / {sn:.3f} = {sb / sn:.2f}x; {fb:.1f} / {fn:.1f}; "
+              f"{'bit-identical' if same else 'DIFFERENT'}")
 
 
 if __name__ == "__main__":

@@ -212,10 +212,11 @@ def test_samples_of_channels_clipped_alike_are_each_ones(seed, d):
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2 ** 32 - 1), n=st.integers(1, 14), in_place=st.booleans())
-def test_levels_written_at_once_are_each_footprints(seed, n, in_place):
+@given(seed=st.integers(0, 2 ** 32 - 1), n=st.integers(1, 14), layout=st.sampled_from(["in place", "copy", "F"]))
+def test_levels_written_at_once_are_each_footprints(seed, n, layout):
     """Random levels for random blob channels: written in one go as footprint by footprint in its window (the
-    interior to L, the edge to (L + keep) / 2, none below its value)."""
+    interior to L, the edge to (L + keep) / 2, none below its value), into the input, a copy or a Fortran-ordered
+    copy."""
     img, _ = _frame(seed, 40, 60, n, 3.0)
     found = highlights._find_blobs(img, CLIP_LEVEL)
     rng = np.random.default_rng(seed)
@@ -235,7 +236,7 @@ def test_levels_written_at_once_are_each_footprints(seed, n, in_place):
             block[..., c][m] = np.maximum(block[..., c][m], np.where(edge[m], (level + keep) / 2, level))
     if not feet:
         return
-    out = img if in_place else img.copy()
+    out = img if layout == "in place" else img.copy() if layout == "copy" else np.asfortranarray(img)
     highlights._write_levels(out, found, feet, np.array(chosen), interior)
     np.testing.assert_array_equal(out, want)
 

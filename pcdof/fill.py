@@ -180,7 +180,8 @@ def _with_room(a, n, more):
     if a.shape[0] - n >= more:
         return a
     b = np.empty(max(2 * a.shape[0], n + more), dtype=a.dtype)
-    b[:n] = a[:n]
+    for i in range(n):  # not b[:n] = a[:n]: a slice assignment compiles its shape-mismatch message (seconds)
+        b[i] = a[i]
     return b
 
 
@@ -192,7 +193,8 @@ def _index_holes(depth, y, near, hole_y, hole_x, n_holes, zmin, zmax):
     above = near[(y + 2) % 3]
     here = near[y % 3]
     below = near[(y + 1) % 3]
-    below[:] = 0
+    for x in range(below.shape[0]):  # (a loop: see _with_room)
+        below[x] = 0
     # the range first, on the bits: positive floats order as their bits do as int32, and a minimum of
     # integers has no dependence on NaN rules, so the loop runs on vectors
     bits = depth[y].view(np.int32)

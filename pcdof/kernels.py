@@ -29,7 +29,7 @@ STAGES = {
 
 #: CPU seconds each stage's ``warmup()`` takes to compile with an empty cache, measured on the
 #: project's 2-core reference machine; only for the estimate printed before compiling.
-COMPILE_CPU_S = {"register": 6.0, "fill": 10.0, "render": 15.0}
+COMPILE_CPU_S = {"register": 5.0, "fill": 11.0, "render": 13.5}
 
 #: stages this process has checked (or compiled): each is checked once per process
 _checked: set = set()

@@ -708,22 +708,6 @@ def _insert_sorted(win, m, value):
     return m + 1
 
 
-@njit(cache=True, inline="always")
-def _alike_neighbour(out, y, x, v, edge_ratio):
-    """Whether one of the (up to 8) neighbours of (y, x) lies within *edge_ratio* (relative) of its depth *v*."""
-    H, W = out.shape
-    for dy in range(-1, 2):
-        for dx in range(-1, 2):
-            yy = y + dy
-            xx = x + dx
-            if (dy == 0 and dx == 0) or not (0 <= yy < H and 0 <= xx < W):
-                continue
-            u = float(out[yy, xx])
-            if max(u, v) <= (1.0 + edge_ratio) * min(u, v):
-                return True
-    return False
-
-
 @njit(cache=True, parallel=True, nogil=True)
 def _despeckle(out, hole_y, hole_x, edge_ratio):
     """Replace each hole whose depth differs from all of its 8 neighbours by more than *edge_ratio*
@@ -732,23 +716,30 @@ def _despeckle(out, hole_y, hole_x, edge_ratio):
     n = hole_y.shape[0]
     new = np.full(n, -1.0)
     for c in prange((n + 255) // 256):
-        win = np.empty(8)
+        near = np.empty(8)  # the neighbours in raster order
+        win = np.empty(8)  # sorted, at a speckle only
         for h in range(c * 256, min(n, (c + 1) * 256)):
             y = hole_y[h]
             x = hole_x[h]
             v = float(out[y, x])
-            if _alike_neighbour(out, y, x, v, edge_ratio):
-                continue
             m = 0
+            alike = False
             for dy in range(-1, 2):
                 for dx in range(-1, 2):
                     yy = y + dy
                     xx = x + dx
                     if (dy == 0 and dx == 0) or not (0 <= yy < H and 0 <= xx < W):
                         continue
-                    m = _insert_sorted(win, m, float(out[yy, xx]))
-            if m > 0:
-                new[h] = win[(m - 1) // 2]
+                    u = float(out[yy, xx])
+                    near[m] = u
+                    m += 1
+                    alike = alike or max(u, v) <= (1.0 + edge_ratio) * min(u, v)
+            if alike or m == 0:
+                continue
+            k = 0
+            for i in range(m):
+                k = _insert_sorted(win, k, near[i])
+            new[h] = win[(m - 1) // 2]
     for h in range(n):
         if new[h] >= 0.0:
             out[hole_y[h], hole_x[h]] = new[h]

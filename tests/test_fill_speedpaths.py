@@ -22,28 +22,10 @@ from numba import njit
 
 from pcdof import fill
 from pcdof.camera import as_depth_m
-from pcdof.fill import BORDER, GAP, LOST, SURFACE
+from pcdof.fill import BORDER, GAP, LOST, SURFACE, _color_sim  # the similarity itself is unchanged
 
 # ---------------------------------------------------------------------------------------------
 # the plain formulations
-
-
-@njit
-def _plain_color_sim(color, depth, c0, c1, c2, qy, qx, uy, ux, n_samples, inv_two_sigma2):
-    H, W, _ = color.shape
-    best = np.inf
-    sy = qy
-    sx = qx
-    for _ in range(n_samples):
-        if not (0 <= sy < H and 0 <= sx < W and depth[sy, sx] > 0.0):
-            break
-        d0 = float(color[sy, sx, 0]) - c0
-        d1 = float(color[sy, sx, 1]) - c1
-        d2 = float(color[sy, sx, 2]) - c2
-        best = min(best, d0 * d0 + d1 * d1 + d2 * d2)
-        sy += uy
-        sx += ux
-    return math.exp(-best * inv_two_sigma2)
 
 
 @njit
@@ -85,7 +67,7 @@ def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, 
                 k = kq[j]
                 ux = rules.step if dirs[k, 0] > 0 else (-rules.step if dirs[k, 0] < 0 else 0)
                 uy = rules.step if dirs[k, 1] > 0 else (-rules.step if dirs[k, 1] < 0 else 0)
-                sim = _plain_color_sim(color, depth, c0, c1, c2, bnd.y[qs[j]], bnd.x[qs[j]], uy, ux,
+                sim = _color_sim(color, depth, c0, c1, c2, bnd.y[qs[j]], bnd.x[qs[j]], uy, ux,
                                        rules.n_samples, rules.inv_two_sigma2)
                 score += sim / (r[j] + rules.support_px)
             sw += 1.0 / r[j]

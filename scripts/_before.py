@@ -1,4 +1,4 @@
-"""Shared by the side-by-side scripts: an earlier pcdof/renderer.py loaded next to the current one."""
+"""Shared by the side-by-side scripts: an earlier src/pcdof/renderer.py loaded next to the current one."""
 
 import argparse
 import importlib.util
@@ -9,7 +9,7 @@ def renderer_arguments(description: str, repeats: int) -> argparse.ArgumentParse
     """A parser with the arguments every side-by-side script takes: the earlier renderer's file, --repeats
     and --sizes (comma-separated WxH)."""
     ap = argparse.ArgumentParser(description=description)
-    ap.add_argument("before", help="an earlier pcdof/renderer.py (git show REV:pcdof/renderer.py > FILE)")
+    ap.add_argument("before", help="an earlier src/pcdof/renderer.py (git show REV:src/pcdof/renderer.py > FILE)")
     ap.add_argument("--repeats", type=int, default=repeats)
     ap.add_argument("--sizes", default="640x480,1920x1080")
     return ap

@@ -1,6 +1,6 @@
 """What the extension behind nearer layers costs, with an earlier renderer and the current one, side by side.
 
-    git show REV:pcdof/renderer.py > before_renderer.py
+    git show REV:src/pcdof/renderer.py > before_renderer.py
     python scripts/extension_side_by_side.py before_renderer.py --repeats 21
 
 Both renderers render the benchmark's speed frames (synthetic portrait, 512x424 depth, the scene's

@@ -1,6 +1,6 @@
-"""The depth fill with an earlier pcdof/fill.py and the current one, side by side.
+"""The depth fill with an earlier src/pcdof/fill.py and the current one, side by side.
 
-    git show REV:pcdof/fill.py > /tmp/before_fill.py
+    git show REV:src/pcdof/fill.py > /tmp/before_fill.py
     python scripts/fill_side_by_side.py /tmp/before_fill.py --repeats 21
 
 Both fills run in one process on the benchmark's speed frames (synthetic portrait, 512x424 depth,
@@ -132,7 +132,7 @@ def compare(before, now, name, depth_m, color, *, variants=True) -> bool:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("before", help="an earlier pcdof/fill.py (git show REV:pcdof/fill.py > FILE)")
+    ap.add_argument("before", help="an earlier src/pcdof/fill.py (git show REV:src/pcdof/fill.py > FILE)")
     ap.add_argument("--repeats", type=int, default=21)
     ap.add_argument("--sizes", default="640x480,1920x1080")
     ap.add_argument("--seeds", default="1,2")

@@ -1,6 +1,6 @@
-"""The highlights stage with an earlier pcdof/highlights.py and the current one, side by side.
+"""The highlights stage with an earlier src/pcdof/highlights.py and the current one, side by side.
 
-    git show REV:pcdof/highlights.py > before_highlights.py
+    git show REV:src/pcdof/highlights.py > before_highlights.py
     python scripts/highlights_side_by_side.py before_highlights.py --repeats 21
 
 Frames: the benchmark's speed frames (synthetic portrait, 512x424 depth, the scene's default lens) at
@@ -75,7 +75,7 @@ def frames(args):
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("before", help="an earlier pcdof/highlights.py (git show REV:pcdof/highlights.py > FILE)")
+    ap.add_argument("before", help="an earlier src/pcdof/highlights.py (git show REV:src/pcdof/highlights.py > FILE)")
     ap.add_argument("--repeats", type=int, default=21)
     ap.add_argument("--sizes", default="640x480,1920x1080")
     ap.add_argument("--many-size", default="640x480")

@@ -1,6 +1,6 @@
 """The full pipeline's speed with an earlier renderer and the current one, side by side.
 
-    git show REV:pcdof/renderer.py > before_renderer.py
+    git show REV:src/pcdof/renderer.py > before_renderer.py
     python scripts/speed_side_by_side.py before_renderer.py --before-balanced 4 --repeats 11
 
 Both renderers run in one process on the benchmark's speed frames (synthetic portrait, 512x424 depth,

@@ -28,7 +28,7 @@ from ..errors import InputError
 from ._common import handle_errors, make_output_folder
 from ._report import is_quiet, report_decision
 
-DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "data")
+DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))), "data")
 
 #: name -> (folder under data/, colour, depth, calibration); Middlebury's im0 shares cam0 with depth0
 FRAMES = {

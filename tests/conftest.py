@@ -7,8 +7,3 @@ import os
 # tests check what a frame does on two threads (the colour side's worker), and a test run shares its machine:
 # keep every run on the thread count numba was given.
 os.environ.setdefault("PCDOF_ADAPT_THREADS", "0")
-
-# A one-frame CLI command run in this process (click's test runner) would put the kernels compiled ahead of time
-# (pcdof.ahead) in place for the rest of the session: tests check numba's kernels unless they choose those
-# (tests/test_ahead.py activates them itself and runs the console script in fresh processes).
-os.environ.setdefault("PCDOF_AHEAD", "0")

@@ -96,12 +96,7 @@ def cold_stages(stages=tuple(STAGES)) -> list[str]:
 
 
 def _cold(module_name: str) -> bool:
-    """Whether none of *module_name*'s kernels is in numba's cache nor compiled ahead of time in this process
-    (:mod:`pcdof.ahead`)."""
-    from . import ahead
-
-    if ahead.active() and ahead.covers(module_name):
-        return False
+    """Whether none of *module_name*'s kernels is in numba's cache."""
     return not any(_in_cache(d) for d in _cached_dispatchers(module_name))
 
 

@@ -324,29 +324,3 @@ def threads_for_load(meter: CoreLoad | None = None):
     finally:
         numba.set_num_threads(before)
         cv2.setNumThreads(cv_before)
-
-
-#: ``PCDOF_AHEAD``: ``0`` never runs the kernels compiled ahead of time, ``1`` does whenever they are built
-AHEAD_ENV = "PCDOF_AHEAD"
-#: A process that renders one frame of at most this many colour pixels runs the kernels compiled ahead of time
-#: (:mod:`pcdof.ahead`) where they are built: they load in a millisecond where numba's cached kernels take about
-#: 0.26 s, and run on one thread, which cost a 640x480 frame 19 ms, a 1920x1080 frame 95 ms and a 2560x1440
-#: frame 130 ms more on two cores (``python scripts/ahead_side_by_side.py --sizes 640x480,1920x1080,2560x1440``);
-#: beyond this (a 3840x2160 frame: about 4 times the 1920x1080 one's) the lost threads cost more.
-AHEAD_MAX_PX = 2560 * 1440
-
-
-def compiled_ahead(frames: int, pixels: int) -> bool:
-    """Whether a process that renders *frames* frames of *pixels* colour pixels each (and nothing else) should
-    run the kernels compiled ahead of time: one frame of at most :data:`AHEAD_MAX_PX` pixels. ``PCDOF_AHEAD=0``
-    says never and ``PCDOF_AHEAD=1`` always. Whether they are built is :func:`pcdof.ahead.activate`'s to find.
-    """
-    import os
-
-    for name, value in (("frames", frames), ("pixels", pixels)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise InputError(f"{name} must be an integer >= 1; got {value!r}")
-    setting = os.environ.get(AHEAD_ENV, "")
-    if setting in ("0", "1"):
-        return setting == "1"
-    return frames == 1 and pixels <= AHEAD_MAX_PX

@@ -188,10 +188,8 @@ def _wall_s(cmd, env=None) -> float:
 def startup(*, size=(640, 480), depth_size=(512, 424), scene="portrait", repeats: int = 5, cold: bool = True,
             progress: bool = True) -> dict:
     """Wall seconds of fresh processes: ``python -c "import pcdof"``, a warm one-shot ``pcdof render`` of a
-    *size* frame (kernels cached; where the kernels compiled ahead of time are built, it runs them, and the
-    same render with numba's cached kernels, ``PCDOF_AHEAD=0``, is measured alternated with it), and with
-    *cold* a first ``pcdof render`` with an empty kernel cache (a fresh install: numba's cache pointed at a new
-    folder, so every stage compiles, then the frame renders; no kernels compiled ahead of time there either, as
+    *size* frame (kernels in numba's cache), and with *cold* a first ``pcdof render`` with an empty kernel cache
+    (a fresh install: numba's cache pointed at a new folder, so every stage compiles, then the frame renders, as
     after ``pip install`` without ``pcdof warmup``).
 
     *repeats* (>= 1, checked before any work): runs of the import and of the warm render (medians and
@@ -208,25 +206,14 @@ def startup(*, size=(640, 480), depth_size=(512, 424), scene="portrait", repeats
         write_scene(sf, tmp, ground_truth=False, linear=False)
         render = ["render", os.path.join(tmp, "color.png"), os.path.join(tmp, "depth.png"), "--calib",
                   os.path.join(tmp, "calib.json"), "-o", os.path.join(tmp, "out.png")]
-        imports, warm, numba_only = [], [], []
+        imports, warm = [], []
         _wall_s(_cli(render))  # the kernels in the cache, whatever ran before
-        from ..ahead import available
-        from ..plans import AHEAD_ENV
-
-        ahead = available()  # kernels compiled ahead of time (pcdof warmup): the warm render runs them
-        shipped = {k: v for k, v in os.environ.items() if k != AHEAD_ENV}  # the planner's own choice
-        numba_env = {**shipped, AHEAD_ENV: "0"}
         for _ in tqdm(range(repeats), desc="start-up", disable=not progress):
             imports.append(_wall_s([sys.executable, "-c", "import pcdof"]))
-            warm.append(_wall_s(_cli(render), env=shipped))
-            if ahead:
-                numba_only.append(_wall_s(_cli(render), env=numba_env))
+            warm.append(_wall_s(_cli(render)))
         out = {"color_size": f"{size[0]}x{size[1]}", "depth_size": f"{depth_size[0]}x{depth_size[1]}",
                "repeats": repeats, "import_s": statistics.median(imports), "import_s_quartiles": quartiles(imports),
                "warm_render_s": statistics.median(warm), "warm_render_s_quartiles": quartiles(warm),
-               "compiled_ahead": ahead,
-               "warm_render_numba_s": statistics.median(numba_only) if ahead else None,
-               "warm_render_numba_s_quartiles": quartiles(numba_only) if ahead else None,
                "cold_render_s": None, "load_average": _load()}
         if cold:
             with tempfile.TemporaryDirectory(prefix="pcdof-cache-") as cache:

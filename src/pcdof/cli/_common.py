@@ -371,15 +371,3 @@ def focus_on_centre(options, flags: dict, rig):
     if flags["focus_distance_m"] is not None or flags["focus_at"] is not None:
         return options
     return options.replace(focus_at=((rig.color.width - 1) / 2, (rig.color.height - 1) / 2))
-
-
-def one_frame_kernels(color) -> None:
-    """This process works on one frame of *color* (H, W[, C]): it runs the kernels compiled ahead of time where
-    the planner says they win there (:func:`pcdof.plans.compiled_ahead`) and they are built (:mod:`pcdof.ahead`),
-    else numba's."""
-    from ..plans import compiled_ahead
-
-    if compiled_ahead(1, int(color.shape[0] * color.shape[1])):
-        from ..ahead import activate
-
-        activate()

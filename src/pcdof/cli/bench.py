@@ -230,12 +230,8 @@ def _speed_lines(rows, scaling, start) -> list[str]:
     load = "" if start["load_average"] is None else f" (load average {start['load_average']:.1f})"
     lines += ["", *table_lines(("fresh process", "seconds (median)", "quartiles"), (
         ("python -c 'import pcdof'", f"{start['import_s']:.3f}", q(start["import_s_quartiles"], "{:.3f}")),
-        (f"pcdof render, {start['color_size']}, kernels cached"
-         + (", compiled ahead of time" if start.get("compiled_ahead") else ""), f"{start['warm_render_s']:.2f}",
+        (f"pcdof render, {start['color_size']}, kernels cached", f"{start['warm_render_s']:.2f}",
          q(start["warm_render_s_quartiles"], "{:.2f}")),
-        *([(f"pcdof render, {start['color_size']}, numba's cached kernels (PCDOF_AHEAD=0)",
-            f"{start['warm_render_numba_s']:.2f}", q(start["warm_render_numba_s_quartiles"], "{:.2f}"))]
-          if start.get("warm_render_numba_s") is not None else []),
         (f"pcdof render, {start['color_size']}, empty kernel cache (first run after an install)", cold, "one run")))]
     lines.append(f"Start-up: {start['repeats']} run{'s' if start['repeats'] != 1 else ''} of each{load}.")
     return lines

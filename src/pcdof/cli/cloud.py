@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from ..fill import FILL_METHODS, fill_depth
-from ._common import check_output_file, check_output_paths, handle_errors, load_source_frame, one_frame_kernels, \
+from ._common import check_output_file, check_output_paths, handle_errors, load_source_frame, \
     source_arguments, source_inputs
 from ._report import report_decision
 
@@ -34,7 +34,6 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, no_fi
     output_format(output, (".ply",), name="output")
     frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"-o": output})
-    one_frame_kernels(frame.color)
     depth_m = register_depth(frame)
     if not no_fill:
         depth_m = fill_depth(depth_m, frame.color, method=fill_method)

@@ -10,7 +10,7 @@ import click
 from ..errors import InputError
 from ..io.writers import IMAGE_FORMATS
 from ._common import build_render_options, check_output_file, check_positive_flags, check_output_folder, focus_on_centre, focus_source, \
-    handle_errors, load_source_frame, make_output_folder, one_frame_kernels, render_options, source_arguments, \
+    handle_errors, load_source_frame, make_output_folder, render_options, source_arguments, \
     warn_float_colour
 from ._report import report_decision
 
@@ -55,7 +55,6 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
         fits = [ext for ext, dtypes in IMAGE_FORMATS.items() if out_dtype in dtypes]
         raise InputError(f"COLOR is {out_dtype}, which {suffix} cannot store; write the render as "
                          f"{'/'.join(fits)}")
-    one_frame_kernels(frame.color)
     result = pipeline.run(frame, focus_on_centre(options, render_flags, frame.rig))
     if save_maps:  # the maps first and the image last: a failure leaves neither behind
         created = not os.path.isdir(save_maps)
@@ -76,9 +75,6 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     if explain:
         click.echo(f"focus distance: {result.lens.focus_distance_m:.3f} m", err=True)
         click.echo(result.explain(), err=True)
-        from ..ahead import active
-
-        click.echo("kernels: compiled ahead of time (one thread)" if active() else "kernels: numba's", err=True)
     report_decision("render", output=output, focus_distance_m=float(result.lens.focus_distance_m),
                     focus_source=focus_source(render_flags),
                     max_blur_px=float(result.coc_px.max()) if result.coc_px is not None and result.coc_px.size

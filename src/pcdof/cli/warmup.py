@@ -13,17 +13,12 @@ from ._common import handle_errors
 @click.command("warmup")
 @click.option("--stages", default=",".join(STAGES), show_default=True,
               help="Comma-separated stages to compile.")
-@click.option("--ahead/--no-ahead", default=True, show_default=True,
-              help="Also compile every stage's kernels ahead of time (needs a C compiler; about 25 s), "
-                   "so one-frame commands start without loading numba's cache.")
 @handle_errors
-def command(stages, ahead):
+def command(stages):
     """Compile (or load from numba's cache) the kernels of every stage, so the first render starts at once.
 
     The first run after an install or upgrade compiles them (the stages side by side, one line as
-    each is done); later runs only load them from the cache and report how long that took. With
-    --ahead (the default) the kernels are also built into one extension module where none matches this
-    install yet (pcdof.ahead), which one-frame commands such as ``pcdof render`` load instead.
+    each is done); later runs only load them from the cache and report how long that took.
     """
     from ..kernels import check_stages, cold_stages, estimate_seconds, warmup
 
@@ -36,11 +31,4 @@ def command(stages, ahead):
         click.echo("kernels already compiled; loading", err=True)
     t0 = time.perf_counter()
     seconds = warmup(names, progress=lambda line: click.echo(line, err=True), processes=True)
-    if ahead:
-        from .. import ahead as compiled
-
-        if compiled.available():
-            click.echo("  kernels ahead of time: already built", err=True)
-        else:
-            compiled.build(progress=lambda line: click.echo(line, err=True))
     click.echo(f"ready in {time.perf_counter() - t0:.1f} s: {', '.join(f'{k} {v:.1f} s' for k, v in seconds.items())}")

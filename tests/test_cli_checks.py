@@ -153,18 +153,6 @@ def test_input_paths_are_checked_by_pcdof_readers_not_click():
     assert [(cmd, name) for cmd, name, kind in paths if kind.readable] == []
 
 
-class TestNumbaCacheFallback:
-    def test_fallback_only_when_no_candidate_is_writable(self, tmp_path):
-        blocker = tmp_path / "file"
-        blocker.write_bytes(b"")
-        unwritable = [str(blocker / "a"), str(blocker / "b")]  # under a regular file: never a folder
-        fallback = str(tmp_path / "cache")
-        assert pcdof._numba_cache_fallback(unwritable, fallback) == fallback
-        assert os.path.isdir(fallback)
-        assert pcdof._numba_cache_fallback([*unwritable, str(tmp_path / "ok")], fallback) is None
-        assert pcdof._numba_cache_fallback(unwritable, str(blocker / "c")) is None  # nothing writable at all
-
-
 class TestFollowUps:
     """Arguments checked once and up front, where a late check would be caught per frame or ignored."""
 

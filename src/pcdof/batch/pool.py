@@ -19,6 +19,7 @@ import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
+from ..runtime.process import tune_process, tuning
 from .signals import _signals_held, _starting_processes
 from .tasks import BatchJob, FrameTask, failed_record
 
@@ -60,8 +61,10 @@ def _threads_restored():
 _WORKER: dict = {"job": None, "render": None}
 
 
-def _init_worker(job: BatchJob, render) -> None:
+def _init_worker(job: BatchJob, render, tuned: bool) -> None:
     _WORKER["job"], _WORKER["render"] = job, render
+    if tuned:  # the parent is a process that exists to run pcdof: so is each worker
+        tune_process()
     # Ctrl-C reaches every process of the terminal's group: the parent alone decides, and stops the workers
     # with SIGTERM, on which a worker removes its half-written temporary files and exits without a traceback.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -182,7 +185,7 @@ def _run_pool(ctx, job: BatchJob, queue: list[FrameTask], workers: int, collect,
     """One pool over *queue* (see :func:`_drain`); Ctrl-C or SIGTERM stops its workers with SIGTERM."""
     with _starting_processes():
         pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx,
-                                   initializer=_init_worker, initargs=(job, render))
+                                   initializer=_init_worker, initargs=(job, render, bool(tuning())))
     try:
         return _drain(pool, queue, workers, collect)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the workers ignore SIGINT; stop them with SIGTERM

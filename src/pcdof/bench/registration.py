@@ -447,14 +447,14 @@ def _spawn(names: list, jobs: list) -> dict:
     import multiprocessing
     import os
 
-    import pcdof
+    from ..runtime.process import tuning
 
     ctx = multiprocessing.get_context("spawn")
     conns = {}
     restore = os.environ.get("GOMP_SPINCOUNT")
     try:
         for n in names:
-            if pcdof.SPINCOUNT_SET:
+            if "GOMP_SPINCOUNT" in tuning():
                 os.environ["GOMP_SPINCOUNT"] = "10000" if n == "pcdof" else "300000"
             here, there = ctx.Pipe()
             proc = ctx.Process(target=_serve, args=(n, jobs, there), daemon=True)

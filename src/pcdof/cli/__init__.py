@@ -167,6 +167,9 @@ def console_main() -> None:
     """
     global _own_process
     _own_process = True
+    from ..runtime.process import tune_process
+
+    tune_process()  # before numba or OpenMP loads: they read their settings once
     try:
         main()
     finally:

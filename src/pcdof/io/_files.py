@@ -13,17 +13,13 @@ import tempfile
 import warnings
 import zlib
 
-# OpenCV reads OPENCV_IO_ENABLE_OPENEXR when it decodes the first EXR; set it before cv2 is used so
-# that an OpenCV built with OpenEXR can serve as the fallback EXR backend.
-os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+import cv2
+import numpy as np
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-
-from ..camera import MAX_IMAGE_SIDE  # noqa: E402
-from ..errors import ImageReadError, ImageWriteError, InputError  # noqa: E402
-from ._capture import captured_stderr, pass_on  # noqa: E402
-from ._jpeg import decode_jpeg  # noqa: E402
+from ..camera import MAX_IMAGE_SIDE
+from ..errors import ImageReadError, ImageWriteError, InputError
+from ._jpeg import decode_jpeg
+from .capture import captured_stderr, pass_on
 
 #: Largest image the readers decode (pixels); together with ``MAX_IMAGE_SIDE`` per side.
 MAX_PIXELS = 250_000_000

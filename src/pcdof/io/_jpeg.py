@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ..errors import ImageReadError
-from ._capture import captured_stderr, pass_on
+from .capture import captured_stderr, pass_on
 
 _SOI, _EOI, _SOS = 0xD8, 0xD9, 0xDA
 _STANDALONE = {0x01, *range(0xD0, 0xD8)}  # TEM and RST0..7: markers without a length field

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 from .camera import _short
 from .errors import InputError, LensError
-from .lens import PaperLens, ThinLens, parse_focus_pixel
+from .focus import parse_focus_at
+from .lens import PaperLens, ThinLens
 
 #: Ways to run the per-frame pipeline; "cpu" is the only one built in ("auto" picks the best usable one).
 DEVICES = ("auto", "cpu")
@@ -31,7 +32,8 @@ class RenderOptions:
     quality : physical method's speed/accuracy tier, a key of :data:`pcdof.renderer.QUALITIES`
     fill_method : depth hole filling, a key of :data:`pcdof.fill.FILL_METHODS`
     linear : colour holds linear light (float, may exceed 1) instead of sRGB
-    focus_at : optional (x, y) colour pixel; the focus distance becomes the robust depth there
+    focus_at : None (the lens's focus distance), an (x, y) colour pixel or "center" (the image centre): the
+        focus distance becomes the robust depth there (:mod:`pcdof.focus`)
     highlights : radiance of clipped highlights before the blur (physical method, 8/16-bit sRGB input
         only; linear input is never touched): a key of :data:`pcdof.highlights.HIGHLIGHT_METHODS`
         ("auto", the default: each clipped channel raised to the level of least expected error under a
@@ -46,7 +48,7 @@ class RenderOptions:
     quality: str = "balanced"
     fill_method: str = "joint-bilateral"
     linear: bool = False
-    focus_at: tuple[float, float] | None = None
+    focus_at: tuple[float, float] | str | None = None
     highlights: str | float = "auto"
     device: str = "auto"
 
@@ -63,7 +65,7 @@ class RenderOptions:
         check_fill_method(self.fill_method, "fill_method")
         if not isinstance(self.linear, bool):
             raise InputError(f"linear must be True or False; got {_short(self.linear)}")
-        object.__setattr__(self, "focus_at", parse_focus_pixel(self.focus_at))
+        object.__setattr__(self, "focus_at", parse_focus_at(self.focus_at))
         from .highlights import HIGHLIGHT_METHODS, parse_highlights
 
         _, gain = parse_highlights(self.highlights)  # a method's name stays a name; a number becomes a float
@@ -80,7 +82,7 @@ class RenderOptions:
         """Plain JSON-ready description (reports, resume keys)."""
         out = dataclasses.asdict(self)
         out["lens"] = {"type": type(self.lens).__name__, **dataclasses.asdict(self.lens)}
-        out["focus_at"] = list(self.focus_at) if self.focus_at is not None else None
+        out["focus_at"] = list(self.focus_at) if isinstance(self.focus_at, tuple) else self.focus_at
         return out
 
 

@@ -21,7 +21,8 @@ import numpy as np
 
 from .camera import RGBDFrame, check_color
 from .errors import InputError
-from .lens import ThinLens, _depth_array, focus_depth_at
+from .focus import resolve_lens
+from .lens import ThinLens, _depth_array
 from .options import as_options
 from .plans import threads_for_load
 from .renderer import SHARP_COC_PX, check_method, render_image
@@ -264,14 +265,6 @@ def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", 
     return image, coc
 
 
-def _resolve_lens(lens, focus_at, depth_registered_m, depth_filled_m):
-    """*lens* focused at the robust depth around pixel *focus_at* (None: *lens* unchanged)."""
-    if focus_at is None:
-        return lens
-    source = depth_registered_m if np.any(depth_registered_m > 0) else depth_filled_m
-    return dataclasses.replace(lens, focus_distance_m=focus_depth_at(source, *focus_at))
-
-
 def run(frame: RGBDFrame, lens, **options) -> RenderResult:
     """Register, fill, and render one frame.
 
@@ -303,7 +296,7 @@ def _run_stages(frame: RGBDFrame, opts) -> RenderResult:
     # took a core from registration and gave no time back)
     colour_side = _start_colour_side(frame.color, opts)
     filled = fill_stage(registered, frame.color, trace, method=opts.fill_method)
-    lens = _resolve_lens(opts.lens, opts.focus_at, registered, filled)
+    lens = resolve_lens(opts.lens, opts.focus_at, registered, filled)
     image, coc = render_stages(frame.color, filled, lens, frame.rig.color.fx, trace, method=opts.method,
                                max_range_m=frame.rig.max_range_m, linear=opts.linear, quality=opts.quality,
                                highlights=opts.highlights, prepared=colour_side)

@@ -477,9 +477,8 @@ def prepare_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral"
     frame : RGBDFrame
     lens : ThinLens, the starting lens
     fill_method : a key of :data:`pcdof.fill.FILL_METHODS`
-    focus_at : optional (x, y) colour pixel; the lens is focused at the robust depth around it
-        (:func:`pcdof.lens.focus_depth_at` on the registered depth, or the filled one where
-        registration left nothing known)
+    focus_at : None, an (x, y) colour pixel or "center": the lens is focused at the robust depth there
+        (:func:`pcdof.focus.resolve_lens`)
 
     Returns
     -------
@@ -488,7 +487,7 @@ def prepare_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral"
     """
     from .camera import RGBDFrame
     from .fill import check_fill_method
-    from .lens import focus_depth_at, parse_focus_pixel
+    from .focus import parse_focus_at, resolve_lens
     from .pipeline import fill_stage, register_stage
 
     if not isinstance(frame, RGBDFrame):
@@ -496,19 +495,11 @@ def prepare_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral"
     if not isinstance(lens, ThinLens):
         raise LensError(f"lens must be a ThinLens; got {type(lens).__name__}")
     check_fill_method(fill_method, "fill_method")  # the cheap checks before registering and filling
-    pixel = parse_focus_pixel(focus_at)
+    focus_at = parse_focus_at(focus_at)
     trace: list = []
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=fill_method)
-    if pixel is not None:
-        lens = lens.with_focus(focus_depth_at(focus_source(registered, filled), *pixel))
-    return registered, filled, lens
-
-
-def focus_source(registered_m, filled_m) -> np.ndarray:
-    """The depth a picked pixel is focused on: the registered one (measured), or the filled one when
-    registration left nothing known."""
-    return registered_m if np.any(np.asarray(registered_m) > 0) else filled_m
+    return registered, filled, resolve_lens(lens, focus_at, registered, filled)
 
 
 #: The PyVista user interface lives in :mod:`pcdof.viewer_ui`; its public names stay importable from here.

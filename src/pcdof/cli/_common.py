@@ -326,9 +326,10 @@ def build_render_options(flags: dict, *, extra_positive: dict | None = None, thi
 
     Returns
     -------
-    RenderOptions; ``focus_at`` is None when no focus flag was given (see :func:`focus_on_centre`)
+    RenderOptions; ``focus_at`` is "center" (:data:`pcdof.focus.CENTRE`) when no focus flag was given
     """
     from ..errors import LensError
+    from ..focus import CENTRE
     from ..lens import PaperLens, ThinLens
     from ..options import RenderOptions
 
@@ -346,7 +347,8 @@ def build_render_options(flags: dict, *, extra_positive: dict | None = None, thi
                       weight=f["weight"], eq1_aperture=f["eq1_aperture"])
     lens = paper if f["method"] == "paper" and not thin_lens else thin
     return RenderOptions(lens=lens, method=f["method"], quality=f["quality"], fill_method=f["fill_method"],
-                         linear=f["linear"], focus_at=f["focus_at"], highlights=f["highlights"])
+                         linear=f["linear"], highlights=f["highlights"],
+                         focus_at=CENTRE if f["focus_at"] is None and f["focus_distance_m"] is None else f["focus_at"])
 
 
 def warn_float_colour(color, options) -> None:
@@ -364,10 +366,3 @@ def focus_source(flags: dict) -> str:
         x, y = flags["focus_at"]
         return f"--focus-at {x:g},{y:g}"
     return "depth at the image centre"
-
-
-def focus_on_centre(options, flags: dict, rig):
-    """*options*, focused at the image centre of *rig*'s colour camera when no focus flag (in *flags*) chose one."""
-    if flags["focus_distance_m"] is not None or flags["focus_at"] is not None:
-        return options
-    return options.replace(focus_at=((rig.color.width - 1) / 2, (rig.color.height - 1) / 2))

@@ -10,6 +10,7 @@ import click
 
 from ..batch.schedule import MAX_BETA, check_rate
 from ..errors import InputError, one_line
+from ..focus import CENTRE
 from ._common import build_render_options, check_output_file, check_output_folder, check_output_paths, \
     check_positive_flags, handle_errors, render_options
 from ._report import report_decision
@@ -132,7 +133,7 @@ def command(input_path, calib, output_dir, render_flags, focus_keyframes, f_numb
     if focus_window < 1:
         raise InputError(f"--focus-window must be a whole number of frames >= 1; got {focus_window}")
     if not given:  # like `pcdof render`: focus on the depth at the image centre (followed over time)
-        focus_at = "center"
+        focus_at = CENTRE
     try:
         report = render_sequence(
             input_path, output_dir, options=options, calib=calib, focus_at=focus_at, focus_keyframes=focus_keyframes,

@@ -9,7 +9,7 @@ import click
 
 from ..errors import InputError
 from ..io.writers import IMAGE_FORMATS
-from ._common import build_render_options, check_output_file, check_positive_flags, check_output_folder, focus_on_centre, focus_source, \
+from ._common import build_render_options, check_output_file, check_positive_flags, check_output_folder, focus_source, \
     handle_errors, load_source_frame, make_output_folder, render_options, source_arguments, \
     warn_float_colour
 from ._report import report_decision
@@ -55,7 +55,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
         fits = [ext for ext, dtypes in IMAGE_FORMATS.items() if out_dtype in dtypes]
         raise InputError(f"COLOR is {out_dtype}, which {suffix} cannot store; write the render as "
                          f"{'/'.join(fits)}")
-    result = pipeline.run(frame, focus_on_centre(options, render_flags, frame.rig))
+    result = pipeline.run(frame, options)
     if save_maps:  # the maps first and the image last: a failure leaves neither behind
         created = not os.path.isdir(save_maps)
         make_output_folder(save_maps, "--save-maps")

@@ -9,7 +9,7 @@ import sys
 import click
 
 from ..errors import InputError
-from ._common import build_render_options, check_output_file, check_output_folder, focus_on_centre, focus_source, \
+from ._common import build_render_options, check_output_file, check_output_folder, focus_source, \
     handle_errors, load_source_frame, render_options, source_arguments, warn_float_colour
 from ._report import report_decision
 from .render import IMAGE_SUFFIXES
@@ -104,7 +104,6 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
                                      time_s=time_s, outputs={"--screenshot": screenshot, "--html": html_path},
                                      folders={"--output-dir": output_dir})
     warn_float_colour(frame.color, options)
-    options = focus_on_centre(options, render_flags, frame.rig)
     if serve:
         serve_frame(frame, options, coc_limit_px=coc_limit_px, stride=stride, color_by=color_by,
                     source_name=os.path.basename(color), host=host, port=port, output_dir=output_dir)

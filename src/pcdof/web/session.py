@@ -14,8 +14,9 @@ import numpy as np
 
 from ..camera import Intrinsics, check_color
 from ..errors import InputError, LensError
-from ..lens import ThinLens, focus_depth_at, positive_number
-from ..viewer import downscale_for_preview, focus_source, lens_numbers, render_preview
+from ..lens import ThinLens, positive_number
+from ..focus import depth_at
+from ..viewer import downscale_for_preview, lens_numbers, render_preview
 
 #: Largest side of the preview rendered while a slider is dragged, pixels.
 DRAFT_MAX_SIDE = 240
@@ -103,8 +104,8 @@ class ViewSession:
         return self._full[1]
 
     def depth_at(self, u: float, v: float) -> float:
-        """Robust depth at colour pixel (u, v), metres (:func:`pcdof.lens.focus_depth_at` on the measured depth)."""
-        return focus_depth_at(focus_source(self.registered_m, self.filled_m), u, v)
+        """Robust depth at colour pixel (u, v), metres (:func:`pcdof.focus.depth_at`)."""
+        return depth_at(self.registered_m, self.filled_m, u, v)
 
     def depth_at_fraction(self, x_frac: float, y_frac: float) -> float:
         """Depth at the point a fraction (x_frac, y_frac) of the image's width and height from its top-left edge."""

@@ -2,7 +2,7 @@
 
 import os
 
-# The pipeline lowers its thread count while other processes keep cores busy (pcdof.plans.threads_for_load).
+# The pipeline lowers its thread count while other processes keep cores busy (pcdof.runtime.threads.threads_for_load).
 # Results do not depend on it (tests/test_threads_under_load.py checks that and the adaptation itself), but some
 # tests check what a frame does on two threads (the colour side's worker), and a test run shares its machine:
 # keep every run on the thread count numba was given.

@@ -1,4 +1,4 @@
-"""Kernels compiled once and said so (pcdof.kernels), one kernel type per input dtype, and a light
+"""Kernels compiled once and said so (pcdof.runtime.kernels), one kernel type per input dtype, and a light
 render command (no heavy library imported, no kernel compiled when the cache is warm)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pcdof import kernels
+from pcdof.runtime import kernels
 from pcdof.errors import InputError, PcdofError
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -166,7 +166,7 @@ class TestColdCache:
         estimate, then one line per stage and the total (the compile itself replaced here by a stand-in)."""
         proc = _python("""
             import sys
-            from pcdof import kernels
+            from pcdof.runtime import kernels
             print(kernels.cold_stages())
             kernels.warmup = lambda stages, progress, processes: [progress(f"  [{i}/{len(stages)}] {s}: 0.0 s")
                                                                   for i, s in enumerate(stages, 1)]
@@ -188,7 +188,7 @@ class TestColdCache:
             from pcdof.fill import fill_depth
             d = np.array([[1.0, 0.0, 2.0]], np.float32)
             print(fill_depth(d, np.zeros((1, 3, 3), np.uint8)).tolist())
-            from pcdof import kernels
+            from pcdof.runtime import kernels
             print(kernels.cold_stages(["fill"]))
         """
         env = {"NUMBA_CACHE_DIR": str(tmp_path)}
@@ -223,7 +223,7 @@ class TestRenderCommand:
         """``pcdof render`` of the bundled sample: none of the 3D/plotting/cluster libraries is imported,
         and with the kernels cached (warmed first) no kernel is compiled, only loaded."""
         out = tmp_path / "out.png"
-        warm = _python("from pcdof import kernels; kernels.warmup()")
+        warm = _python("from pcdof.runtime import kernels; kernels.warmup()")
         assert warm.returncode == 0, warm.stderr
         proc = _python(f"""
             import sys
@@ -249,7 +249,7 @@ class TestWarmupCoversTheFrame:
         tiles, blurred foreground) compiles no kernel, it only loads them: the first frame after an install
         never pays for a kernel the warm-up left out."""
         env = {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-        warm = _python("from pcdof import kernels; kernels.warmup(processes=True)", env)
+        warm = _python("from pcdof.runtime import kernels; kernels.warmup(processes=True)", env)
         assert warm.returncode == 0, warm.stderr
         proc = _python(f"""
             {COUNT_COMPILES}
@@ -283,10 +283,10 @@ def test_byte_compile_leaves_every_module_with_current_bytecode():
     import pathlib
     import struct
 
-    from pcdof.kernels import byte_compile
+    from pcdof.runtime.kernels import byte_compile
 
     assert byte_compile() is True
-    root = pathlib.Path(kernels.__file__).parent
+    root = pathlib.Path(kernels.__file__).parents[1]  # the package (kernels lives in pcdof.runtime)
     sources = sorted(root.rglob("*.py"))
     assert len(sources) > 30
     for src in sources:

@@ -134,14 +134,17 @@ def test_overlapped_and_sequential_pipelines_give_the_same_bits(monkeypatch, see
 def _counting_threads(monkeypatch):
     """The work handed to the colour side's worker thread, as a list that grows."""
     started = []
-    real = pipeline._colour_pool
+    real = pipeline.worker_pool
 
     class Counted:
+        def __init__(self, name, workers):
+            self.pool = real(name, workers)
+
         def submit(self, fn):
             started.append(fn)
-            return real().submit(fn)
+            return self.pool.submit(fn)
 
-    monkeypatch.setattr(pipeline, "_colour_pool", Counted)
+    monkeypatch.setattr(pipeline, "worker_pool", Counted)
     return started
 
 
@@ -189,7 +192,7 @@ def test_a_failure_on_the_worker_is_raised_in_the_callers_thread(monkeypatch):
 
 def test_the_fill_kernels_release_the_gil():
     """The fill runs while the worker does: its kernels must not hold the GIL (numba's nogil)."""
-    from pcdof.kernels import _cached_dispatchers
+    from pcdof.runtime.kernels import _cached_dispatchers
 
     kernels = _cached_dispatchers("pcdof.fill")
     assert {k.__name__ for k in kernels} >= {"_index", "_sweep", "_fit_boundary", "_combine", "_despeckle",

@@ -107,7 +107,7 @@ class TestKernels:
 
         from click.testing import CliRunner
 
-        from pcdof import kernels
+        from pcdof.runtime import kernels
         from pcdof.cli.warmup import command
 
         seconds = kernels.warmup()
@@ -122,7 +122,7 @@ class TestKernels:
         assert "render" in result.output and "already compiled" in result.output
 
     def test_unknown_stage(self):
-        from pcdof import kernels
+        from pcdof.runtime import kernels
 
         with pytest.raises(InputError, match="stages must be among"):
             kernels.warmup(["render", "paint"])

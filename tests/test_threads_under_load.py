@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pcdof import plans
+from pcdof.runtime import threads as plans_threads
 from pcdof.errors import InputError
-from pcdof.plans import LOAD_WINDOW_S, CoreLoad, spare_threads, threads_for_load
+from pcdof.runtime.threads import LOAD_WINDOW_S, CoreLoad, spare_threads, threads_for_load
 
 HZ = os.sysconf("SC_CLK_TCK")  # ticks per second of /proc/stat (100 on Linux)
 
@@ -87,7 +87,7 @@ class TestCoreLoad:
         meter = CoreLoad()
         first = meter.update()
         assert first is None
-        if meter.cpus is not None and plans._proc_stat_busy_s("/proc/stat", meter.cpus) is not None:
+        if meter.cpus is not None and plans_threads.proc_stat_busy_s("/proc/stat", meter.cpus) is not None:
             meter._start = (meter._start[0] - 1.0, *meter._start[1:])  # pretend a second has passed
             others = meter.update()
             assert others is not None and others >= 0.0
@@ -131,7 +131,7 @@ class TestThreadsForLoad:
     def test_a_busy_core_leaves_one_thread_inside_and_the_count_restored(self, monkeypatch):
         import cv2
 
-        monkeypatch.delenv(plans.ADAPT_ENV, raising=False)
+        monkeypatch.delenv(plans_threads.ADAPT_ENV, raising=False)
         numba.set_num_threads(2)
         cv_before = cv2.getNumThreads()
         with threads_for_load(_FixedLoad(1.0)) as n:
@@ -139,16 +139,16 @@ class TestThreadsForLoad:
         assert numba.get_num_threads() == 2 and cv2.getNumThreads() == cv_before
 
     def test_idle_cores_and_the_switch_change_nothing(self, monkeypatch):
-        monkeypatch.delenv(plans.ADAPT_ENV, raising=False)
+        monkeypatch.delenv(plans_threads.ADAPT_ENV, raising=False)
         numba.set_num_threads(2)
         with threads_for_load(_FixedLoad(0.1)) as n:
             assert n == 2 and numba.get_num_threads() == 2
-        monkeypatch.setenv(plans.ADAPT_ENV, "0")
+        monkeypatch.setenv(plans_threads.ADAPT_ENV, "0")
         with threads_for_load(_FixedLoad(1.5)) as n:
             assert n == 2 and numba.get_num_threads() == 2
 
     def test_the_count_is_restored_after_an_error(self, monkeypatch):
-        monkeypatch.delenv(plans.ADAPT_ENV, raising=False)
+        monkeypatch.delenv(plans_threads.ADAPT_ENV, raising=False)
         numba.set_num_threads(2)
         with pytest.raises(RuntimeError):
             with threads_for_load(_FixedLoad(1.0)):

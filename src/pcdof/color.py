@@ -7,7 +7,7 @@ import numpy as np
 from numba import njit, prange
 
 from .errors import InputError
-from .kernels import read_only
+from .runtime.kernels import read_only
 
 
 def to_float(image: np.ndarray) -> np.ndarray:

@@ -71,7 +71,7 @@ from numba import njit, prange
 
 from .camera import as_depth_m, check_color
 from .errors import InputError
-from .kernels import read_only
+from .runtime.kernels import read_only
 from .lens import finite_number
 
 #: Default relative depth gap that separates two surfaces among a hole pixel's candidates.
@@ -109,7 +109,7 @@ _GAP_MIN_PAIRS = 4
 # Below this many holes the kernels run on one thread: starting threads costs more than it saves (on two
 # idle cores the crossover lay near 400 holes; 2,000 holes took 1.60 ms on one thread and 1.32 on two,
 # 9,200 holes 8.96 and 5.38 ms). On a busy machine a parallel region waits for its slowest thread, but there
-# the pipeline runs on the threads other processes leave free (pcdof.plans.threads_for_load): one, so one here.
+# the pipeline runs on the threads other processes leave free (pcdof.runtime.threads.threads_for_load): one, so one here.
 _PARALLEL_MIN_HOLES = 1000
 
 # Sweep directions (dx, dy) and the Bresenham half step checked between two knight steps.
@@ -1144,7 +1144,7 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", parallel: boo
     check_fill_method(method)
     fn = FILL_METHODS[method]
     if fn is not fill_telea:
-        from .kernels import ensure_warm
+        from .runtime.kernels import ensure_warm
 
         ensure_warm(stages=("fill",))  # the first call after an install compiles the fill kernels, saying so
     try:

@@ -23,7 +23,7 @@ from numba import njit, prange
 
 from .camera import _as_array, _short
 from .errors import CalibrationError, InputError, LensError
-from .kernels import read_only
+from .runtime.kernels import read_only
 
 #: Largest circle of confusion (pixels) the renderers compute; larger ones are clamped with a warning.
 MAX_COC_PX = 256.0

@@ -24,7 +24,7 @@ from .errors import InputError
 from .focus import resolve_lens
 from .lens import ThinLens, _depth_array
 from .options import as_options
-from .plans import threads_for_load
+from .runtime.threads import current_threads, threads_for_load, worker_pool
 from .renderer import SHARP_COC_PX, check_method, render_image
 
 
@@ -181,21 +181,6 @@ def _highlights_skip(how: str, method: str, color, linear: bool) -> str:
 #: whether :func:`run` prepares the highlights stage's colour-only half on a worker thread while the fill runs
 #: (False: every stage one after another; the results are the same, bit for bit)
 _OVERLAP = True
-_pool_lock = threading.Lock()
-_pool_state: list = [None, None]  # the colour side's worker (a one-thread pool) and the process it belongs to
-
-
-def _colour_pool():
-    """The colour side's one worker thread, kept between frames (a thread started per frame kept the caller
-    waiting about 0.3 ms for the GIL); a forked child makes its own."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    with _pool_lock:
-        pool, pid = _pool_state
-        if pool is None or pid != os.getpid():
-            pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcdof-colour")
-            _pool_state[:] = [pool, os.getpid()]
-        return pool
 
 
 def _start_colour_side(color, opts):
@@ -209,14 +194,12 @@ def _start_colour_side(color, opts):
     The worker runs OpenCV and numpy only (both release the GIL over whole arrays; no numba kernel, so numba's
     threading layer and thread count are the main thread's alone), while the fill's kernels run without the GIL
     (on one thread below its parallel threshold; its first kernel, the hole index, on one thread always)."""
-    import numba
-
     from .highlights import parse_highlights, prepare_highlights
 
     color = np.asarray(color)
     how, _ = parse_highlights(opts.highlights)
     if (not _OVERLAP or _highlights_skip(how, opts.method, color, opts.linear) or color.ndim != 3
-            or not color.size or color.max() < np.iinfo(color.dtype).max or numba.get_num_threads() < 2):
+            or not color.size or color.max() < np.iinfo(color.dtype).max or current_threads() < 2):
         return None
 
     def work():
@@ -226,7 +209,7 @@ def _start_colour_side(color, opts):
         return found, t1 - t0, t1
 
     try:
-        return _colour_pool().submit(work).result
+        return worker_pool("colour", 1).submit(work).result
     except RuntimeError:  # interpreter shutting down: no new threads; the stage does it in the caller's thread
         return None
 
@@ -281,7 +264,7 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
     # every option is checked here, not when its stage runs: a stage with nothing to do must not hide a bad value
     opts = as_options(lens, **options)
-    from .kernels import ensure_warm
+    from .runtime.kernels import ensure_warm
 
     ensure_warm()  # the first run after an install compiles every stage's kernels, and says so
     with threads_for_load():  # fewer threads while other processes keep cores busy (same result)

@@ -58,7 +58,7 @@ from .camera import Rig, RGBDFrame
 from .distortion import distort_point, unpack
 from .errors import InputError
 from .geometry import dist14, max_radius2, pixel_rays, tilt_matrix
-from .kernels import ensure_warm
+from .runtime.kernels import ensure_warm
 from .lens import positive_number
 from .plans import RegisterPlan, as_dict, check_register_plan, plan_register
 

@@ -47,10 +47,11 @@ from .apertures import Aperture, aperture_for, aperture_from_blades, as_aperture
 from .camera import _short, check_color
 from .color import decode_to_linear, encode_from_linear, from_float, to_float
 from .errors import InputError, LensError
-from .kernels import ensure_warm, read_only
+from .runtime.kernels import ensure_warm, read_only
 from .lens import MAX_COC_PX, PaperLens, ThinLens
 from .plans import QUALITIES, UNIFORM_MIN_RADIUS_PX, check_quality  # noqa: F401  (re-exported)
-from .plans import RenderPlan, as_dict, check_render_plan, plan_render, threads_for
+from .plans import RenderPlan, as_dict, check_render_plan, plan_render
+from .runtime.threads import threads_for
 from .tiles import TileMap, classify_tiles
 
 #: |CoC| layer edges in pixels; |c| < 1 is the in-focus layer, copied without blur.

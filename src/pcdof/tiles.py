@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from .errors import InputError
-from .kernels import read_only
+from .runtime.kernels import read_only
 from .plans import TILE_PX  # noqa: F401  (the default tile side, pixels; re-exported)
 #: Largest relative CoC spread (max - min over mean) of a uniform tile and everything that reaches it.
 UNIFORM_SPREAD = 0.1

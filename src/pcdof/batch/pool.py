@@ -20,6 +20,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
 from ..runtime.process import tune_process, tuning
+from ..runtime.threads import set_process_threads, threads_restored
 from .signals import _signals_held, _starting_processes
 from .tasks import BatchJob, FrameTask, failed_record
 
@@ -34,27 +35,8 @@ PRELOAD = ["pcdof.batch.runner", "pcdof.pipeline"]
 
 
 def _set_threads(threads: int | None) -> None:
-    if threads is None:
-        return
-    import cv2
-    import numba
-
-    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
-    cv2.setNumThreads(max(1, int(threads)))
-
-
-@contextlib.contextmanager
-def _threads_restored():
-    """Undo :func:`_set_threads` on exit, for frames rendered in the caller's own process."""
-    import cv2
-    import numba
-
-    n_numba, n_cv = numba.get_num_threads(), cv2.getNumThreads()
-    try:
-        yield
-    finally:
-        numba.set_num_threads(n_numba)
-        cv2.setNumThreads(n_cv)
+    if threads is not None:
+        set_process_threads(threads)
 
 
 # Worker-process state for the local pool: the job and the frame renderer arrive once, through the initializer.
@@ -138,7 +120,7 @@ def _pool_context():
 
 def _render_here(job: BatchJob, queue: list[FrameTask], collect, render, *, count: int | None = None) -> None:
     """Render *count* frames (None: all) from the end of *queue* in this process."""
-    with _threads_restored():
+    with threads_restored():
         for _ in range(len(queue) if count is None else count):
             collect(render(job, queue.pop()))
 

@@ -56,7 +56,8 @@ from .frames import open_recording, read_depth_m, read_frame
 from .inputs import DEFAULT_MAX_DIFFERENCE_S, Sequence, discover, load_rig
 from .lock import folder_lock
 from .outputs import DEPTH_DIR, REPORT_NAME, check_inputs_kept, frame_name, sweep_temp_files
-from .pool import MAX_WORKER_DEATHS, PARENT_POLL_S, _run_processes, _set_threads, _threads_restored
+from ..runtime.threads import threads_restored
+from .pool import MAX_WORKER_DEATHS, PARENT_POLL_S, _run_processes, _set_threads
 from .report import EXIT_ALL_FAILED, EXIT_OK, EXIT_PARTIAL, REPORT_INTERVAL_S, _now, _report_interrupted_early, \
     _Reporter, exit_code
 from .resume import _check_resume, _unchanged
@@ -327,7 +328,7 @@ def _run_tasks(job: BatchJob, tasks: list[FrameTask], workers: int, scheduler, c
     elif workers > 1 and len(tasks) > 1:
         _run_processes(job, tasks, int(workers), collect, render_frame)
     else:
-        with _threads_restored():
+        with threads_restored():
             for task in tasks:
                 collect(render_frame(job, task))
 

@@ -113,11 +113,11 @@ def quartiles(values) -> list[float]:
 @contextlib.contextmanager
 def threads(n: int):
     """Run the block with *n* threads for numba's kernels and OpenCV (each stage's plan reads numba's count),
-    the pipeline's adaptation to other processes' load switched off (:func:`pcdof.plans.threads_for_load`)."""
+    the pipeline's adaptation to other processes' load switched off (:func:`pcdof.runtime.threads.threads_for_load`)."""
     import cv2
     import numba
 
-    from ..plans import ADAPT_ENV
+    from ..runtime.threads import ADAPT_ENV
 
     before_numba, before_cv, before_env = numba.get_num_threads(), cv2.getNumThreads(), os.environ.get(ADAPT_ENV)
     numba.set_num_threads(n)

@@ -305,7 +305,7 @@ def command(output, data_dir, frames):
     make_output_folder(output, "output")
     names = [n for n in FRAMES if n in (frames or FRAMES)]
     loaded = {n: io.load_frame(*(os.path.join(data_dir, FRAMES[n][0], f) for f in FRAMES[n][1:])) for n in names}
-    from ..kernels import ensure_warm
+    from ..runtime.kernels import ensure_warm
 
     ensure_warm()  # compiles (and says so) only on the first run after an install
     first = next(iter(loaded.values()))  # load every path's kernels before the timed renders

@@ -6,7 +6,7 @@ import time
 
 import click
 
-from ..kernels import STAGES
+from ..runtime.kernels import STAGES
 from ._common import handle_errors
 
 
@@ -20,7 +20,7 @@ def command(stages):
     The first run after an install or upgrade compiles them (the stages side by side, one line as
     each is done); later runs only load them from the cache and report how long that took.
     """
-    from ..kernels import check_stages, cold_stages, estimate_seconds, warmup
+    from ..runtime.kernels import check_stages, cold_stages, estimate_seconds, warmup
 
     names = check_stages(s.strip() for s in stages.split(",") if s.strip())
     cold = cold_stages(names)

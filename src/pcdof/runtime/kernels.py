@@ -80,7 +80,7 @@ def check_stages(stages) -> list[str]:
     stages = list(stages)
     bad = [s for s in stages if s not in STAGES]
     if bad:
-        from .errors import InputError
+        from ..errors import InputError
 
         raise InputError(f"stages must be among {list(STAGES)}; got {bad}")
     return stages
@@ -128,7 +128,7 @@ def estimate_seconds(stages, workers: int | None = None, load: float | None = No
 #: the garbage collector's thresholds while numba compiles (generation 0 from 700 allocations): numba's compiler
 #: makes millions of short-lived objects, and each of the collector's passes walks every object that survived;
 #: compiling the fill took 9.3 s instead of 9.9 with these (pairs alternated), and 8% less again with the
-#: modules' objects frozen out of the passes (:func:`_warm_stage`'s *whole_process*)
+#: modules' objects frozen out of the passes (:func:`warm_stage`'s *whole_process*)
 _COMPILE_GC_THRESHOLDS = (50_000, 50, 1_000)
 
 
@@ -143,7 +143,7 @@ def _fewer_collections():
         gc.set_threshold(*before)
 
 
-def _warm_stage(stage: str, whole_process: bool = False) -> float:
+def warm_stage(stage: str, whole_process: bool = False) -> float:
     """Run *stage*'s warm-up here; returns its seconds. *whole_process*: this process exists to compile (the
     modules' objects are frozen out of the collector's passes once imported: :func:`gc.freeze`)."""
     _checked.update(STAGES)  # the stage's own calls must not start another warm-up
@@ -189,8 +189,8 @@ def _compile_apart(stages, say, t0: float) -> dict:
 
     running = 0
     for group in _compile_groups(stages, os.cpu_count() or 1):
-        code = ("from pcdof.kernels import _warm_stage\n"
-                f"for stage in {group!r}:\n    print(stage, _warm_stage(stage, whole_process=True), flush=True)")
+        code = ("from pcdof.runtime.kernels import warm_stage\n"
+                f"for stage in {group!r}:\n    print(stage, warm_stage(stage, whole_process=True), flush=True)")
         try:
             proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                     text=True)
@@ -234,7 +234,7 @@ def warmup(stages=tuple(STAGES), *, progress=None, processes: bool = False) -> d
     for i, stage in enumerate(stages, 1):
         if stage not in apart:
             say(f"  [{i}/{len(stages)}] {stage} ...")
-        seconds[stage] = apart.get(stage, 0.0) + _warm_stage(stage)
+        seconds[stage] = apart.get(stage, 0.0) + warm_stage(stage)
         if stage not in apart:
             say(f"  [{i}/{len(stages)}] {stage}: {seconds[stage]:.1f} s")
     return seconds
@@ -250,7 +250,7 @@ def byte_compile() -> bool:
     """
     import compileall
 
-    return bool(compileall.compile_dir(os.path.dirname(os.path.abspath(__file__)), quiet=2))
+    return bool(compileall.compile_dir(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), quiet=2))
 
 
 def ensure_warm(stream=None, *, stages=None) -> None:

@@ -314,3 +314,20 @@ def test_compiling_relaxes_the_collector_and_puts_it_back(monkeypatch):
     assert gc.get_freeze_count() > 0  # a process that only compiles leaves the modules out of the passes
     gc.unfreeze()
     assert gc.get_threshold() == before
+
+
+def test_a_numba_that_renamed_its_internals_degrades_to_a_silent_compile(monkeypatch):
+    """The cache probe reads numba internals; where they changed it answers "warm" (numba then compiles on first
+    use, as it always can), never an error."""
+    import numba.core.registry
+
+    from pcdof.runtime import kernels as k
+
+    monkeypatch.setattr(numba.core.registry, "CPUDispatcher", None)  # isinstance(..., None) raises TypeError
+    assert k._cached_dispatchers("pcdof.lens") is None
+    assert k.cold_stages(["render"]) == []
+
+    class Renamed:  # a dispatcher without the attributes the probe reads
+        overloads = {}
+
+    assert k._in_cache(Renamed()) is True

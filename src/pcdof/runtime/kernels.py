@@ -52,24 +52,29 @@ def read_only(array):
     return view
 
 
-def _cached_dispatchers(module_name: str) -> list:
+def _cached_dispatchers(module_name: str) -> list | None:
     """The numba dispatchers defined in *module_name* that are cached on disk and compiled on their own
-    (inlined helpers are compiled into their callers)."""
-    from numba.core.registry import CPUDispatcher
-
+    (inlined helpers are compiled into their callers); None when numba's dispatchers no longer look as this
+    probe expects (a numba release that renamed what it reads): the caller then treats the stage as warm and
+    numba compiles what it must when it runs, as it always would."""
     module = importlib.import_module(module_name)
-    return [v for v in vars(module).values()
-            if isinstance(v, CPUDispatcher) and v.__module__ == module_name and v._cache.__class__.__name__
-            == "FunctionCache" and v.targetoptions.get("inline") != "always"]
+    try:
+        from numba.core.registry import CPUDispatcher
+
+        return [v for v in vars(module).values()
+                if isinstance(v, CPUDispatcher) and v.__module__ == module_name
+                and type(getattr(v, "_cache", None)).__name__ == "FunctionCache"
+                and v.targetoptions.get("inline") != "always"]
+    except Exception:  # noqa: BLE001  numba internals changed: never an error, at worst a silent compile
+        return None
 
 
 def _in_cache(dispatcher) -> bool:
-    """Whether *dispatcher* has machine code in this process or in numba's cache index (for this source)."""
-    if dispatcher.overloads:
-        return True
+    """Whether *dispatcher* has machine code in this process or in numba's cache index (for this source); True
+    when the probe fails (see :func:`_cached_dispatchers`)."""
     try:
-        return bool(dispatcher._cache._cache_file._load_index())
-    except Exception:  # numba internals changed: assume warm, never block on the check
+        return bool(dispatcher.overloads) or bool(dispatcher._cache._cache_file._load_index())
+    except Exception:  # noqa: BLE001  numba internals changed: assume warm, never block on the check
         return True
 
 
@@ -96,8 +101,9 @@ def cold_stages(stages=tuple(STAGES)) -> list[str]:
 
 
 def _cold(module_name: str) -> bool:
-    """Whether none of *module_name*'s kernels is in numba's cache."""
-    return not any(_in_cache(d) for d in _cached_dispatchers(module_name))
+    """Whether none of *module_name*'s kernels is in numba's cache (False when that cannot be told)."""
+    dispatchers = _cached_dispatchers(module_name)
+    return dispatchers is not None and not any(_in_cache(d) for d in dispatchers)
 
 
 def estimate_seconds(stages, workers: int | None = None, load: float | None = None) -> float:

@@ -13,11 +13,11 @@ from click.testing import CliRunner
 from pcdof.camera import Intrinsics, Rig
 from pcdof.errors import InputError, LensError
 from pcdof.lens import ThinLens
-from pcdof.viewer import (
+from pcdof.viewer.ui import build_scene, scene_from_frame
+from pcdof.viewer.scene import (
     COC_BAR_TITLE,
     PLANE_COLOR,
     MAX_WINDOW_SIDE,
-    build_scene,
     dof_slab,
     downscale_for_preview,
     focal_plane_corners,
@@ -25,7 +25,6 @@ from pcdof.viewer import (
     image_corner_pixels,
     image_corner_rays,
     render_preview,
-    scene_from_frame,
     strided_points,
 )
 
@@ -514,7 +513,7 @@ class TestCli:
         assert not out.exists()
 
     def test_focus_at_pixel(self, frame_files, tmp_path, monkeypatch):
-        import pcdof.viewer_ui as viewer_module
+        import pcdof.viewer.ui as viewer_module
 
         seen = {}
         original = viewer_module.build_scene

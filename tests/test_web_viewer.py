@@ -19,7 +19,7 @@ import pytest
 from pcdof.camera import Intrinsics, Rig
 from pcdof.errors import InputError, LensError
 from pcdof.lens import ThinLens
-from pcdof.web.session import ViewSession
+from pcdof.viewer.web.session import ViewSession
 
 W, H = 160, 120
 INTR = Intrinsics(W, H, 150.0, 150.0, (W - 1) / 2, (H - 1) / 2)
@@ -353,7 +353,7 @@ def test_closing_the_last_tab_cancels_pending_work(served, tmp_path):
 def test_missing_web_extra_is_one_clear_error(monkeypatch):
     """Without the web extra, --serve says what to install instead of failing on an import."""
     from pcdof.errors import PcdofError
-    from pcdof.web.app import WebViewer
+    from pcdof.viewer.web.app import WebViewer
 
     monkeypatch.setitem(sys.modules, "trame_vuetify", None)  # an import of it now fails
     with pytest.raises(PcdofError, match=r"web extra \(trame_vuetify is missing\).*pcdof\[web\]"):
@@ -363,7 +363,7 @@ def test_missing_web_extra_is_one_clear_error(monkeypatch):
 def test_session_renders_with_the_commands_options():
     """view's --quality/--linear/--highlights reach the browser viewer's renders (one RenderOptions)."""
     from pcdof.options import RenderOptions
-    from pcdof.viewer import render_preview
+    from pcdof.viewer.scene import render_preview
 
     color, depth = two_plane_frame()
     color = color.copy()

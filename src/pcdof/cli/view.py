@@ -71,7 +71,8 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
     circle of confusion. With --screenshot or --html nothing opens: the scene is written instead. With --serve
     the same viewer is served to a web browser (http://127.0.0.1:8080/ by default; Ctrl-C stops it).
     """
-    from ..viewer import check_window_size, scene_from_frame
+    from ..viewer.scene import check_window_size
+    from ..viewer.ui import scene_from_frame
 
     window_size = check_window_size(window_size, name="--window-size")
     if serve and (screenshot or html_path):
@@ -136,9 +137,9 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
 
 def serve_frame(frame, options, *, coc_limit_px, stride, color_by, source_name, host, port, output_dir) -> None:
     """Register and fill *frame* once (as *options* say), then serve the browser viewer until interrupted."""
-    from ..viewer import prepare_frame
-    from ..web.app import WebViewer
-    from ..web.session import ViewSession
+    from ..viewer.scene import prepare_frame
+    from ..viewer.web.app import WebViewer
+    from ..viewer.web.session import ViewSession
 
     registered, filled, lens = prepare_frame(frame, options.lens, fill_method=options.fill_method,
                                              focus_at=options.focus_at)

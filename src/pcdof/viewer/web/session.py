@@ -12,11 +12,11 @@ import dataclasses
 
 import numpy as np
 
-from ..camera import Intrinsics, check_color
-from ..errors import InputError, LensError
-from ..lens import ThinLens, positive_number
-from ..focus import depth_at
-from ..viewer import downscale_for_preview, lens_numbers, render_preview
+from ...camera import Intrinsics, check_color
+from ...errors import InputError, LensError
+from ...lens import ThinLens, positive_number
+from ...focus import depth_at
+from ..scene import downscale_for_preview, lens_numbers, render_preview
 
 #: Largest side of the preview rendered while a slider is dragged, pixels.
 DRAFT_MAX_SIDE = 240

@@ -1,4 +1,4 @@
-"""3-D inspection of the focal plane and the depth of field (PyVista).
+"""The viewer's scene: the geometry, framing and numbers of the focal plane and the depth of field (pure numpy).
 
 The scene is drawn in the colour camera's frame (OpenCV: x right, y down, z forward, metres):
 
@@ -22,9 +22,8 @@ pinhole ray (distortion ignored) is used for that corner.
 
 The geometry, the framing and the numbers are pure numpy (:func:`image_corner_rays`, :func:`focal_plane_corners`,
 :func:`dof_slab`, :func:`frustum_lines`, :func:`fit_camera`, :func:`lens_numbers`, :func:`prepare_frame`): this module.
-The PyVista user interface (:class:`FocusScene`, :class:`FocusViewer`, :func:`build_scene`,
-:func:`scene_from_frame`) is :mod:`pcdof.viewer_ui`, the static HTML page :mod:`pcdof.viewer_html`, the browser
-viewer :mod:`pcdof.web`; the interface's names stay importable from here.
+The PyVista user interface is :mod:`pcdof.viewer.ui`, the static HTML page :mod:`pcdof.viewer.html_export`, the
+browser viewer :mod:`pcdof.viewer.web`.
 """
 
 from __future__ import annotations
@@ -34,10 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Intrinsics, check_color
-from .cloud import check_stride
-from .errors import InputError, LensError
-from .lens import ThinLens, positive_number
+from ..camera import Intrinsics, check_color
+from ..cloud import check_stride
+from ..errors import InputError, LensError
+from ..lens import ThinLens, positive_number
 
 #: Colours of the scene elements (named colours PyVista understands; tests look for the plane's).
 PLANE_COLOR = (255, 140, 0)  # dark orange
@@ -114,7 +113,7 @@ def image_corner_rays(intrinsics: Intrinsics) -> np.ndarray:
     (4, 3) float64 ndarray, ``(x/z, y/z, 1)`` for top-left, top-right, bottom-right, bottom-left;
     a corner where the distortion model has no inverse falls back to its pinhole ray.
     """
-    from .geometry import undistort_pixels
+    from ..geometry import undistort_pixels
 
     intr = _check_intrinsics(intrinsics)
     uv = image_corner_pixels(intr)
@@ -241,7 +240,7 @@ def strided_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -
     points : (N, 3) float64 ndarray, metres, colour camera frame
     colors : (N, 3) uint8 ndarray, RGB
     """
-    from .geometry import depth_to_points
+    from ..geometry import depth_to_points
 
     intr = _check_intrinsics(intrinsics)
     stride = check_stride(stride)
@@ -258,7 +257,7 @@ def strided_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -
 
 def _to_uint8_rgb(color: np.ndarray) -> np.ndarray:
     rgb = color if color.ndim == 3 else np.repeat(color[:, :, None], 3, axis=2)
-    from .color import to_uint8
+    from ..color import to_uint8
 
     return to_uint8(rgb)
 
@@ -317,7 +316,7 @@ def render_preview(color, depth_m, lens: ThinLens, fx: float, *, method: str = "
     -------
     (h, w, 3) uint8 ndarray, sRGB
     """
-    from .pipeline import render_from_depth
+    from ..pipeline import render_from_depth
 
     settings = {"method": method} if options is None else {
         "method": options.method, "quality": options.quality, "linear": options.linear,
@@ -325,7 +324,7 @@ def render_preview(color, depth_m, lens: ThinLens, fx: float, *, method: str = "
     image, _trace = render_from_depth(color, depth_m, lens, fx, **settings)
     image = np.asarray(image)
     if settings.get("linear") and image.dtype.kind == "f":  # linear light out: encode for the screen
-        from .color import encode_from_linear
+        from ..color import encode_from_linear
 
         return _to_uint8_rgb(encode_from_linear(image, np.uint8))
     return _to_uint8_rgb(image)
@@ -485,10 +484,10 @@ def prepare_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral"
     registered_m, filled_m : (H, W) float32 ndarrays, metres, colour camera grid (0 = unknown in the first)
     lens : ThinLens, focused at *focus_at* when given
     """
-    from .camera import RGBDFrame
-    from .fill import check_fill_method
-    from .focus import parse_focus_at, resolve_lens
-    from .pipeline import fill_stage, register_stage
+    from ..camera import RGBDFrame
+    from ..fill import check_fill_method
+    from ..focus import parse_focus_at, resolve_lens
+    from ..pipeline import fill_stage, register_stage
 
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
@@ -500,15 +499,3 @@ def prepare_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral"
     registered = register_stage(frame, trace)
     filled = fill_stage(registered, frame.color, trace, method=fill_method)
     return registered, filled, resolve_lens(lens, focus_at, registered, filled)
-
-
-#: The PyVista user interface lives in :mod:`pcdof.viewer_ui`; its public names stay importable from here.
-_UI_NAMES = ("FocusScene", "FocusViewer", "build_scene", "scene_from_frame")
-
-
-def __getattr__(name):
-    if name in _UI_NAMES:
-        from . import viewer_ui
-
-        return getattr(viewer_ui, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

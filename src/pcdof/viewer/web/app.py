@@ -1,8 +1,8 @@
 """The browser viewer's page (trame): the 3-D scene, the lens controls, the numbers and the live preview.
 
-One :class:`WebViewer` serves one frame. The 3-D scene is a :class:`pcdof.viewer_ui.FocusScene` rendered
+One :class:`WebViewer` serves one frame. The 3-D scene is a :class:`pcdof.viewer.ui.FocusScene` rendered
 on the server and streamed as images (nothing but pictures reaches the browser, so a large point cloud
-costs the network nothing); the photograph is a :class:`pcdof.web.session.ViewSession` render.
+costs the network nothing); the photograph is a :class:`pcdof.viewer.web.session.ViewSession` render.
 
 Every browser tab shows the same session (trame shares one state between its clients): a second tab
 sees and moves the same lens and adds no work of its own. A lens change renders a draft preview at once
@@ -22,9 +22,9 @@ import sys
 
 import numpy as np
 
-from ..errors import ImageWriteError, InputError, PcdofError
-from ..viewer_html import page_title
-from ..viewer_ui import FocusScene
+from ...errors import ImageWriteError, InputError, PcdofError
+from ..html_export import page_title
+from ..ui import FocusScene
 from .session import ViewSession
 
 log = logging.getLogger("pcdof")
@@ -261,7 +261,7 @@ class WebViewer:
         return self.server.protocol.addAttachment(memoryview(png_bytes(image)))
 
     def _save(self, image: np.ndarray) -> str:
-        from ..io import write_image
+        from ...io import write_image
 
         path = os.path.join(self.output_dir, os.path.basename(self.state.download_name))
         try:

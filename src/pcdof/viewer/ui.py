@@ -1,7 +1,7 @@
 """The PyVista user interface of the focal-plane viewer: the 3-D scene, the desktop window, the exports.
 
 :class:`FocusScene` draws the point cloud, frustum, focal plane and depth-of-field slab on one renderer and
-moves them when the lens changes (the browser viewer, :mod:`pcdof.web`, uses it as it is);
+moves them when the lens changes (the browser viewer, :mod:`pcdof.viewer.web`, uses it as it is);
 :class:`FocusViewer` adds the live preview pane, the sliders, the checkbox and the point picking of the
 desktop window. The geometry and the numbers come from :mod:`pcdof.viewer`.
 """
@@ -16,11 +16,11 @@ import secrets
 
 import numpy as np
 
-from .camera import Intrinsics, check_color
-from .cloud import check_stride
-from .errors import ImageWriteError, InputError, LensError
-from .lens import ThinLens, positive_number
-from .viewer import (
+from ..camera import Intrinsics, check_color
+from ..cloud import check_stride
+from ..errors import ImageWriteError, InputError, LensError
+from ..lens import ThinLens, positive_number
+from .scene import (
     COC_BAR_TITLE,
     COLOR_BY,
     F_NUMBER_RANGE,
@@ -349,7 +349,7 @@ class FocusViewer(FocusScene):
             raise InputError(f"the renderer drew nothing in a {width}x{height} window (more than the graphics "
                              "driver can draw); use a smaller window_size (--window-size)")
         if path is not None:
-            from .io import write_image
+            from ..io import write_image
 
             write_image(path, np.ascontiguousarray(image[:, :, :3]))
         return image[:, :, :3]
@@ -357,12 +357,12 @@ class FocusViewer(FocusScene):
     def export_html(self, path: str, *, source_name: str = "scene") -> None:
         """Write the scene as a standalone interactive HTML page (vtk.js; needs ``trame-pyvista``).
 
-        The page (:func:`pcdof.viewer_html.scene_page`) fills the browser window with the 3-D scene at the
+        The page (:func:`pcdof.viewer.html_export.scene_page`) fills the browser window with the 3-D scene at the
         current settings, titled ``pcdof — <source_name> — focus X m, f/N``, with the lens values and the
         preview photograph beside it; the sliders, checkbox and picking are not part of it. Written to a
         temporary file, then renamed.
         """
-        from .viewer_html import export_scene_html
+        from .html_export import export_scene_html
 
         path = os.fspath(path)
         folder = os.path.dirname(os.path.abspath(path))

@@ -13,8 +13,8 @@ import re
 
 import numpy as np
 
-from .errors import InputError
-from .viewer import lens_summary
+from ..errors import InputError
+from .scene import lens_summary
 
 #: Style of the page: the vtk.js container fills the window, the panel floats at the top right.
 PAGE_STYLE = """<style>
@@ -66,9 +66,9 @@ def scene_page(exported_html: str, *, source_name: str, numbers: dict, preview_p
 
 
 def export_scene_html(scene, *, source_name: str) -> str:
-    """The scene page of a :class:`pcdof.viewer_ui.FocusScene` (3-D actors only, its camera and numbers).
+    """The scene page of a :class:`pcdof.viewer.ui.FocusScene` (3-D actors only, its camera and numbers).
 
-    A viewer with a ``preview_image`` attribute (the desktop :class:`pcdof.viewer_ui.FocusViewer`) also
+    A viewer with a ``preview_image`` attribute (the desktop :class:`pcdof.viewer.ui.FocusViewer`) also
     has its preview photograph put in the panel.
     """
     import cv2

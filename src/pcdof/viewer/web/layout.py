@@ -7,7 +7,7 @@ Element ids the tests and the screenshot script use: ``scene`` (the 3-D view's c
 
 from __future__ import annotations
 
-from ..viewer import F_NUMBER_RANGE
+from ..scene import F_NUMBER_RANGE
 
 #: Fractions of the clicked element's box, from its top-left corner, sent with a click.
 CLICK_FRACTIONS = ("[($event.clientX - $event.currentTarget.getBoundingClientRect().left)"
@@ -57,7 +57,7 @@ def _numbers(html) -> None:
 
 
 def build_layout(app):
-    """Build the page of the :class:`pcdof.web.app.WebViewer` *app*; returns its 3-D view widget."""
+    """Build the page of the :class:`pcdof.viewer.web.app.WebViewer` *app*; returns its 3-D view widget."""
     from trame.ui.vuetify3 import VAppLayout
     from trame.widgets import html
     from trame.widgets import vuetify3 as v3

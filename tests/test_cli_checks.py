@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 import pcdof
-from pcdof.batch.runner import _check_xy
+from pcdof.batch.focus import check_xy
 from pcdof.cli import main
 from pcdof.errors import EXIT_CODES, ImageWriteError, InputError, LensError
 from pcdof.io import load_frame
@@ -131,11 +131,11 @@ class TestBatchFlags:
     def test_focus_pixel_bounds_follow_pixel_centres(self):
         rig = load_frame(*FRAME[:2], FRAME[3]).rig
         w, h = rig.color.width, rig.color.height
-        assert _check_xy((-0.5, -0.5), rig) == (-0.5, -0.5)  # pixel 0 spans [-0.5, 0.5)
-        assert _check_xy((w - 0.6, h - 0.6), rig)
+        assert check_xy((-0.5, -0.5), rig) == (-0.5, -0.5)  # pixel 0 spans [-0.5, 0.5)
+        assert check_xy((w - 0.6, h - 0.6), rig)
         for xy in ((w - 0.5, 0), (0, h - 0.5), (-0.51, 0)):
             with pytest.raises(InputError, match="outside"):
-                _check_xy(xy, rig)
+                check_xy(xy, rig)
 
 
 def test_input_paths_are_checked_by_pcdof_readers_not_click():

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .validate import as_array, short_repr
 from .errors import CalibrationError, InputError
 
 MAX_IMAGE_SIDE = 16384  # larger sides are refused: a guard against absurd sizes / decompression bombs
@@ -27,20 +28,14 @@ MAX_PRINCIPAL_PX = 1e7
 MIN_DEPTH_SCALE, MAX_DEPTH_SCALE = 1e-12, 1e3
 
 
-def _short(value, limit: int = 80) -> str:
-    """repr(value) on one line, cut to *limit* characters (for error messages)."""
-    text = " ".join(repr(value).split())
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 def _finite_number(name: str, value, *, positive: bool = False, bounds: tuple[float, float] | None = None) -> float:
     # bool and str convert with float() but are not numbers here (True would be 1 px, "10" a typo'd file)
     if isinstance(value, (bool, np.bool_, str, bytes)):
-        raise CalibrationError(f"{name} must be a number; got {type(value).__name__} {_short(value)}")
+        raise CalibrationError(f"{name} must be a number; got {type(value).__name__} {short_repr(value)}")
     try:
         out = float(value)
     except (TypeError, ValueError):
-        raise CalibrationError(f"{name} must be a number; got {_short(value)}") from None
+        raise CalibrationError(f"{name} must be a number; got {short_repr(value)}") from None
     if not math.isfinite(out):
         raise CalibrationError(f"{name} must be finite; got {value!r}")
     if positive and out <= 0:
@@ -53,14 +48,14 @@ def _finite_number(name: str, value, *, positive: bool = False, bounds: tuple[fl
 def check_depth_scale(value, error=CalibrationError, name: str = "depth_scale") -> float:
     """*value* as a float if it is a finite number within [MIN_DEPTH_SCALE, MAX_DEPTH_SCALE]; else *error*."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise error(f"{name} must be a number (metres per depth unit); got {_short(value)}")
+        raise error(f"{name} must be a number (metres per depth unit); got {short_repr(value)}")
     try:
         v = float(value)
     except OverflowError:  # an int beyond float's range
         v = math.inf
     if not (math.isfinite(v) and MIN_DEPTH_SCALE <= v <= MAX_DEPTH_SCALE):
         raise error(f"{name} must be a finite number of metres per depth unit within [{MIN_DEPTH_SCALE:g}, "
-                    f"{MAX_DEPTH_SCALE:g}] (0.001 = millimetres); got {_short(value)}")
+                    f"{MAX_DEPTH_SCALE:g}] (0.001 = millimetres); got {short_repr(value)}")
     return v
 
 
@@ -163,7 +158,7 @@ def validate_rigid(T, name: str = "T_color_from_depth") -> np.ndarray:
             raise TypeError
         M = np.array(raw, dtype=np.float64)
     except (TypeError, ValueError):
-        raise CalibrationError(f"{name} must be a 4x4 matrix of numbers; got {_short(T)}") from None
+        raise CalibrationError(f"{name} must be a 4x4 matrix of numbers; got {short_repr(T)}") from None
     if M.shape != (4, 4):
         raise CalibrationError(f"{name} must be 4x4; got shape {M.shape}")
     if not np.all(np.isfinite(M)):
@@ -236,20 +231,13 @@ class Rig:
         }
 
 
-def _as_array(value, name: str) -> np.ndarray:
-    try:
-        return np.asarray(value)
-    except (TypeError, ValueError) as err:  # ragged nested lists
-        raise InputError(f"{name} must be a rectangular numeric array; got {type(value).__name__} ({err})") from None
-
-
 def as_depth_m(depth, shape: tuple[int, int] | None = None, *, name: str = "depth_m") -> tuple[np.ndarray, int]:
     """Validate a depth map and return it as a new float32 array with unknowns set to 0.
 
     NaN, +-inf and negative values are unknown; returns ``(depth_m, n_invalid)`` where
     *n_invalid* counts the values that were turned into 0 for that reason.
     """
-    arr = _as_array(depth, name)
+    arr = as_array(depth, name)
     if arr.ndim != 2:
         raise InputError(f"{name} must be a 2-D (H, W) array; got shape {arr.shape}")
     if shape is not None and arr.shape != tuple(shape):
@@ -272,7 +260,7 @@ def check_color(color, shape: tuple[int, int] | None = None, *, name: str = "col
     the renderers convert them to float32 internally and return the caller's dtype. Returns the
     array itself (no copy).
     """
-    arr = _as_array(color, name)
+    arr = as_array(color, name)
     if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3):
         raise InputError(f"{name} must be (H, W, 3) RGB or (H, W) grey; got shape {arr.shape}")
     if arr.dtype not in (np.uint8, np.uint16) and arr.dtype.kind != "f":
@@ -316,7 +304,7 @@ class RGBDFrame:
             raise InputError(f"rig must be a Rig; got {type(self.rig).__name__}")
         n0 = self.n_invalid_depth
         if isinstance(n0, (bool, np.bool_)) or not isinstance(n0, (int, np.integer)) or n0 < 0:
-            raise InputError(f"n_invalid_depth must be an integer >= 0 (a count of depth pixels); got {_short(n0)}")
+            raise InputError(f"n_invalid_depth must be an integer >= 0 (a count of depth pixels); got {short_repr(n0)}")
         color = check_color(self.color, self.rig.color.shape)
         depth, n_bad = as_depth_m(self.depth_m, self.rig.depth.shape)
         object.__setattr__(self, "color", color)

@@ -21,9 +21,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .camera import _as_array, _short
+from . import validate
 from .errors import CalibrationError, InputError, LensError
 from .runtime.kernels import read_only
+from .validate import as_array, short_repr
 
 #: Largest circle of confusion (pixels) the renderers compute; larger ones are clamped with a warning.
 MAX_COC_PX = 256.0
@@ -40,45 +41,22 @@ PAPER_SIGMA_SIDES = 2.0
 MAX_APERTURE_BLADES = 64
 
 
-#: Types that ``float()`` converts but that are not numbers here (True would be 1 mm, "50" a typo).
-_NOT_NUMBERS = (bool, np.bool_, str, bytes, complex, np.complexfloating)
-
-
-def _real(name: str, value, error) -> float:
-    """*value* as a float (inf for an int beyond the float range) if it is a real number, numpy
-    scalars included; bool, str and complex convert with float() but are refused, as are arrays."""
-    if isinstance(value, _NOT_NUMBERS) or (isinstance(value, np.ndarray) and value.ndim):
-        raise error(f"{name} must be a number; got {type(value).__name__} {_short(value)}")
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        raise error(f"{name} must be a number; got {_short(value)}") from None
-    except OverflowError:
-        return math.inf if value > 0 else -math.inf
-
-
 def finite_number(name: str, value, error=LensError) -> float:
-    """*value* as a float if it is a finite number (not bool, str or complex); else *error* naming *name*."""
-    v = _real(name, value, error)
-    if not math.isfinite(v):
-        raise error(f"{name} must be a finite number; got {_short(value)}")
-    return v
+    """:func:`pcdof.validate.finite_number`, a :class:`LensError` by default."""
+    return validate.finite_number(name, value, error)
 
 
 def positive_number(name: str, value, error=LensError) -> float:
-    """*value* as a float if it is a finite number > 0 (not bool, str or complex); else *error* naming *name*."""
-    v = _real(name, value, error)
-    if not math.isfinite(v) or v <= 0:
-        raise error(f"{name} must be a finite number > 0; got {_short(value)}")
-    return v
+    """:func:`pcdof.validate.positive_number`, a :class:`LensError` by default."""
+    return validate.positive_number(name, value, error)
 
 
 def focus_distance(name: str, value, error=LensError) -> float:
     """*value* as a float if it is a focus distance pcdof can use, metres (see :data:`MAX_FOCUS_DISTANCE_M`)."""
-    v = _real(name, value, error)
+    v = validate.real_number(name, value, error)
     if not (math.isfinite(v) and MIN_FOCUS_DISTANCE_M <= v <= MAX_FOCUS_DISTANCE_M):
         raise error(f"{name} must be a finite number of metres within [{MIN_FOCUS_DISTANCE_M:.3g}, "
-                    f"{MAX_FOCUS_DISTANCE_M:.3g}] (the range of float32 depths); got {_short(value)}")
+                    f"{MAX_FOCUS_DISTANCE_M:.3g}] (the range of float32 depths); got {short_repr(value)}")
     return v
 
 
@@ -87,9 +65,9 @@ def _focal_px(fx) -> float:
     return positive_number("fx (colour focal length, pixels)", fx, CalibrationError)
 
 
-def _depth_array(depth_m, name: str = "depth_m") -> np.ndarray:
+def depth_array(depth_m, name: str = "depth_m") -> np.ndarray:
     """*depth_m* as an ndarray of any shape if it holds real numbers (int or float); else an InputError."""
-    z = _as_array(depth_m, name)
+    z = as_array(depth_m, name)
     if z.dtype.kind not in "fiu":
         raise InputError(f"{name} must be a numeric array (metres); got {type(depth_m).__name__} of dtype {z.dtype}")
     return z
@@ -187,7 +165,7 @@ class ThinLens:
         if isinstance(blades, bool) or not isinstance(blades, (int, np.integer)) or blades < 0 or blades in (1, 2) \
                 or blades > MAX_APERTURE_BLADES:
             raise LensError(f"aperture_blades must be 0 (circle) or an integer from 3 to {MAX_APERTURE_BLADES}; "
-                            f"got {_short(blades)}")
+                            f"got {short_repr(blades)}")
         object.__setattr__(self, "aperture_blades", int(blades))
         rotation = finite_number("aperture_rotation_deg", self.aperture_rotation_deg)
         # A regular N-gon repeats every 360/N degrees (a circle every 360): reduce the angle first, exactly
@@ -258,7 +236,7 @@ class ThinLens:
 
         The depth is float32 (the pipeline's) or float64 (everything else), read-only: two kernel types at most."""
         scale = self.aperture_m * _focal_px(fx)
-        z = _depth_array(depth_m)
+        z = depth_array(depth_m)
         if z.dtype not in (np.float32, np.float64):
             z = z.astype(np.float64)
         return z, (read_only(np.ascontiguousarray(z).reshape(-1)), scale, 1.0 / self.focus_distance_m)
@@ -333,7 +311,7 @@ class PaperLens:
         sides = []
         for name, n in (("width", width), ("height", height)):
             if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
-                raise InputError(f"{name} must be an integer >= 1 (pixels); got {_short(n)}")
+                raise InputError(f"{name} must be an integer >= 1 (pixels); got {short_repr(n)}")
             sigma = min(self.blur_sigma_px, PAPER_SIGMA_SIDES * int(n))
             sides.append((2 * int(math.ceil(3 * sigma)) + 1, sigma))
         (kx, sx), (ky, sy) = sides
@@ -346,7 +324,7 @@ class PaperLens:
         infinitely far. The result is always finite.
         """
         rng = self.max_range_m or positive_number("max_range_m", max_range_m)
-        z = np.asarray(_depth_array(depth_m), np.float32)
+        z = np.asarray(depth_array(depth_m), np.float32)
         z = np.where(np.isnan(z), np.float32(0), z)
         with np.errstate(over="ignore", divide="ignore", invalid="ignore"):  # tiny z: d_f / z -> inf, clipped
             return PAPER_WEIGHTS[self.weight](z, self, rng)
@@ -379,7 +357,7 @@ def parse_focus_pixel(focus_at, name: str = "focus_at") -> tuple[float, float] |
     try:
         x, y = (finite_number(name, v, InputError) for v in focus_at)
     except (TypeError, ValueError):  # not a pair, or an entry that is not a finite number
-        raise InputError(f"{name} must be an (x, y) pixel of finite numbers; got {_short(focus_at)}") from None
+        raise InputError(f"{name} must be an (x, y) pixel of finite numbers; got {short_repr(focus_at)}") from None
     return x, y
 
 
@@ -393,7 +371,7 @@ def check_radius_px(radius_px) -> int:
     integral = isinstance(radius_px, (int, np.integer)) or (
         isinstance(radius_px, (float, np.floating)) and float(radius_px).is_integer())
     if isinstance(radius_px, (bool, np.bool_)) or not integral or radius_px < 0:
-        raise InputError(f"radius_px must be an integer >= 0; got {_short(radius_px)}")
+        raise InputError(f"radius_px must be an integer >= 0; got {short_repr(radius_px)}")
     return int(radius_px)
 
 
@@ -415,7 +393,7 @@ def focus_depth_at(depth_m, x: float, y: float, *, radius_px: int = 7) -> float:
     InputError
         bad arguments, or no known depth within the largest window searched
     """
-    z = _depth_array(depth_m)
+    z = depth_array(depth_m)
     if z.ndim != 2:
         raise InputError(f"depth_m must be (H, W); got shape {z.shape}")
     x = finite_number("x (focus pixel column)", x, InputError)

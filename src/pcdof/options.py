@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from .camera import _short
+from .validate import short_repr
 from .errors import InputError, LensError
 from .focus import parse_focus_at
 from .lens import PaperLens, ThinLens
@@ -64,7 +64,7 @@ class RenderOptions:
         check_quality(self.quality)
         check_fill_method(self.fill_method, "fill_method")
         if not isinstance(self.linear, bool):
-            raise InputError(f"linear must be True or False; got {_short(self.linear)}")
+            raise InputError(f"linear must be True or False; got {short_repr(self.linear)}")
         object.__setattr__(self, "focus_at", parse_focus_at(self.focus_at))
         from .highlights import HIGHLIGHT_METHODS, parse_highlights
 
@@ -72,7 +72,7 @@ class RenderOptions:
         if not (isinstance(self.highlights, str) and self.highlights in HIGHLIGHT_METHODS):
             object.__setattr__(self, "highlights", gain)
         if not isinstance(self.device, str) or self.device not in DEVICES:
-            raise InputError(f"device must be one of {list(DEVICES)}; got {_short(self.device)}")
+            raise InputError(f"device must be one of {list(DEVICES)}; got {short_repr(self.device)}")
 
     def replace(self, **changes) -> "RenderOptions":
         """A copy with *changes* applied (checked like the constructor)."""

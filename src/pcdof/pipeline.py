@@ -22,7 +22,7 @@ import numpy as np
 from .camera import RGBDFrame, check_color
 from .errors import InputError
 from .focus import resolve_lens
-from .lens import ThinLens, _depth_array
+from .lens import ThinLens, depth_array
 from .options import as_options
 from .runtime.threads import current_threads, threads_for_load, worker_pool
 from .renderer import SHARP_COC_PX, check_method, render_image
@@ -302,7 +302,7 @@ def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "
     The options are those of :class:`~pcdof.options.RenderOptions` (with its defaults)."""
     check_method(method)
     color = check_color(color)
-    depth = np.asarray(_depth_array(depth_filled_m, "depth_filled_m"), np.float32)
+    depth = np.asarray(depth_array(depth_filled_m, "depth_filled_m"), np.float32)
     if depth.shape != color.shape[:2]:
         raise InputError(f"depth_filled_m must be (H, W) = {color.shape[:2]}; got {depth.shape}")
     trace: list[StageTrace] = []

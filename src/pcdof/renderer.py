@@ -44,7 +44,8 @@ import numpy as np
 from numba import get_num_threads, njit, prange, set_num_threads
 
 from .apertures import Aperture, aperture_for, aperture_from_blades, as_aperture
-from .camera import _short, check_color
+from .camera import check_color
+from .validate import short_repr
 from .color import decode_to_linear, encode_from_linear, from_float, to_float
 from .errors import InputError, LensError
 from .runtime.kernels import ensure_warm, read_only
@@ -1653,7 +1654,7 @@ METHODS = {"physical": render_physical, "paper": render_paper}
 def check_method(method) -> None:
     """InputError unless *method* is one of :data:`METHODS`' names (a str: lists and other unhashables too)."""
     if not isinstance(method, str) or method not in METHODS:
-        raise InputError(f"method must be one of {sorted(METHODS)}; got {_short(method)}")
+        raise InputError(f"method must be one of {sorted(METHODS)}; got {short_repr(method)}")
 
 
 def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.0, linear=False,

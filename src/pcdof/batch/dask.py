@@ -30,7 +30,7 @@ def _connect(scheduler):
         raise InputError(f"cannot connect to the Dask scheduler at {scheduler!r} (--scheduler): {err}") from None
 
 
-def _run_dask(job: BatchJob, tasks: list[FrameTask], scheduler, collect, render) -> None:
+def run_dask(job: BatchJob, tasks: list[FrameTask], scheduler, collect, render) -> None:
     """The same tasks on a Dask distributed cluster (workers write outputs to the shared filesystem).
 
     *render(job, task) -> record* renders one frame (:func:`pcdof.batch.runner.render_frame`).

@@ -12,7 +12,7 @@ from ..errors import InputError, PcdofError
 from ..lens import check_radius_px, focus_depth_at, parse_focus_pixel, pixel_inside
 from .frames import read_depth_m
 from .inputs import Sequence
-from .report import _bar
+from .report import progress_bar
 from .schedule import LensSchedule, build_schedule, parse_keyframes, smooth_focus_track
 
 log = logging.getLogger("pcdof.batch")
@@ -43,13 +43,13 @@ def measure_focus_track(sequence: Sequence, rig: Rig, xy, *, n_frames: int | Non
     """
     from ..register import needs_registration, reproject_depth
 
-    x, y = _check_xy(xy, rig)
+    x, y = check_xy(xy, rig)
     check_radius_px(radius_px)  # once, not once per frame
     n = len(sequence) if n_frames is None else min(int(n_frames), len(sequence))
     registered = not needs_registration(rig)[0]
     raw = np.full(n, np.nan)
     problems: dict[int, str] = {}
-    for i in _bar(range(n), progress, desc="focus", unit="frame"):
+    for i in progress_bar(range(n), progress, desc="focus", unit="frame"):
         try:
             depth = read_depth_m(sequence.pairs[i], rig)
             color_depth = depth if registered else reproject_depth(depth, rig)
@@ -59,7 +59,7 @@ def measure_focus_track(sequence: Sequence, rig: Rig, xy, *, n_frames: int | Non
     return raw, problems
 
 
-def _check_xy(xy, rig: Rig) -> tuple[float, float]:
+def check_xy(xy, rig: Rig) -> tuple[float, float]:
     x, y = parse_focus_pixel(xy)
     w, h = rig.color.width, rig.color.height
     if not pixel_inside(x, y, w, h):
@@ -103,7 +103,7 @@ def _follow_focus(sequence: Sequence, rig: Rig, template, *, n_frames: int, focu
     if centre:
         focus_at = ((rig.color.width - 1) / 2, (rig.color.height - 1) / 2)
     raw, problems = measure_focus_track(sequence, rig, focus_at, n_frames=n_frames, progress=progress)
-    x, y = _check_xy(focus_at, rig)
+    x, y = check_xy(focus_at, rig)
     source = f"focus-at {x:g},{y:g}"
     # a frame whose files cannot be read fails with that reason when it renders; only a missing
     # measurement at a readable frame is the focus point's doing

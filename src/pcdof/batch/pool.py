@@ -21,7 +21,7 @@ from concurrent.futures.process import BrokenProcessPool
 
 from ..runtime.process import tune_process, tuning
 from ..runtime.threads import set_process_threads, threads_restored
-from .signals import _signals_held, _starting_processes
+from .signals import signals_held, starting_processes
 from .tasks import BatchJob, FrameTask, failed_record
 
 log = logging.getLogger("pcdof.batch")
@@ -34,7 +34,7 @@ PARENT_POLL_S = 1.0
 PRELOAD = ["pcdof.batch.runner", "pcdof.pipeline"]
 
 
-def _set_threads(threads: int | None) -> None:
+def set_threads(threads: int | None) -> None:
     if threads is not None:
         set_process_threads(threads)
 
@@ -53,7 +53,7 @@ def _init_worker(job: BatchJob, render, tuned: bool) -> None:
     signal.signal(signal.SIGTERM, _worker_stop)
     if job.parent_pid is not None:
         _exit_with_parent(job.parent_pid)
-    _set_threads(job.threads)
+    set_threads(job.threads)
 
 
 def _worker_stop(signum=None, frame=None) -> None:
@@ -130,7 +130,7 @@ def _submit(pool, queue: list[FrameTask], running: dict, window: int) -> bool:
     while queue and len(running) < window:
         task = queue.pop()
         try:
-            with _starting_processes():  # submit starts the workers
+            with starting_processes():  # submit starts the workers
                 running[pool.submit(_render_in_worker, task)] = task
         except BrokenProcessPool:
             queue.append(task)
@@ -165,17 +165,17 @@ def _drain(pool, queue: list[FrameTask], workers: int, collect) -> tuple[bool, i
 
 def _run_pool(ctx, job: BatchJob, queue: list[FrameTask], workers: int, collect, render):
     """One pool over *queue* (see :func:`_drain`); Ctrl-C or SIGTERM stops its workers with SIGTERM."""
-    with _starting_processes():
+    with starting_processes():
         pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx,
                                    initializer=_init_worker, initargs=(job, render, bool(tuning())))
     try:
         return _drain(pool, queue, workers, collect)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the workers ignore SIGINT; stop them with SIGTERM
-        with _signals_held():
+        with signals_held():
             _interrupt_workers(pool)
         raise
     finally:
-        with _signals_held():
+        with signals_held():
             pool.shutdown(wait=True, cancel_futures=True)
 
 
@@ -192,7 +192,7 @@ def _requeue(lost: list[FrameTask], deaths: dict[int, int], counted: bool, queue
             queue.append(task)
 
 
-def _run_processes(job: BatchJob, tasks: list[FrameTask], workers: int, collect, render) -> None:
+def run_processes(job: BatchJob, tasks: list[FrameTask], workers: int, collect, render) -> None:
     """Local worker processes (the first frame renders in this process, to warm numba's cache).
 
     Frames in flight when a worker dies are retried on a fresh pool; a frame in flight at

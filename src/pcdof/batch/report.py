@@ -37,13 +37,13 @@ def exit_code(report: dict) -> int:
     return EXIT_PARTIAL
 
 
-def _bar(iterable=None, progress=True, **kw):
+def progress_bar(iterable=None, progress=True, **kw):
     from tqdm.auto import tqdm
 
     return tqdm(iterable, disable=not progress, file=sys.stderr, dynamic_ncols=True, **kw)
 
 
-def _now() -> str:
+def now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
@@ -61,7 +61,7 @@ def _totals(recs: list[dict], wall: float) -> dict:
     }
 
 
-class _Reporter:
+class Reporter:
     """Collects frame records, writes report.json atomically (snapshots while running)."""
 
     def __init__(self, path: str, header: dict, records: list[dict], progress: bool):
@@ -69,7 +69,7 @@ class _Reporter:
         self.t0 = time.perf_counter()
         self.last_write = 0.0
         todo = sum(r["status"] == "pending" for r in records)
-        self.bar = _bar(None, progress, total=todo, desc="render", unit="frame")
+        self.bar = progress_bar(None, progress, total=todo, desc="render", unit="frame")
 
     def add(self, rec: dict) -> None:
         self.records[rec["index"]] = rec
@@ -84,7 +84,7 @@ class _Reporter:
 
     def report(self, status: str) -> dict:
         totals = _totals(self.records, time.perf_counter() - self.t0)
-        return {**self.header, "status": status, "finished": _now(), "totals": totals, "frames": self.records}
+        return {**self.header, "status": status, "finished": now(), "totals": totals, "frames": self.records}
 
     def write(self, status: str, extra: dict | None = None) -> dict:
         from .. import io
@@ -120,7 +120,7 @@ class _Reporter:
         self.bar.close()
 
 
-def _report_interrupted_early(output_dir: str, sequence: Sequence, n: int, err: BaseException) -> None:
+def report_interrupted_early(output_dir: str, sequence: Sequence, n: int, err: BaseException) -> None:
     """report.json for a batch stopped before its first frame (in the focus pass): status "interrupted".
 
     An earlier run's report in the folder keeps its frames and settings (nothing of them was touched),
@@ -130,7 +130,7 @@ def _report_interrupted_early(output_dir: str, sequence: Sequence, n: int, err: 
 
     from .. import io
 
-    note = {"status": "interrupted", "finished": _now(),
+    note = {"status": "interrupted", "finished": now(),
             "error": f"interrupted by {interrupted_by(err)} in the focus pass, before any frame was rendered"}
     path = os.path.join(output_dir, REPORT_NAME)
     try:

@@ -29,7 +29,7 @@ def _check_settings(old_settings, settings: dict) -> None:
         )
 
 
-def _check_resume(report_path: str, settings: dict, inputs: list[tuple[str, str]]) -> dict[int, dict]:
+def check_resume(report_path: str, settings: dict, inputs: list[tuple[str, str]]) -> dict[int, dict]:
     """Frames the previous run in the folder finished from the same inputs (their outputs may be kept).
 
     InputError when it used other settings, or rendered any frame index from other colour / depth
@@ -70,7 +70,7 @@ def _check_resume(report_path: str, settings: dict, inputs: list[tuple[str, str]
     return done
 
 
-def _unchanged(previous: dict, rec: dict) -> bool:
+def unchanged(previous: dict, rec: dict) -> bool:
     """Whether a frame's earlier record *previous* was made from the inputs and lens of this run's *rec*."""
     return (isinstance(previous.get("source"), dict) and previous["source"] == rec["source"]
             and all(previous.get(k) == rec[k] for k in ("focus_distance_m", "f_number", "focal_length_mm")))

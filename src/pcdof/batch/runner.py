@@ -43,11 +43,11 @@ import numpy as np
 from ..camera import RGBDFrame, Rig
 from ..errors import ImageWriteError, InputError, PcdofError, is_out_of_memory
 from ..versions import library_versions
-from .dask import DASK_CONNECT_TIMEOUT_S, _run_dask
+from .dask import DASK_CONNECT_TIMEOUT_S, run_dask
 from .focus import (
     DEFAULT_SMOOTHING,
     NO_DEPTH_PREFIX,
-    _check_xy,
+    check_xy,
     measure_focus_track,
     parse_lens_keyframes,
     plan_lens,
@@ -57,14 +57,14 @@ from .inputs import DEFAULT_MAX_DIFFERENCE_S, Sequence, discover, load_rig
 from .lock import folder_lock
 from .outputs import DEPTH_DIR, REPORT_NAME, check_inputs_kept, frame_name, sweep_temp_files
 from ..runtime.threads import threads_restored
-from .pool import MAX_WORKER_DEATHS, PARENT_POLL_S, _run_processes, _set_threads
-from .report import EXIT_ALL_FAILED, EXIT_OK, EXIT_PARTIAL, REPORT_INTERVAL_S, _now, _report_interrupted_early, \
-    _Reporter, exit_code
-from .resume import _check_resume, _unchanged
+from .pool import MAX_WORKER_DEATHS, PARENT_POLL_S, run_processes, set_threads
+from .report import EXIT_ALL_FAILED, EXIT_OK, EXIT_PARTIAL, REPORT_INTERVAL_S, now, report_interrupted_early, \
+    Reporter, exit_code
+from .resume import check_resume, unchanged
 from .schedule import LensSchedule
-from .signals import Terminated, _sigterm_interrupts
-from .tasks import BatchJob, FrameTask, _discard_outputs, _lens_fields, _outputs_complete, base_record, input_stamps
-from .video import _make_video, write_video
+from .signals import Terminated, sigterm_interrupts
+from .tasks import BatchJob, FrameTask, discard_outputs, lens_fields, outputs_complete, base_record, input_stamps
+from .video import make_video, write_video
 
 
 # ------------------------------------------------------------------------------------ per frame
@@ -88,14 +88,14 @@ def _render_and_write(job: BatchJob, task: FrameTask, rec: dict) -> None:
     """Read, render and write *task*, filling *rec* with the lens used and the stages' times."""
     from .. import io
 
-    _discard_outputs(task)
-    _set_threads(job.threads)
+    discard_outputs(task)
+    set_threads(job.threads)
     frame = read_frame(task.pair, job.rig)
     result = _render(frame, task.lens, job)
     if task.depth_output is not None:
         io.write_depth(task.depth_output, result.depth_filled_m)
     io.write_image(task.output, result.image)  # last: the image's presence marks a finished frame
-    rec.update(_lens_fields(result.lens))
+    rec.update(lens_fields(result.lens))
     rec["stages"] = {t.name: round(float(t.seconds), 6) for t in result.trace}
     rec["skipped_stages"] = {t.name: t.reason for t in result.trace if t.skipped}
     rec["status"] = "ok"
@@ -124,7 +124,7 @@ def render_frame(job: BatchJob, task: FrameTask) -> dict:
         rec["status"], rec["error"] = "failed", _failure(err)
     if rec["status"] == "failed":
         with contextlib.suppress(ImageWriteError):
-            _discard_outputs(task)  # e.g. the depth output, written before the image failed
+            discard_outputs(task)  # e.g. the depth output, written before the image failed
     rec["seconds"] = round(time.perf_counter() - t0, 6)
     rec["cpu_seconds"] = round(time.process_time() - c0, 6)  # CPU time of the whole worker process
     return rec
@@ -277,8 +277,8 @@ def _plan_tasks(sequence: Sequence, schedule: LensSchedule, output_dir: str, sav
         if i in failures:  # no lens for this frame (e.g. no depth at the focus point anywhere)
             rec.update(status="failed", error=failures[i], focus_distance_m=None)
             with contextlib.suppress(ImageWriteError):
-                _discard_outputs(task)
-        elif i in done and _outputs_complete(task) and _unchanged(done[i], {**rec, "source": input_stamps(task.pair)}):
+                discard_outputs(task)
+        elif i in done and outputs_complete(task) and unchanged(done[i], {**rec, "source": input_stamps(task.pair)}):
             rec["status"], rec["skipped"], rec["source"] = "skipped", "resume", done[i]["source"]
         else:
             tasks.append(task)
@@ -289,7 +289,7 @@ def _plan_tasks(sequence: Sequence, schedule: LensSchedule, output_dir: str, sav
 def _header(sequence: Sequence, output_dir: str, save_depth: bool, settings: dict, backend: dict) -> dict:
     return {
         "report": "pcdof batch",
-        "started": _now(),
+        "started": now(),
         "input": {"path": sequence.root, "layout": sequence.layout, "pairs": len(sequence),
                   "unmatched_color": sequence.unmatched_color, "unmatched_depth": sequence.unmatched_depth},
         "output_dir": output_dir,
@@ -301,7 +301,7 @@ def _header(sequence: Sequence, output_dir: str, save_depth: bool, settings: dic
     }
 
 
-def _collector(records: list[dict], tasks: list[FrameTask], reporter: _Reporter):
+def _collector(records: list[dict], tasks: list[FrameTask], reporter: Reporter):
     """``collect(record)``: a finished frame's record, with this run's input paths, into the report."""
     task_of = {t.index: t for t in tasks}
 
@@ -313,7 +313,7 @@ def _collector(records: list[dict], tasks: list[FrameTask], reporter: _Reporter)
             rec["focus_measured_m"] = prev["focus_measured_m"]
         if rec["status"] == "failed":  # e.g. its worker died: nothing of an earlier run stays under its names
             with contextlib.suppress(ImageWriteError):
-                _discard_outputs(task_of[i])
+                discard_outputs(task_of[i])
         reporter.add(rec)
 
     return collect
@@ -324,9 +324,9 @@ def _run_tasks(job: BatchJob, tasks: list[FrameTask], workers: int, scheduler, c
     if not tasks:
         return
     if scheduler is not None:
-        _run_dask(job, tasks, scheduler, collect, render_frame)
+        run_dask(job, tasks, scheduler, collect, render_frame)
     elif workers > 1 and len(tasks) > 1:
-        _run_processes(job, tasks, int(workers), collect, render_frame)
+        run_processes(job, tasks, int(workers), collect, render_frame)
     else:
         with threads_restored():
             for task in tasks:
@@ -345,19 +345,19 @@ def _run_locked(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir
     done = {}
     if resume:
         inputs = [(sequence.relative(p.color), sequence.relative(p.depth)) for p in sequence.pairs[:len(schedule)]]
-        done = _check_resume(report_path, all_settings, inputs)
+        done = check_resume(report_path, all_settings, inputs)
     tasks, records = _plan_tasks(sequence, schedule, output_dir, save_depth, done)
     header = _header(sequence, output_dir, save_depth, all_settings, backend)
-    reporter = _Reporter(report_path, header, records, progress)
+    reporter = Reporter(report_path, header, records, progress)
     reporter.write("running")
     try:
-        with _sigterm_interrupts():
+        with sigterm_interrupts():
             _run_tasks(job, tasks, workers, scheduler, _collector(records, tasks, reporter))
     except BaseException as err:
         reporter.stopped(err)
         raise
     reporter.close()
-    extra = {} if video is None else {"video": _make_video(records, output_dir, video, fps)}
+    extra = {} if video is None else {"video": make_video(records, output_dir, video, fps)}
     return reporter.finish(extra)
 
 
@@ -438,11 +438,11 @@ def render_sequence(input_path: str, output_dir: str, *, lens=None, options=None
     _make_output_dir(output_dir)
     lens_args = {"focus_at": focus_at, "focus_keyframes": focus_keyframes, "f_number_keyframes": f_number_keyframes,
                  "easing": easing, "smoothing": smoothing}
-    with folder_lock(output_dir), _sigterm_interrupts():  # owned from the focus pass on; SIGTERM like Ctrl-C
+    with folder_lock(output_dir), sigterm_interrupts():  # owned from the focus pass on; SIGTERM like Ctrl-C
         try:
             schedule = plan_lens(sequence, rig, options.lens, n_frames=n, rate_hz=fps, progress=progress, **lens_args)
         except KeyboardInterrupt as err:
-            _report_interrupted_early(output_dir, sequence, n, err)
+            report_interrupted_early(output_dir, sequence, n, err)
             raise
         settings = _sequence_settings(sequence, rig, fps=fps, max_difference=max_difference, **lens_args)
         return run_batch(sequence, rig, schedule, output_dir, options=options, save_depth=save_depth, resume=resume,

@@ -11,7 +11,7 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM arrived while a batch ran (raised in the main thread; the CLI exits 143)."""
 
 
-# SIGINT / SIGTERM held while worker processes start or stop (see _signals_held); Python runs signal handlers
+# SIGINT / SIGTERM held while worker processes start or stop (see signals_held); Python runs signal handlers
 # in the main thread.
 _SIGNALS = {"held": 0, "pending": None}
 
@@ -25,7 +25,7 @@ def _on_signal(signum, frame) -> None:
 
 
 @contextlib.contextmanager
-def _sigterm_interrupts():
+def sigterm_interrupts():
     """Within the block, SIGTERM raises :class:`Terminated` like Ctrl-C raises KeyboardInterrupt (main thread only)."""
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -40,7 +40,7 @@ def _sigterm_interrupts():
 
 
 @contextlib.contextmanager
-def _signals_held():
+def signals_held():
     """Ctrl-C or SIGTERM within the block raises at its end: a worker being started or stopped is never left
     unknown to its pool, and a second Ctrl-C cannot cut the shutdown short (leaving workers and semaphores)."""
     _SIGNALS["held"] += 1
@@ -54,20 +54,20 @@ def _signals_held():
             raise pending
 
 
-_sigterm_held = _signals_held  # the name older callers use
+_sigterm_held = signals_held  # the name older callers use
 
 
 @contextlib.contextmanager
-def _starting_processes():
+def starting_processes():
     """Within the block, new processes (forkserver, resource tracker, workers) start with SIGINT blocked.
 
     Ctrl-C goes to every process of the terminal's group; a Python process that gets it while it is
     still importing prints "Fatal Python error" and a traceback. Blocked, it stays pending here (and
-    raises once the block ends, through :func:`_signals_held`) and never reaches the children, which
+    raises once the block ends, through :func:`signals_held`) and never reaches the children, which
     inherit the mask: the batch alone decides, and stops its workers with SIGTERM.
     """
     block = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
-    with _signals_held():
+    with signals_held():
         if block:
             signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:

@@ -48,7 +48,7 @@ class FrameTask:
         return (self.output,) if self.depth_output is None else (self.output, self.depth_output)
 
 
-def _discard_outputs(task: FrameTask) -> None:
+def discard_outputs(task: FrameTask) -> None:
     """Remove *task*'s output files where they exist (an earlier run's, or this run's partial ones)."""
     for path in task.outputs:
         try:
@@ -59,7 +59,7 @@ def _discard_outputs(task: FrameTask) -> None:
             raise ImageWriteError(f"cannot remove the earlier output {path}: {err.strerror or err}") from None
 
 
-def _outputs_complete(task: FrameTask) -> bool:
+def outputs_complete(task: FrameTask) -> bool:
     # atomic writes: a file that exists under its final name is complete
     return all(os.path.isfile(p) for p in task.outputs)
 
@@ -81,7 +81,7 @@ def input_stamps(pair: FramePair) -> dict:
     return {"color": _stamp(pair.color), "depth": _stamp(pair.depth)}
 
 
-def _lens_fields(lens) -> dict:
+def lens_fields(lens) -> dict:
     return {
         "focus_distance_m": float(lens.focus_distance_m),
         "f_number": float(lens.f_number) if isinstance(lens, ThinLens) else None,
@@ -109,7 +109,7 @@ def base_record(task: FrameTask, output_dir: str, root: str | None = None) -> di
         "cpu_seconds": 0.0,
         "stages": {},
         "skipped_stages": {},
-        **_lens_fields(task.lens),
+        **lens_fields(task.lens),
         "worker": None,
     }
 

@@ -90,7 +90,7 @@ def write_video(images, path: str, *, fps: float = 30.0, quality: float = 8.0) -
     return {"path": path, "frames": n, "width": size[0], "height": size[1], "fps": fps}
 
 
-def _make_video(records: list[dict], output_dir: str, video: str, fps: float) -> dict:
+def make_video(records: list[dict], output_dir: str, video: str, fps: float) -> dict:
     """Video of the batch's frames in order, one video frame per frame.
 
     A frame that failed repeats the previous good one; failed frames before the first good one show

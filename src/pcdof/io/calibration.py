@@ -124,7 +124,7 @@ def read_calibration(path, *, depth_scale: float | None = None, default_depth_sc
     """
     path = fspath(path, name="calibration path")
     if depth_scale is not None:
-        depth_scale = _scale_argument(depth_scale)
+        depth_scale = scale_argument(depth_scale)
     if default_depth_scale is not None:
         default_depth_scale = check_depth_scale(default_depth_scale, InputError, "default_depth_scale")
     data = read_bytes(path, "calibration")
@@ -151,7 +151,7 @@ def read_calibration(path, *, depth_scale: float | None = None, default_depth_sc
     return rig
 
 
-def _scale_argument(value) -> float:
+def scale_argument(value) -> float:
     return check_depth_scale(value, InputError)
 
 

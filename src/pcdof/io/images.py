@@ -15,7 +15,7 @@ from ..camera import RGBDFrame, as_depth_m
 from ..errors import ImageReadError, InputError
 from ._files import (MAX_PIXELS, check_size, decode_exr, decode_image, decode_npy, fspath, header_size, read_bytes,
                      sniff)
-from .calibration import _scale_argument, read_calibration
+from .calibration import scale_argument, read_calibration
 
 #: What a depth file may be, for error messages.
 DEPTH_FORMATS_TEXT = (
@@ -116,7 +116,7 @@ def _read_depth(path, depth_scale, expect=None) -> tuple[np.ndarray, int]:
     """(depth in metres as float32 with unknowns = 0, number of NaN/inf/negative values set to 0)."""
     path = fspath(path, name="depth path")
     if depth_scale is not None:
-        depth_scale = _scale_argument(depth_scale)
+        depth_scale = scale_argument(depth_scale)
     raw, kind = _decode(path, "depth", expect)
     if isinstance(raw, dict):
         raw = _exr_depth(raw, path)

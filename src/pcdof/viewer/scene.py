@@ -79,7 +79,7 @@ def check_window_size(window_size, *, name: str = "window_size") -> tuple[int, i
     return width, height
 
 
-def _check_intrinsics(intrinsics) -> Intrinsics:
+def check_intrinsics(intrinsics) -> Intrinsics:
     if not isinstance(intrinsics, Intrinsics):
         raise InputError(f"intrinsics must be an Intrinsics; got {type(intrinsics).__name__}")
     return intrinsics
@@ -96,7 +96,7 @@ def image_corner_pixels(intrinsics: Intrinsics) -> np.ndarray:
     -------
     (4, 2) float64 ndarray, (u, v) pixels: ``(-0.5, -0.5), (W - 0.5, -0.5), (W - 0.5, H - 0.5), (-0.5, H - 0.5)``
     """
-    intr = _check_intrinsics(intrinsics)
+    intr = check_intrinsics(intrinsics)
     w, h = intr.width - 0.5, intr.height - 0.5
     return np.array([[-0.5, -0.5], [w, -0.5], [w, h], [-0.5, h]])
 
@@ -115,7 +115,7 @@ def image_corner_rays(intrinsics: Intrinsics) -> np.ndarray:
     """
     from ..geometry import undistort_pixels
 
-    intr = _check_intrinsics(intrinsics)
+    intr = check_intrinsics(intrinsics)
     uv = image_corner_pixels(intr)
     pinhole = np.stack([(uv[:, 0] - intr.cx) / intr.fx, (uv[:, 1] - intr.cy) / intr.fy], axis=-1)
     xy = undistort_pixels(uv, intr) if intr.has_distortion else pinhole
@@ -195,7 +195,7 @@ def dof_slab(intrinsics: Intrinsics, lens: ThinLens, *, coc_limit_px: float = 1.
     Thin lens: c(z) = A * fx * |1/d_f - 1/z| pixels with A = f / N, so the limits are
     ``1/z = 1/d_f +- c / (A fx)`` (:meth:`pcdof.lens.ThinLens.dof_limits_m`).
     """
-    intr = _check_intrinsics(intrinsics)
+    intr = check_intrinsics(intrinsics)
     if not isinstance(lens, ThinLens):
         raise LensError(f"lens must be a ThinLens; got {type(lens).__name__}")
     z_max = positive_number("z_max_m", z_max_m, InputError)
@@ -242,7 +242,7 @@ def strided_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -
     """
     from ..geometry import depth_to_points
 
-    intr = _check_intrinsics(intrinsics)
+    intr = check_intrinsics(intrinsics)
     stride = check_stride(stride)
     color = check_color(color, intr.shape)
     depth = np.asarray(depth_m, dtype=np.float32)
@@ -449,7 +449,7 @@ def lens_numbers(lens: ThinLens, intrinsics: Intrinsics, *, z_min_m: float, z_ma
     largest circle of confusion of a scene depth: c(z) is monotonic on each side of the focus, so it is
     reached at ``z_min_m`` or ``z_max_m``), ``f_number``, ``focal_length_mm``, ``aperture_blades``, ``coc_limit_px``.
     """
-    intr = _check_intrinsics(intrinsics)
+    intr = check_intrinsics(intrinsics)
     if not isinstance(lens, ThinLens):
         raise LensError(f"lens must be a ThinLens; got {type(lens).__name__}")
     z = np.array([positive_number("z_min_m", z_min_m, InputError), positive_number("z_max_m", z_max_m, InputError)])

@@ -31,7 +31,7 @@ from .scene import (
     PREVIEW_MAX_SIDE,
     SLAB_COLOR,
     SLAB_OPACITY,
-    _check_intrinsics,
+    check_intrinsics,
     check_window_size,
     dof_slab,
     downscale_for_preview,
@@ -508,7 +508,7 @@ class FocusViewer(FocusScene):
 
 def check_scene_inputs(color, depth_filled_m, intrinsics, lens, *, coc_limit_px, stride, color_by):
     """Validate :func:`build_scene`'s inputs. Returns (intrinsics, depth, stride, coc_limit_px)."""
-    intr = _check_intrinsics(intrinsics)
+    intr = check_intrinsics(intrinsics)
     if not isinstance(lens, ThinLens):
         raise LensError(f"lens must be a ThinLens; got {type(lens).__name__}")
     check_color(color, intr.shape)

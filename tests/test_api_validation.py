@@ -166,7 +166,7 @@ def test_run_refuses_bad_focus_at_before_any_stage(focus_at, monkeypatch):
     def forbidden(*a, **k):
         raise AssertionError("a stage ran before focus_at was checked")
 
-    monkeypatch.setattr(pipeline, "register_stage", forbidden)
+    monkeypatch.setattr(pipeline, "run_stages", forbidden)
     with pytest.raises(InputError, match="focus_at"):
         run(frame(), ThinLens(50, 2, 1), focus_at=focus_at)
 

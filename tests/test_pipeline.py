@@ -71,13 +71,13 @@ class TestSkipping:
     @pytest.mark.parametrize("overlap", [True, False])
     def test_sharp_frame_with_clipped_lights_skips_the_highlights_estimate(self, monkeypatch, overlap):
         import pcdof.highlights as highlights_module
-        import pcdof.pipeline as pipeline_module
+        import pcdof.stages.highlights.stage as highlights_stage
 
         def forbidden(*a, **k):
             raise AssertionError("radiance estimated for a frame nothing of which is blurred")
 
         monkeypatch.setattr(highlights_module, "reconstruct_prepared", forbidden)
-        monkeypatch.setattr(pipeline_module, "_OVERLAP", overlap)
+        monkeypatch.setattr(highlights_stage, "OVERLAP", overlap)
         f = frame_with(two_planes())
         f.color[20:24, 30:34] = 255  # a clipped light in the sharp subject
         res = run(f, ThinLens(50, 5000, 1.0))  # every CoC far below a pixel

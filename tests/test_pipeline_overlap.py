@@ -9,6 +9,8 @@ import pytest
 
 import pcdof.highlights as highlights
 import pcdof.pipeline as pipeline
+import pcdof.runtime.threads as runtime_threads
+import pcdof.stages.highlights.stage as highlights_stage
 from pcdof.camera import RGBDFrame
 from pcdof.color import decode_to_linear, srgb_to_linear
 from pcdof.errors import InputError
@@ -55,7 +57,7 @@ LENS = ThinLens(50.0, 1.4, 1.2)
 
 
 def _sequential(monkeypatch):
-    monkeypatch.setattr(pipeline, "_OVERLAP", False)
+    monkeypatch.setattr(highlights_stage, "OVERLAP", False)
 
 
 def _stage(result, name):
@@ -134,7 +136,7 @@ def test_overlapped_and_sequential_pipelines_give_the_same_bits(monkeypatch, see
 def _counting_threads(monkeypatch):
     """The work handed to the colour side's worker thread, as a list that grows."""
     started = []
-    real = pipeline.worker_pool
+    real = runtime_threads.worker_pool
 
     class Counted:
         def __init__(self, name, workers):
@@ -144,7 +146,7 @@ def _counting_threads(monkeypatch):
             started.append(fn)
             return self.pool.submit(fn)
 
-    monkeypatch.setattr(pipeline, "worker_pool", Counted)
+    monkeypatch.setattr(runtime_threads, "worker_pool", Counted)
     return started
 
 

@@ -1,19 +1,16 @@
-"""The pipeline executor: register -> fill -> circle of confusion -> render, with a trace.
+"""The pipeline: register -> fill -> circle of confusion -> highlights -> render, with a trace.
 
-Stages are pure functions from the stage modules; this module decides whether each one has
-work to do, times it, and records what was skipped and why (``pcdof render --explain``).
+The stages are the objects of :data:`pcdof.stages.STAGES`, each following the contract of
+:mod:`pcdof.stages.base`; this module runs them in order on a :class:`~pcdof.stages.base.FrameState`: asks each
+whether it has work (``skip``), how to run (``plan``), runs it, times it and records what it did and why
+(``pcdof render --explain``). The options travel whole (:class:`pcdof.options.RenderOptions`).
 
-The stages run one after another, except the part of the highlights stage that reads the colour
-only (decoding it, finding its clipped blobs: :func:`pcdof.highlights.prepare_highlights`), which
-runs on a worker thread while the fill runs, for frames that need it; the stage waits for it and
-finishes with the circle of confusion. The results are those of the stages run one after another.
+A stage may start part of its work beside an earlier one (the highlights stage reads the colour while the fill
+runs, for frames that need it); the results are those of the stages run one after another.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import os
-import threading
 import time
 from dataclasses import dataclass, field
 
@@ -21,11 +18,12 @@ import numpy as np
 
 from .camera import RGBDFrame, check_color
 from .errors import InputError
-from .focus import resolve_lens
-from .lens import ThinLens, depth_array
+from .lens import depth_array
 from .options import as_options
-from .runtime.threads import current_threads, threads_for_load, worker_pool
-from .renderer import SHARP_COC_PX, check_method, render_image
+from .plans import as_dict
+from .runtime.kernels import ensure_warm
+from .runtime.threads import threads_for_load
+from .stages import STAGES, FrameState
 
 
 @dataclass
@@ -80,172 +78,49 @@ class RenderResult:
         return "\n".join(lines)
 
 
-class _Timer:
-    def __init__(self, trace: list, name: str):
-        self.trace, self.name = trace, name
-
-    def __enter__(self):
-        self.t0 = time.perf_counter()
-        self.record = StageTrace(self.name, 0.0, False)
-        return self.record
-
-    def __exit__(self, *exc):
-        self.record.seconds = time.perf_counter() - self.t0
-        self.trace.append(self.record)
-        return False
-
-
-def register_stage(frame: RGBDFrame, trace: list) -> np.ndarray:
-    """Registered depth (colour grid); skipped for a rig whose cameras coincide."""
-    from .register import needs_registration, plan_for, plan_info, register_depth
-
-    with _Timer(trace, "register") as rec:
-        needed, reason = needs_registration(frame.rig)
-        if not needed:
-            rec.skipped, rec.reason = True, reason
-            return frame.depth_m.copy()
-        plan = plan_for(frame.rig)
-        depth = register_depth(frame, plan=plan)
-        rec.reason = reason
-        rec.detail = {"coverage": float(np.count_nonzero(depth) / depth.size), "plan": plan_info(frame.rig, plan)}
-        return depth
+def _record(stage, state: FrameState, opts, trace: list) -> FrameState:
+    """Run *stage* on *state* (or skip it), append its :class:`StageTrace` to *trace*; returns the new state."""
+    t0 = time.perf_counter()
+    reason = stage.skip(state, opts)
+    if reason is not None:
+        state = state.replace(**stage.passthrough(state, opts))
+        trace.append(StageTrace(stage.name, time.perf_counter() - t0, True, reason))
+        return state
+    plan = stage.plan(state, opts)
+    out = stage.run(state, plan, opts)
+    detail = out.detail
+    if plan is not None and "plan" not in detail and hasattr(plan, "__dataclass_fields__"):
+        detail = {**detail, "plan": as_dict(plan)}
+    trace.append(StageTrace(stage.name, time.perf_counter() - t0, out.skipped, out.reason, detail))
+    return state.replace(**out.updates)
 
 
-def fill_stage(depth_m: np.ndarray, color: np.ndarray, trace: list, *, method: str) -> np.ndarray:
-    """Hole-free depth; skipped when there are no holes."""
-    from .fill import fill_depth, needs_fill, plan_fill
+def run_stages(state: FrameState, options, *, stages=None, trace: list | None = None) -> tuple[FrameState, list]:
+    """Run *stages* (default :data:`pcdof.stages.STAGES`) in order on *state* with *options* (checked
+    :class:`~pcdof.options.RenderOptions`). Returns (final state, list of :class:`StageTrace`).
 
-    with _Timer(trace, "fill") as rec:
-        needed, reason = needs_fill(depth_m)
-        if not needed:
-            rec.skipped, rec.reason = True, reason
-            return depth_m
-        plan = plan_fill(depth_m)
-        rec.reason = f"{reason} ({method}; {plan.describe()})"
-        rec.detail = {"holes": plan.holes, "threads": plan.threads}
-        return fill_depth(depth_m, color, method=method, parallel=plan.threads > 1)
-
-
-def highlights_stage(color, trace: list, *, highlights, method: str, linear: bool, coc_px=None, prepared=None,
-                     coc_max_px=None):
-    """Clipped highlights raised to an estimate of their radiance (:mod:`pcdof.highlights`; *coc_px*:
-    the render's circle of confusion, which the estimate weighs; *coc_max_px*: its largest value where known).
-
-    *prepared*: the function that waits for the stage's colour-only half started on a worker thread
-    (:func:`_start_colour_side`), or None to do that half here. The record's seconds are the time waited for it
-    plus the part that needs the circle of confusion; its detail says how much of it ran meanwhile.
-
-    Returns (colour to render, linear flag): linear float32 light when something was reconstructed,
-    else *color* and *linear* unchanged (skipped: off, the paper method, linear input, nothing clipped, nothing
-    out of focus).
+    A stage whose ``starts_before`` names a stage of the list is started (``start``) just before that stage
+    runs; its waiter reaches it in ``state.started``.
     """
-    from .highlights import parse_highlights, prepare_highlights, reconstruct_prepared
-
-    with _Timer(trace, "highlights") as rec:
-        how, gain = parse_highlights(highlights)
-        if prepared is not None:  # joined first: a failure on the worker is raised here, in the caller's thread
-            t0 = time.perf_counter()
-            found, took, done = prepared()
-            overlap = {"prepared_ms": took * 1e3, "overlapped_ms": max(0.0, took - max(0.0, done - t0)) * 1e3,
-                       "waited_ms": (time.perf_counter() - t0) * 1e3}
-        reason = _highlights_skip(how, method, color, linear)
-        cmax = None
-        if not reason and coc_px is not None and np.size(coc_px):
-            cmax = float(np.max(coc_px)) if coc_max_px is None else float(coc_max_px)
-        if cmax is not None and cmax < SHARP_COC_PX:
-            # the render returns the input as it is: estimating radiance it would not blur is work for nothing
-            reason = f"nothing to blur (largest circle of confusion {cmax:.3f} px < {SHARP_COC_PX} px)"
-        if reason:
-            rec.skipped, rec.reason = True, reason
-            return color, linear
-        if prepared is None:
-            found, overlap = prepare_highlights(color), {}
-        if found is None:
-            rec.skipped, rec.reason = True, "nothing clipped"
-            return color, linear
-        n = found.clipped_pixels
-        rec.reason = f"{how}{f' (gain {gain:g})' if how in ('gain', 'rim') else ''}: {n} clipped pixels"
-        rec.detail = {"method": how, "gain": gain, "clipped_pixels": n, **overlap}
-        return reconstruct_prepared(found, method=how, gain=gain, coc_px=coc_px), True
+    stages = STAGES if stages is None else tuple(stages)
+    trace = [] if trace is None else trace
+    early = {}
+    for stage in stages:
+        if stage.starts_before is not None:
+            early.setdefault(stage.starts_before, []).append(stage)
+    for stage in stages:
+        for starter in early.get(stage.name, ()):
+            waiter = starter.start(state, options)
+            if waiter is not None:
+                state = state.replace(started={**state.started, starter.name: waiter})
+        state = _record(stage, state, options, trace)
+    return state, trace
 
 
-def _highlights_skip(how: str, method: str, color, linear: bool) -> str:
-    """Why the highlights stage has nothing to do before its colour is read ("": it may; then only a clipped
-    pixel decides)."""
-    from .highlights import needs_reconstruction
-
-    return ("off" if how == "off" else "the paper method blends as written" if method != "physical"
-            else "linear input is not clipped" if not needs_reconstruction(color, linear=linear) else "")
-
-
-#: whether :func:`run` prepares the highlights stage's colour-only half on a worker thread while the fill runs
-#: (False: every stage one after another; the results are the same, bit for bit)
-_OVERLAP = True
-
-
-def _start_colour_side(color, opts):
-    """Start :func:`pcdof.highlights.prepare_highlights` of *color* on a worker thread (during the fill) when the
-    highlights stage will need it (the physical method, highlights not off, 8/16-bit sRGB colour with a channel at
-    its top code) and a second thread may run (numba's thread count for this thread; 1, e.g. in a batch worker
-    process: serial).
-    Returns the function that waits for it ((ClippedColor or None, seconds it took, perf_counter when done),
-    raising what the worker raised), or None: such frames use no thread (nor does a call at interpreter exit).
-
-    The worker runs OpenCV and numpy only (both release the GIL over whole arrays; no numba kernel, so numba's
-    threading layer and thread count are the main thread's alone), while the fill's kernels run without the GIL
-    (on one thread below its parallel threshold; its first kernel, the hole index, on one thread always)."""
-    from .highlights import parse_highlights, prepare_highlights
-
-    color = np.asarray(color)
-    how, _ = parse_highlights(opts.highlights)
-    if (not _OVERLAP or _highlights_skip(how, opts.method, color, opts.linear) or color.ndim != 3
-            or not color.size or color.max() < np.iinfo(color.dtype).max or current_threads() < 2):
-        return None
-
-    def work():
-        t0 = time.perf_counter()
-        found = prepare_highlights(color)
-        t1 = time.perf_counter()
-        return found, t1 - t0, t1
-
-    try:
-        return worker_pool("colour", 1).submit(work).result
-    except RuntimeError:  # interpreter shutting down: no new threads; the stage does it in the caller's thread
-        return None
-
-
-def render_stages(color, depth_filled_m, lens, fx, trace, *, method="physical", max_range_m=10.0, linear=False,
-                  quality="balanced", highlights="off", prepared=None):
-    """Circle of confusion + render stages on registered, filled depth (*prepared*: see
-    :func:`highlights_stage`). Returns (image, coc_px)."""
-    coc = signed = coc_max = None
-    if isinstance(lens, ThinLens):
-        with _Timer(trace, "coc") as rec:
-            # computed once, in one pass, for the map, the highlights and the renderer
-            signed, coc, coc_max, share = lens.coc_maps_px(depth_filled_m, fx)
-            rec.detail = {"max_coc_px": coc_max, "out_of_focus_share": share}
-            rec.reason = f"max {rec.detail['max_coc_px']:.2f} px"
-    source, source_linear = highlights_stage(color, trace, highlights=highlights, method=method, linear=linear,
-                                             coc_px=coc, prepared=prepared, coc_max_px=coc_max)
-    with _Timer(trace, "render") as rec:
-        image, info = render_image(source, depth_filled_m, lens, fx=fx, method=method,
-                                   max_range_m=max_range_m, linear=source_linear, quality=quality, signed_coc=signed)
-        rec.skipped = bool(info.pop("skipped", False))
-        if source is not color:  # rendered from reconstructed linear light: back to the input's encoding
-            from .color import encode_from_linear
-
-            image = color.copy() if rec.skipped else encode_from_linear(image, color.dtype)
-        rec.reason = info.pop("reason", method)
-        if not rec.skipped and method == "physical":
-            blurred = [f"{l['side']}[{l['coc_px'][0]:g},{l['coc_px'][1]:g})" for l in info["layers"] if l["blurred"]]
-            tiles = info.get("tiles", {})
-            uniform = sum(l.get("uniform_tiles", 0) for l in info["layers"] if l["blurred"])
-            rec.reason = (f"physical, {len(blurred)} blur layers: {' '.join(blurred)}"
-                          + ("" if info.get("foreground_pass") else "; no foreground pass (nothing in front of focus)")
-                          + (f"; tiles of {tiles['tile_px']} px: {tiles['copy_tiles']} of {tiles['tiles']} copied"
-                             f" (in focus), {uniform} convolved (uniform blur)" if tiles else ""))
-        rec.detail = info
-    return image, coc
+def initial_state(frame: RGBDFrame) -> FrameState:
+    """The state the stages start from: *frame*'s colour, depth and calibration."""
+    return FrameState(frame.color, frame.depth_m, frame.rig, fx_px=frame.rig.color.fx,
+                      max_range_m=frame.rig.max_range_m)
 
 
 def run(frame: RGBDFrame, lens, **options) -> RenderResult:
@@ -256,34 +131,22 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
     frame : RGBDFrame
     lens : a :class:`pcdof.options.RenderOptions`, or a ThinLens / PaperLens with the options as
         keywords: ``method`` (a key of :data:`pcdof.renderer.METHODS`), ``fill_method`` (a key of
-        :data:`pcdof.fill.FILL_METHODS`), ``focus_at`` ((x, y) colour pixel: focus at the robust
+        :data:`pcdof.fill.FILL_METHODS`), ``focus_at`` ((x, y) colour pixel or "center": focus at the robust
         depth there), ``linear`` (colour is linear light), ``quality`` (a key of
-        :data:`pcdof.renderer.QUALITIES`); see :class:`~pcdof.options.RenderOptions`
+        :data:`pcdof.plans.QUALITIES`); see :class:`~pcdof.options.RenderOptions`
+
+    Returns
+    -------
+    RenderResult
     """
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
     # every option is checked here, not when its stage runs: a stage with nothing to do must not hide a bad value
     opts = as_options(lens, **options)
-    from .runtime.kernels import ensure_warm
-
     ensure_warm()  # the first run after an install compiles every stage's kernels, and says so
     with threads_for_load():  # fewer threads while other processes keep cores busy (same result)
-        return _run_stages(frame, opts)
-
-
-def _run_stages(frame: RGBDFrame, opts) -> RenderResult:
-    trace: list[StageTrace] = []
-    registered = register_stage(frame, trace)
-    # the highlights stage's colour-only half runs on a worker thread while the fill runs (when the frame needs
-    # it): the fill's first kernels run on one thread, registration's on all (started before it, the worker
-    # took a core from registration and gave no time back)
-    colour_side = _start_colour_side(frame.color, opts)
-    filled = fill_stage(registered, frame.color, trace, method=opts.fill_method)
-    lens = resolve_lens(opts.lens, opts.focus_at, registered, filled)
-    image, coc = render_stages(frame.color, filled, lens, frame.rig.color.fx, trace, method=opts.method,
-                               max_range_m=frame.rig.max_range_m, linear=opts.linear, quality=opts.quality,
-                               highlights=opts.highlights, prepared=colour_side)
-    return RenderResult(image, registered, filled, coc, lens, trace)
+        state, trace = run_stages(initial_state(frame), opts)
+    return RenderResult(state.image, state.registered_m, state.filled_m, state.coc_px, state.lens, trace)
 
 
 def render(frame: RGBDFrame, lens, **options) -> np.ndarray:
@@ -294,19 +157,33 @@ def render(frame: RGBDFrame, lens, **options) -> np.ndarray:
     return run(frame, lens, **options).image
 
 
+def prepare_depth(frame: RGBDFrame, lens, **options) -> tuple[np.ndarray, np.ndarray, list]:
+    """The register and fill stages of :func:`run` only (for viewers and benchmarks that then change the lens).
+
+    Returns (registered_m, filled_m, trace): (H, W) float32 metres on the colour grid (0 = unknown in the first).
+    """
+    if not isinstance(frame, RGBDFrame):
+        raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
+    opts = as_options(lens, **options)
+    ensure_warm(stages=("register", "fill"))
+    with threads_for_load():
+        state, trace = run_stages(initial_state(frame), opts, stages=STAGES[:2])
+    return state.registered_m, state.filled_m, trace
+
+
 def render_from_depth(color, depth_filled_m, lens, fx: float, *, method: str = "physical",
                       max_range_m: float = 10.0, linear: bool = False, quality: str = "balanced",
                       highlights="auto"):
-    """Render from an already registered, hole-free depth (previews, sliders). Returns (image, trace).
+    """Render from an already registered, hole-free depth (previews, sliders): the coc, highlights and render
+    stages of :func:`run`, with *lens* as it is focused. Returns (image, trace).
 
     The options are those of :class:`~pcdof.options.RenderOptions` (with its defaults)."""
-    check_method(method)
+    opts = as_options(lens, method=method, linear=linear, quality=quality, highlights=highlights)
     color = check_color(color)
     depth = np.asarray(depth_array(depth_filled_m, "depth_filled_m"), np.float32)
     if depth.shape != color.shape[:2]:
         raise InputError(f"depth_filled_m must be (H, W) = {color.shape[:2]}; got {depth.shape}")
-    trace: list[StageTrace] = []
+    state = FrameState(color, depth, None, fx_px=fx, max_range_m=max_range_m, registered_m=depth, filled_m=depth)
     with threads_for_load():
-        image, _ = render_stages(color, depth, lens, fx, trace, method=method, max_range_m=max_range_m,
-                                 linear=linear, quality=quality, highlights=highlights)
-    return image, trace
+        state, trace = run_stages(state, opts, stages=STAGES[2:])
+    return state.image, trace

@@ -165,11 +165,9 @@ def _render_reconstructed(frame, lens, options: dict, *, quality: str) -> np.nda
     """*frame* registered and filled as :func:`pcdof.pipeline.run` does, its colour reconstructed with
     :func:`pcdof.highlights.reconstruct_highlights` (*options*), rendered as linear light."""
     from ..highlights import reconstruct_highlights
-    from ..options import as_options
-    from ..pipeline import fill_stage, register_stage, render_from_depth
+    from ..pipeline import prepare_depth, render_from_depth
 
-    trace: list = []
-    filled = fill_stage(register_stage(frame, trace), frame.color, trace, method=as_options(lens).fill_method)
+    _registered, filled, _trace = prepare_depth(frame, lens)
     fx = frame.rig.color.fx
     lin = reconstruct_highlights(decode_to_linear(frame.color), coc_px=lens.coc_px(filled, fx), **options)
     return render_from_depth(lin, filled, lens, fx, max_range_m=frame.rig.max_range_m, linear=True,

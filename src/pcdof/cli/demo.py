@@ -220,14 +220,14 @@ def show_frame(name: str, frame, output: str) -> dict:
     Returns the frame's entry of ``summary.json`` (paths relative to *output*).
     """
     from .. import io, pipeline
-    from ..lens import PaperLens, focus_depth_at
+    from ..focus import depth_at
+    from ..lens import PaperLens, ThinLens
 
-    trace: list = []
-    registered = pipeline.register_stage(frame, trace)
-    filled = pipeline.fill_stage(registered, frame.color, trace, method="joint-bilateral")
+    registered, filled, _trace = pipeline.prepare_depth(frame, ThinLens(focal_length_mm=50.0, f_number=2.0,
+                                                                        focus_distance_m=1.0))
     subject = pick_subject(filled)
     # the focus rule of `pcdof render --focus-at X,Y`: the median of the measured depth around the pixel
-    focus_m = focus_depth_at(registered if np.any(registered > 0) else filled, subject.x, subject.y)
+    focus_m = depth_at(registered, filled, subject.x, subject.y)
     fx = frame.rig.color.fx
     target_px = BACKGROUND_BLUR_PX * frame.rig.color.width / BACKGROUND_BLUR_WIDTH_PX
     lens, z_bg, bg_blur = choose_lens(filled, fx, focus_m, target_px=target_px)

@@ -487,7 +487,7 @@ def prepare_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral"
     from ..camera import RGBDFrame
     from ..fill import check_fill_method
     from ..focus import parse_focus_at, resolve_lens
-    from ..pipeline import fill_stage, register_stage
+    from ..pipeline import prepare_depth
 
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
@@ -495,7 +495,5 @@ def prepare_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral"
         raise LensError(f"lens must be a ThinLens; got {type(lens).__name__}")
     check_fill_method(fill_method, "fill_method")  # the cheap checks before registering and filling
     focus_at = parse_focus_at(focus_at)
-    trace: list = []
-    registered = register_stage(frame, trace)
-    filled = fill_stage(registered, frame.color, trace, method=fill_method)
+    registered, filled, _trace = prepare_depth(frame, lens, fill_method=fill_method)
     return registered, filled, resolve_lens(lens, focus_at, registered, filled)

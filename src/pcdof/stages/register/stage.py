@@ -1,0 +1,36 @@
+"""The registration stage: depth drawn into the colour camera (:func:`pcdof.register.register_depth`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..base import FrameState, Stage, StageOutput
+
+
+class RegisterStage(Stage):
+    """Registered depth on the colour grid; skipped for a rig whose cameras coincide."""
+
+    name = "register"
+
+    def skip(self, state: FrameState, options) -> str | None:
+        from ...register import needs_registration
+
+        needed, reason = needs_registration(state.rig)
+        return None if needed else reason
+
+    def passthrough(self, state: FrameState, options) -> dict:
+        return {"registered_m": state.depth_m.copy()}
+
+    def plan(self, state: FrameState, options):
+        from ...register import plan_for
+
+        return plan_for(state.rig)
+
+    def run(self, state: FrameState, plan, options) -> StageOutput:
+        from ...camera import RGBDFrame
+        from ...register import needs_registration, plan_info, register_depth
+
+        depth = register_depth(RGBDFrame(state.color, state.depth_m, state.rig), plan=plan)
+        return StageOutput({"registered_m": depth}, needs_registration(state.rig)[1],
+                           {"coverage": float(np.count_nonzero(depth) / depth.size),
+                            "plan": plan_info(state.rig, plan)})

@@ -56,6 +56,15 @@ def _frame(seed, dtype=np.uint8, size=(160, 120), blobs=6):
 LENS = ThinLens(50.0, 1.4, 1.2)
 
 
+@pytest.fixture(autouse=True)
+def every_thread():
+    """These tests check what a frame does with a second thread: the load adaptation stays off for them."""
+    from pcdof.runtime.threads import fixed_threads
+
+    with fixed_threads():
+        yield
+
+
 def _sequential(monkeypatch):
     monkeypatch.setattr(highlights_stage, "OVERLAP", False)
 

@@ -265,14 +265,14 @@ class TestResumeKeysOnContent:
             assert (out / f"frame_{i:06d}.png").read_bytes() == before[i]
 
     def test_a_frame_whose_lens_changed_is_rendered_again(self, tmp_path):
-        from pcdof.batch.runner import _unchanged
+        from pcdof.batch.resume import unchanged
 
         rec = {"source": {"color": [1, 2], "depth": [3, 4]}, "focus_distance_m": 1.0, "f_number": 2.0,
                "focal_length_mm": 50.0}
-        assert _unchanged(dict(rec), rec)
-        assert not _unchanged({**rec, "f_number": 2.8}, rec)
-        assert not _unchanged({**rec, "source": {"color": [1, 2], "depth": [3, 5]}}, rec)
-        assert not _unchanged({k: v for k, v in rec.items() if k != "source"}, rec)  # an older report
+        assert unchanged(dict(rec), rec)
+        assert not unchanged({**rec, "f_number": 2.8}, rec)
+        assert not unchanged({**rec, "source": {"color": [1, 2], "depth": [3, 5]}}, rec)
+        assert not unchanged({k: v for k, v in rec.items() if k != "source"}, rec)  # an older report
 
 
 # --------------------------------------------------------------------------- not a regular file

@@ -147,6 +147,20 @@ class TestThreadsForLoad:
         with threads_for_load(_FixedLoad(1.5)) as n:
             assert n == 2 and numba.get_num_threads() == 2
 
+    def test_fixed_threads_turns_the_adaptation_off_inside_only(self, monkeypatch):
+        from pcdof.runtime.threads import fixed_threads
+
+        monkeypatch.delenv(plans_threads.ADAPT_ENV, raising=False)
+        numba.set_num_threads(1)
+        with fixed_threads(2) as n:
+            assert n == 2
+            with threads_for_load(_FixedLoad(1.5)) as m:
+                assert m == 2 and numba.get_num_threads() == 2
+        assert numba.get_num_threads() == 1
+        numba.set_num_threads(2)
+        with threads_for_load(_FixedLoad(1.5)) as m:  # outside: adapted again
+            assert m == 1
+
     def test_the_count_is_restored_after_an_error(self, monkeypatch):
         monkeypatch.delenv(plans_threads.ADAPT_ENV, raising=False)
         numba.set_num_threads(2)

@@ -9,7 +9,6 @@ processes. Ratios, not absolute times, are what carries between machines.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import statistics
@@ -110,28 +109,12 @@ def quartiles(values) -> list[float]:
     return [q[0], q[2]]
 
 
-@contextlib.contextmanager
 def threads(n: int):
     """Run the block with *n* threads for numba's kernels and OpenCV (each stage's plan reads numba's count),
-    the pipeline's adaptation to other processes' load switched off (:func:`pcdof.runtime.threads.threads_for_load`)."""
-    import cv2
-    import numba
+    the pipeline's adaptation to other processes' load switched off (:func:`pcdof.runtime.threads.fixed_threads`)."""
+    from ..runtime.threads import fixed_threads
 
-    from ..runtime.threads import ADAPT_ENV
-
-    before_numba, before_cv, before_env = numba.get_num_threads(), cv2.getNumThreads(), os.environ.get(ADAPT_ENV)
-    numba.set_num_threads(n)
-    cv2.setNumThreads(n)
-    os.environ[ADAPT_ENV] = "0"
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before_numba)
-        cv2.setNumThreads(before_cv)
-        if before_env is None:
-            os.environ.pop(ADAPT_ENV, None)
-        else:
-            os.environ[ADAPT_ENV] = before_env
+    return fixed_threads(n)
 
 
 def thread_scaling(*, size=(640, 480), depth_size=(512, 424), scene="portrait", repeats: int = 7,

@@ -9,6 +9,7 @@ numba's setting is per calling thread, so a block changes only the calling threa
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import math
 import os
 import threading
@@ -109,8 +110,23 @@ def worker_pool(name: str, workers: int) -> ThreadPoolExecutor:
 #: A load estimate covers at least this many seconds (/proc/stat counts CPU time in ticks of 10 ms, so a
 #: shorter window would see a busy core as anything from 0 to 2); until one has passed, every thread is used.
 LOAD_WINDOW_S = 0.25
-#: Environment variable that turns the load adaptation off when set to "0" (benchmarks of thread scaling).
+#: Environment variable that turns the load adaptation off for the whole process when set to "0".
 ADAPT_ENV = "PCDOF_ADAPT_THREADS"
+#: whether :func:`threads_for_load` adapts in the current context (off inside :func:`fixed_threads`)
+_adapt = contextvars.ContextVar("pcdof_adapt_threads", default=True)
+
+
+@contextlib.contextmanager
+def fixed_threads(n: int | None = None):
+    """Run the block on exactly *n* threads (default: numba's count now) for numba and OpenCV, with the load
+    adaptation of :func:`threads_for_load` off (benchmarks of thread scaling, tests of a thread count).
+    Yields the count."""
+    token = _adapt.set(False)
+    try:
+        with numba_threads(current_threads() if n is None else n, opencv=True) as count:
+            yield count
+    finally:
+        _adapt.reset(token)
 
 
 def proc_stat_busy_s(path: str, cpus) -> float | None:
@@ -207,11 +223,12 @@ _LOAD = CoreLoad()
 def threads_for_load(meter: CoreLoad | None = None):
     """Run the block (a frame's stages) with numba's thread count, and OpenCV's, lowered to the cores other
     processes leave free (:func:`spare_threads` of *meter*'s estimate; default: the process's meter). Yields
-    the thread count. No change when ``PCDOF_ADAPT_THREADS=0``, before a first estimate, or on an idle machine.
+    the thread count. No change inside :func:`fixed_threads`, when ``PCDOF_ADAPT_THREADS=0``, before a first
+    estimate, or on an idle machine.
     """
     before = current_threads()
     meter = _LOAD if meter is None else meter
-    others = meter.update() if os.environ.get(ADAPT_ENV, "1") != "0" else None
+    others = meter.update() if _adapt.get() and os.environ.get(ADAPT_ENV, "1") != "0" else None
     cores = len(meter.cpus) if meter.cpus else (os.cpu_count() or 1)
     n = spare_threads(before, cores, others)
     if n == before:

@@ -2,7 +2,7 @@
 
 * :mod:`.scene`: the geometry, framing and numbers (pure numpy), and :func:`prepare_frame` (register and fill
   once, then only the lens changes);
-* :mod:`.ui`: the PyVista desktop viewer (:class:`FocusScene`, :class:`FocusViewer`, :func:`build_scene`,
+* :mod:`.actors`: the 3-D scene (:class:`FocusScene`); :mod:`.ui`: the PyVista desktop viewer (:class:`FocusViewer`, :func:`build_scene`,
   :func:`scene_from_frame`);
 * :mod:`.html_export`: the scene as one self-contained HTML page;
 * :mod:`.web`: the browser viewer served by trame (``pcdof view --serve``).
@@ -16,7 +16,7 @@ import importlib as _importlib
 _EXPORTS = {
     "prepare_frame": "scene", "lens_numbers": "scene", "lens_summary": "scene", "render_preview": "scene",
     "downscale_for_preview": "scene", "F_NUMBER_RANGE": "scene",
-    "FocusScene": "ui", "FocusViewer": "ui", "build_scene": "ui", "scene_from_frame": "ui",
+    "FocusScene": "actors", "FocusViewer": "ui", "build_scene": "ui", "scene_from_frame": "ui",
     "export_scene_html": "html_export",
 }
 

@@ -66,7 +66,7 @@ def scene_page(exported_html: str, *, source_name: str, numbers: dict, preview_p
 
 
 def export_scene_html(scene, *, source_name: str) -> str:
-    """The scene page of a :class:`pcdof.viewer.ui.FocusScene` (3-D actors only, its camera and numbers).
+    """The scene page of a :class:`pcdof.viewer.actors.FocusScene` (3-D actors only, its camera and numbers).
 
     A viewer with a ``preview_image`` attribute (the desktop :class:`pcdof.viewer.ui.FocusViewer`) also
     has its preview photograph put in the panel.

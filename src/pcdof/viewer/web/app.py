@@ -1,6 +1,6 @@
 """The browser viewer's page (trame): the 3-D scene, the lens controls, the numbers and the live preview.
 
-One :class:`WebViewer` serves one frame. The 3-D scene is a :class:`pcdof.viewer.ui.FocusScene` rendered
+One :class:`WebViewer` serves one frame. The 3-D scene is a :class:`pcdof.viewer.actors.FocusScene` rendered
 on the server and streamed as images (nothing but pictures reaches the browser, so a large point cloud
 costs the network nothing); the photograph is a :class:`pcdof.viewer.web.session.ViewSession` render.
 
@@ -24,7 +24,7 @@ import numpy as np
 
 from ...errors import ImageWriteError, InputError, PcdofError
 from ..html_export import page_title
-from ..ui import FocusScene
+from ..actors import FocusScene
 from .session import ViewSession
 
 log = logging.getLogger("pcdof")

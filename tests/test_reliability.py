@@ -535,13 +535,28 @@ class TestLibraryMessages:
                                         [(b"tRNS", b"\x00" * 40)],
                                         [(b"zTXt", b"k\x00\x00" + b"\x78\x9c garbage")]])
     def test_png_side_chunk_warnings_never_reach_stderr(self, tmp_path, capfd, chunks):
-        from pcdof.io import read_color
+        """The pcdof command captures what C libraries print while decoding (its process is tuned for it)."""
+        from pcdof.io import capture, read_color
 
         path = tmp_path / "side.png"
         path.write_bytes(png_with(chunks))
-        img = read_color(path)
+        capture.enable(True)
+        try:
+            img = read_color(path)
+        finally:
+            capture.enable(False)
         assert img.shape == (H, W, 3)
         assert capfd.readouterr().err == ""
+
+    def test_a_library_caller_keeps_its_stderr(self, tmp_path, capfd):
+        """Imported as a library, pcdof does not redirect the process's stderr: libpng's warning reaches it."""
+        from pcdof.io import capture, read_color
+
+        assert not capture.enabled()
+        path = tmp_path / "side.png"
+        path.write_bytes(png_with([(b"iCCP", b"bad\x00\x00" + zlib.compress(b"not an ICC profile"))]))
+        assert read_color(path).shape == (H, W, 3)
+        assert "libpng warning" in capfd.readouterr().err
 
     def test_opencv_out_of_memory_is_out_of_memory(self):
         try:

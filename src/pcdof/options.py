@@ -16,8 +16,9 @@ from .camera import _short
 from .errors import InputError, LensError
 from .lens import PaperLens, ThinLens, parse_focus_pixel
 
-#: Ways to run the per-frame pipeline; "cpu" is the only one built in ("auto" picks the best usable one).
-DEVICES = ("auto", "cpu")
+#: Ways to run the per-frame pipeline: "cpu", "gpu" (the optional CUDA backend, :mod:`pcdof.gpu`; needs
+#: ``pip install pcdof[gpu]`` and a GPU) or "auto" (the GPU when a usable one is found, else the CPU).
+DEVICES = ("auto", "cpu", "gpu")
 
 
 @dataclass(frozen=True)

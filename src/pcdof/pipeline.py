@@ -282,17 +282,33 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
         keywords: ``method`` (a key of :data:`pcdof.renderer.METHODS`), ``fill_method`` (a key of
         :data:`pcdof.fill.FILL_METHODS`), ``focus_at`` ((x, y) colour pixel: focus at the robust
         depth there), ``linear`` (colour is linear light), ``quality`` (a key of
-        :data:`pcdof.renderer.QUALITIES`); see :class:`~pcdof.options.RenderOptions`
+        :data:`pcdof.renderer.QUALITIES`), ``device`` ("auto", "cpu", "gpu": where the stages run, see
+        :mod:`pcdof.gpu`); see :class:`~pcdof.options.RenderOptions`
     """
     if not isinstance(frame, RGBDFrame):
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
     # every option is checked here, not when its stage runs: a stage with nothing to do must not hide a bad value
     opts = as_options(lens, **options)
+    if opts.device != "cpu":  # the one dispatch point of the optional GPU backend (pcdof.gpu)
+        from .gpu.device import resolve_device
+
+        if resolve_device(opts.device) == "gpu":
+            return _run_on_gpu(frame, opts)
     from .kernels import ensure_warm
 
     ensure_warm()  # the first run after an install compiles every stage's kernels, and says so
     with threads_for_load():  # fewer threads while other processes keep cores busy (same result)
         return _run_stages(frame, opts)
+
+
+def _run_on_gpu(frame: RGBDFrame, opts) -> RenderResult:
+    """Every stage on the GPU (:func:`pcdof.gpu.stages.run_stages`), as this module's result."""
+    from .gpu.stages import run_stages
+
+    parts = run_stages(frame, opts)
+    trace = [StageTrace(**record) for record in parts["trace"]]
+    return RenderResult(parts["image"], parts["depth_registered_m"], parts["depth_filled_m"], parts["coc_px"],
+                        parts["lens"], trace)
 
 
 def _run_stages(frame: RGBDFrame, opts) -> RenderResult:

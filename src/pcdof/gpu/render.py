@@ -97,7 +97,7 @@ def _nearest_behind(rank, li, y, x, reach):
 def _farther_within(rank, li, y, x, d2):
     """Whether a pixel of rank > li lies at squared distance < d2 from (y, x)."""
     H, W = rank.shape
-    k_max = int(math.ceil(math.sqrt(d2)))
+    k_max = int(math.ceil(math.sqrt(np.float64(d2))))
     for dy in range(-k_max, k_max + 1):
         qy = y + dy
         if qy < 0 or qy >= H:

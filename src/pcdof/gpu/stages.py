@@ -62,7 +62,7 @@ def _register(frame: RGBDFrame, depth_dev, trace, stream, sync):
         return register_depth(depth_dev, frame.rig, stream=stream)
 
 
-def _fill(registered, frame: RGBDFrame, opts, trace, stream, sync):
+def _fill(registered, frame: RGBDFrame, color_dev, opts, trace, stream, sync):
     """Filled depth on the device, and the registered depth's number of holes."""
     from ..fill import fill_depth as cpu_fill
 
@@ -79,7 +79,7 @@ def _fill(registered, frame: RGBDFrame, opts, trace, stream, sync):
         if opts.fill_method == "telea":
             rec["detail"]["device"] = "cpu"
             return to_device(cpu_fill(registered.copy_to_host(stream=stream), frame.color, method="telea"), stream)
-        guide = decode(frame.color if frame.color.ndim == 3 else frame.color[:, :, None], linear=True, stream=stream)
+        guide = decode(color_dev, linear=True, stream=stream)
         return fill_depth(registered, guide, use_color=opts.fill_method == "joint-bilateral", prepared=prepared,
                           stream=stream)
 
@@ -121,24 +121,23 @@ def _highlights(color, opts, coc_size, cmax, trace):
     return out
 
 
-def _render_physical(frame, opts, lens, signed, cmax, source_linear, trace, stream, sync):
+def _render_physical(frame, color_dev, opts, lens, signed, cmax, source_linear, trace, stream, sync):
     """Device image of the input's dtype, or None when nothing is blurred (the input is the output)."""
     with _Stage(trace, "render", stream, sync) as rec:
         if cmax < SHARP_COC_PX:
             rec["skipped"] = True
             rec["reason"] = f"largest circle of confusion {cmax:.3f} px < {SHARP_COC_PX} px: nothing to blur"
             return None
-        color = frame.color if frame.color.ndim == 3 else frame.color[:, :, None]
         if source_linear is not None:
             lin = to_device(np.ascontiguousarray(source_linear, np.float32), stream)
         else:
-            lin = decode(color, linear=opts.linear, stream=stream)
+            lin = decode(color_dev, linear=opts.linear, stream=stream)
         out_lin, layers = render_layers_linear(lin, signed, aperture_for(lens), stream=stream)
         blurred = [l for l in layers if l["key"] != 0]
         rec["reason"] = f"physical, {len(blurred)} blur layers, exact scatter at full resolution"
         rec["detail"]["layers"] = layers
         linear_out = opts.linear and source_linear is None
-        return encode(out_lin, color.dtype, linear=linear_out, stream=stream)
+        return encode(out_lin, frame.color.dtype, linear=linear_out, stream=stream)
 
 
 def run_stages(frame: RGBDFrame, opts, *, stream=None, sync: bool = True) -> dict:
@@ -163,9 +162,11 @@ def run_stages(frame: RGBDFrame, opts, *, stream=None, sync: bool = True) -> dic
     trace: list = []
     with _Stage(trace, "upload", stream, sync) as rec:
         depth_dev = to_device(np.asarray(frame.depth_m, np.float32), stream)
-        rec["reason"] = "depth to the device"
+        color = frame.color if frame.color.ndim == 3 else frame.color[:, :, None]
+        color_dev = color if color.dtype.kind == "f" else to_device(color, stream)  # floats decode on the host
+        rec["reason"] = "depth and colour to the device"
     registered = _register(frame, depth_dev, trace, stream, sync)
-    filled = _fill(registered, frame, opts, trace, stream, sync)
+    filled = _fill(registered, frame, color_dev, opts, trace, stream, sync)
     registered_host = registered.copy_to_host(stream=stream)
     filled_host = filled.copy_to_host(stream=stream)
     lens = _resolve_lens(opts.lens, opts.focus_at, registered_host, filled_host)
@@ -179,7 +180,7 @@ def run_stages(frame: RGBDFrame, opts, *, stream=None, sync: bool = True) -> dic
             rec["detail"]["max_coc_px"] = cmax
     source_linear = _highlights(frame.color, opts, size, cmax, trace) if signed is not None else None
     if opts.method == "physical":
-        image_dev = _render_physical(frame, opts, lens, signed, cmax, source_linear, trace, stream, sync)
+        image_dev = _render_physical(frame, color_dev, opts, lens, signed, cmax, source_linear, trace, stream, sync)
     else:
         image_dev = None
         _render_paper_on_host(frame, opts, lens, filled_host, trace)

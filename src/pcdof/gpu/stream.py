@@ -25,12 +25,17 @@ def map_overlapped(fn: Callable, items: Iterable, *, in_flight: int = DEFAULT_IN
     ----------
     fn : callable of one item (for example, render one frame with :func:`pcdof.pipeline.run` on the GPU)
     items : iterable, consumed lazily: at most *in_flight* + 1 items are held at once
-    in_flight : int >= 1
+    in_flight : int >= 1 (1 under numba's CUDA simulator, which swaps a kernel module's globals while one of its
+        kernels runs: two host threads would see each other's)
     """
     if not callable(fn):
         raise InputError(f"fn must be callable; got {type(fn).__name__}")
     if isinstance(in_flight, bool) or not isinstance(in_flight, int) or in_flight < 1:
         raise InputError(f"in_flight must be an integer >= 1; got {in_flight!r}")
+    from .device import simulated
+
+    if simulated():
+        in_flight = 1
     pending: deque = deque()
     with ThreadPoolExecutor(max_workers=in_flight, thread_name_prefix="pcdof-gpu") as pool:
         for item in items:

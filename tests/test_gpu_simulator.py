@@ -307,3 +307,28 @@ def test_parent_frames_streamed_in_order():
     assert [next(it) for _ in range(3)] == [0, 1, 2]
     with pytest.raises(ValueError, match="frame 3"):
         next(it)
+
+
+@sim_only
+def test_streamed_frames_match_one_at_a_time():
+    from pcdof.camera import Intrinsics, RGBDFrame, Rig
+    from pcdof.gpu.api import run
+    from pcdof.gpu.stream import render_frames
+    from pcdof.lens import ThinLens
+    from pcdof.options import RenderOptions
+
+    rig = Rig.registered(Intrinsics(12, 8, 40.0, 40.0, 5.5, 3.5))  # no registration: fill, CoC and render only
+    depth = np.full((8, 12), 3.0, np.float32)
+    depth[2:6, 3:7] = 1.0
+    depth[0, 0] = depth[5, 9] = 0.0
+    rng = np.random.default_rng(5)
+    frames = [RGBDFrame(rng.integers(0, 250, (8, 12, 3), dtype=np.uint8), depth, rig) for _ in range(2)]
+    options = RenderOptions(ThinLens(200.0, 1.4, 1.0), highlights="off")
+    streamed = list(render_frames(frames, options))
+    assert len(streamed) == 2
+    for frame, got in zip(frames, streamed):
+        alone = run(frame, options)
+        assert [t.name for t in got.trace if t.name == "register" and t.skipped] == ["register"]
+        np.testing.assert_array_equal(got.depth_filled_m, alone.depth_filled_m)
+        assert np.abs(got.image.astype(int) - alone.image.astype(int)).max() <= 1  # float32 atomics: any order
+        assert np.abs(got.image.astype(int) - frame.color.astype(int)).max() > 10  # the frame was blurred

@@ -332,3 +332,40 @@ def test_streamed_frames_match_one_at_a_time():
         np.testing.assert_array_equal(got.depth_filled_m, alone.depth_filled_m)
         assert np.abs(got.image.astype(int) - alone.image.astype(int)).max() <= 1  # float32 atomics: any order
         assert np.abs(got.image.astype(int) - frame.color.astype(int)).max() > 10  # the frame was blurred
+
+
+@sim_only
+def test_highlights_and_paper_paths():
+    from pcdof.apertures import aperture_for
+    from pcdof.camera import Intrinsics, RGBDFrame, Rig
+    from pcdof.color import encode_from_linear
+    from pcdof.gpu.api import run
+    from pcdof.highlights import prepare_highlights, reconstruct_prepared
+    from pcdof.lens import PaperLens, ThinLens
+    from pcdof.options import RenderOptions
+    from pcdof.reference.coc import signed_coc_px
+    from pcdof.reference.render import render_layers_linear
+    from pcdof.renderer import render_image
+
+    rig = Rig.registered(Intrinsics(12, 8, 40.0, 40.0, 5.5, 3.5))
+    depth = np.full((8, 12), 3.0, np.float32)
+    depth[:, :4] = 1.0  # in focus
+    color = np.full((8, 12, 3), 90, np.uint8)
+    color[3:5, 7:9] = (255, 255, 200)  # a clipped blob behind the focus
+    frame = RGBDFrame(color, depth, rig)
+    lens = ThinLens(200.0, 1.4, 1.0)
+    result = run(frame, RenderOptions(lens, highlights="auto"))
+    rec = {t.name: t for t in result.trace}["highlights"]
+    assert not rec.skipped and rec.detail["device"] == "cpu", rec
+    lin = reconstruct_prepared(prepare_highlights(color), method="auto", coc_px=result.coc_px)
+    assert lin.max() > 1.0  # the blob was raised above white
+    coc = signed_coc_px(result.depth_filled_m, lens, rig.color.fx)
+    ref = render_layers_linear(lin, coc, aperture=aperture_for(lens))
+    expected = encode_from_linear(ref.astype(np.float32), np.uint8)
+    assert _psnr(result.image / 255.0, expected / 255.0) >= MIN_PIPELINE_PSNR_DB
+    paper = PaperLens(focus_distance_m=1.0)
+    result = run(frame, RenderOptions(paper, method="paper"))
+    expected, _ = render_image(color, result.depth_filled_m, paper, fx=rig.color.fx, method="paper",
+                               max_range_m=rig.max_range_m)
+    np.testing.assert_array_equal(result.image, expected)
+    assert {t.name: t for t in result.trace}["render"].detail["device"] == "cpu"

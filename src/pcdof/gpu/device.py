@@ -93,6 +93,7 @@ def resolve_device(device: str) -> str:
     return "gpu" if ok and not simulated() else "cpu"
 
 
+@functools.lru_cache(maxsize=1)
 def extra_installed() -> bool:
     """Whether the ``gpu`` extra's CUDA target (the ``numba-cuda`` package) is installed; looked up, not imported."""
     import importlib.util

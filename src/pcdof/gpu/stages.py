@@ -101,7 +101,7 @@ def _highlights(color, opts, coc_size, cmax, trace):
     found = None
     if how == "off":
         rec["reason"] = "off"
-    elif opts.method != "physical":
+    elif opts.method != "physical" or coc_size is None:
         rec["reason"] = "the paper method blends as written"
     elif not needs_reconstruction(color, linear=opts.linear):
         rec["reason"] = "linear input is not clipped"
@@ -178,7 +178,7 @@ def run_stages(frame: RGBDFrame, opts, *, stream=None, sync: bool = True) -> dic
             cmax = float(stats.copy_to_host(stream=stream)[0])
             rec["reason"] = f"max {cmax:.2f} px"
             rec["detail"]["max_coc_px"] = cmax
-    source_linear = _highlights(frame.color, opts, size, cmax, trace) if signed is not None else None
+    source_linear = _highlights(frame.color, opts, size, cmax, trace)
     if opts.method == "physical":
         image_dev = _render_physical(frame, color_dev, opts, lens, signed, cmax, source_linear, trace, stream, sync)
     else:

@@ -57,7 +57,8 @@ def test_parent_kernels_in_the_simulator():
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1",
            "PYTHONPATH": os.pathsep.join([os.path.join(ROOT, "src"), os.environ.get("PYTHONPATH", "")])}
     proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:randomly",
-                           "-k", "not no_gpu and not parent", os.path.abspath(__file__)], env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
+                           "-k", "not no_gpu and not parent", os.path.abspath(__file__)],
+                          env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-6000:]
     summary = [line for line in out.splitlines() if " passed" in line]

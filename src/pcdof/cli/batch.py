@@ -108,8 +108,8 @@ def _resolve_workers(ctx, param, value):
 @click.option("--limit", type=click.IntRange(min=1), default=None, help="Render only the first N frames.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Progress bar on stderr.")
 @handle_errors
-def command(input_path, calib, output_dir, render_flags, device, focus_keyframes, f_number_keyframes, easing, focus_window,
-            focus_min_cutoff, focus_beta, depth_scale, max_difference, save_depth, video, fps, resume, workers,
+def command(input_path, calib, output_dir, render_flags, device, focus_keyframes, f_number_keyframes, easing,
+            focus_window, focus_min_cutoff, focus_beta, depth_scale, max_difference, save_depth, video, fps, resume, workers,
             scheduler, threads, limit, progress):
     """Render every frame of the RGB-D sequence or recording INPUT with a shallow depth of field into OUTDIR."""
     from ..batch import exit_code, render_sequence

@@ -1,8 +1,9 @@
 """Frames streamed through the GPU: while one frame computes, the next uploads and the previous downloads.
 
-Each worker thread owns one CUDA stream (:func:`pcdof.gpu.launch.thread_stream`); the stages of a frame run on its thread's stream,
-so the kernels and copies of two frames interleave on the device, and one frame's host work (reading, the
-decisions that wait for a count, writing) overlaps the other's device work. Results come back in input order.
+Each worker thread owns one CUDA stream (:func:`pcdof.gpu.launch.thread_stream`) and the stages of a frame run on
+its thread's stream, so the kernels and copies of two frames interleave on the device, and one frame's host work
+(reading, the decisions that wait for a count, writing) overlaps the other's device work. Results come back in
+input order.
 """
 
 from __future__ import annotations

@@ -24,6 +24,10 @@ class LensError(InputError):
     """Lens settings that no physical lens can have (f-number <= 0, focus <= 0, ...)."""
 
 
+class DeviceError(PcdofError, RuntimeError):
+    """The device asked for cannot run: e.g. ``device="gpu"`` with no usable GPU (see :mod:`pcdof.gpu`)."""
+
+
 class ImageReadError(PcdofError, OSError):
     """An image or calibration file is missing, unreadable, truncated or of the wrong kind."""
 

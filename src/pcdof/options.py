@@ -17,8 +17,9 @@ from .errors import InputError, LensError
 from .focus import parse_focus_at
 from .lens import PaperLens, ThinLens
 
-#: Ways to run the per-frame pipeline; "cpu" is the only one built in ("auto" picks the best usable one).
-DEVICES = ("auto", "cpu")
+#: Ways to run the per-frame pipeline: "cpu", "gpu" (the optional CUDA backend, :mod:`pcdof.gpu`; needs
+#: ``pip install pcdof[gpu]`` and a GPU) or "auto" (the GPU when a usable one is found, else the CPU).
+DEVICES = ("auto", "cpu", "gpu")
 
 
 @dataclass(frozen=True)

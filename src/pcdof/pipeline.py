@@ -133,7 +133,8 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
         keywords: ``method`` (a key of :data:`pcdof.renderer.METHODS`), ``fill_method`` (a key of
         :data:`pcdof.fill.FILL_METHODS`), ``focus_at`` ((x, y) colour pixel or "center": focus at the robust
         depth there), ``linear`` (colour is linear light), ``quality`` (a key of
-        :data:`pcdof.plans.QUALITIES`); see :class:`~pcdof.options.RenderOptions`
+        :data:`pcdof.plans.QUALITIES`), ``device`` ("auto", "cpu", "gpu": where the stages run, see
+        :mod:`pcdof.gpu`); see :class:`~pcdof.options.RenderOptions`
 
     Returns
     -------
@@ -143,10 +144,25 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
         raise InputError(f"frame must be an RGBDFrame; got {type(frame).__name__}")
     # every option is checked here, not when its stage runs: a stage with nothing to do must not hide a bad value
     opts = as_options(lens, **options)
+    if opts.device != "cpu":  # the one dispatch point of the optional GPU backend (pcdof.gpu)
+        from .gpu.device import resolve_device
+
+        if resolve_device(opts.device) == "gpu":
+            return _run_on_gpu(frame, opts)
     ensure_warm()  # the first run after an install compiles every stage's kernels, and says so
     with threads_for_load():  # fewer threads while other processes keep cores busy (same result)
         state, trace = run_stages(initial_state(frame), opts)
     return RenderResult(state.image, state.registered_m, state.filled_m, state.coc_px, state.lens, trace)
+
+
+def _run_on_gpu(frame: RGBDFrame, opts) -> RenderResult:
+    """Every stage on the GPU (:func:`pcdof.gpu.stages.run_stages`), as this module's result."""
+    from .gpu.stages import run_stages as run_on_gpu
+
+    parts = run_on_gpu(frame, opts)
+    trace = [StageTrace(**record) for record in parts["trace"]]
+    return RenderResult(parts["image"], parts["depth_registered_m"], parts["depth_filled_m"], parts["coc_px"],
+                        parts["lens"], trace)
 
 
 def render(frame: RGBDFrame, lens, **options) -> np.ndarray:

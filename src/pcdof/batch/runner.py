@@ -47,7 +47,6 @@ from .dask import DASK_CONNECT_TIMEOUT_S, run_dask
 from .focus import (
     DEFAULT_SMOOTHING,
     NO_DEPTH_PREFIX,
-    check_xy,
     measure_focus_track,
     parse_lens_keyframes,
     plan_lens,
@@ -329,8 +328,21 @@ def _run_tasks(job: BatchJob, tasks: list[FrameTask], workers: int, scheduler, c
         run_processes(job, tasks, int(workers), collect, render_frame)
     else:
         with threads_restored():
-            for task in tasks:
-                collect(render_frame(job, task))
+            for rec in _serial_records(job, tasks):
+                collect(rec)
+
+
+def _serial_records(job: BatchJob, tasks: list[FrameTask]):
+    """The records of *tasks* rendered in this process, in order: one after another on the CPU; on the GPU two
+    at a time on their own CUDA streams, so transfers and host work overlap the other frame's kernels."""
+    if job.options.device != "cpu":
+        from ..gpu.device import resolve_device
+
+        if resolve_device(job.options.device) == "gpu":
+            from ..gpu.stream import map_overlapped
+
+            return map_overlapped(lambda task: render_frame(job, task), tasks)
+    return (render_frame(job, task) for task in tasks)
 
 
 def _run_locked(sequence: Sequence, rig: Rig, schedule: LensSchedule, output_dir: str, *, options,

@@ -315,6 +315,24 @@ def render_options(func):
     return wrapper
 
 
+def device_option(func):
+    """Add ``--device auto|cpu|gpu`` (:attr:`pcdof.options.RenderOptions.device`); the command gets ``device``
+    and checks it with :func:`check_device` before reading any input."""
+    from ..options import DEVICES
+
+    return click.option("--device", type=click.Choice(list(DEVICES)), default="auto", show_default=True,
+                        help="Where the stages run: gpu needs an NVIDIA GPU and `pip install pcdof[gpu]`; auto "
+                             "uses the GPU when one is usable, else the CPU.")(func)
+
+
+def check_device(device: str) -> str:
+    """The device a command's frames run on ("cpu" or "gpu"); one line (DeviceError) for --device gpu without a
+    usable GPU, saying why and how to install the extra."""
+    from ..gpu.device import resolve_device
+
+    return resolve_device(device)
+
+
 def build_render_options(flags: dict, *, extra_positive: dict | None = None, thin_lens: bool = False):
     """The :class:`~pcdof.options.RenderOptions` of the flags of :func:`render_options`, every value checked.
 

@@ -11,8 +11,8 @@ import click
 from ..batch.schedule import MAX_BETA, check_rate
 from ..errors import InputError, one_line
 from ..focus import CENTRE
-from ._common import build_render_options, check_output_file, check_output_folder, check_output_paths, \
-    check_positive_flags, handle_errors, render_options
+from ._common import build_render_options, check_device, check_output_file, check_output_folder, check_output_paths, \
+    check_positive_flags, device_option, handle_errors, render_options
 from ._report import report_decision
 
 EPILOG = """\b
@@ -74,6 +74,7 @@ def _resolve_workers(ctx, param, value):
 @click.option("-o", "--output", "output_dir", required=True, type=click.Path(readable=False),
               help="Output folder.")
 @render_options
+@device_option
 @click.option("--focus-keyframes", default=None, metavar="F:M,...",
               help="Focus pull: frame:metres keyframes, e.g. '0:1.2,50:3.0' (held before/after).")
 @click.option("--f-number-keyframes", default=None, metavar="F:N,...",
@@ -108,8 +109,8 @@ def _resolve_workers(ctx, param, value):
 @click.option("--limit", type=click.IntRange(min=1), default=None, help="Render only the first N frames.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Progress bar on stderr.")
 @handle_errors
-def command(input_path, calib, output_dir, render_flags, focus_keyframes, f_number_keyframes, easing, focus_window,
-            focus_min_cutoff, focus_beta, depth_scale, max_difference, save_depth, video, fps, resume, workers,
+def command(input_path, calib, output_dir, render_flags, device, focus_keyframes, f_number_keyframes, easing,
+            focus_window, focus_min_cutoff, focus_beta, depth_scale, max_difference, save_depth, video, fps, resume, workers,
             scheduler, threads, limit, progress):
     """Render every frame of the RGB-D sequence or recording INPUT with a shallow depth of field into OUTDIR."""
     from ..batch import exit_code, render_sequence
@@ -124,7 +125,9 @@ def command(input_path, calib, output_dir, render_flags, focus_keyframes, f_numb
                                   ("--focus-keyframes", focus_keyframes)) if v is not None]
     if len(given) > 1:
         raise InputError(f"{' and '.join(given)} exclude each other; give one")
-    options = build_render_options(render_flags).replace(focus_at=None)  # the focus is followed per frame
+    options = build_render_options(render_flags).replace(focus_at=None, device=device)  # focus followed per frame
+    if check_device(device) == "gpu" and scheduler is None:
+        workers = 1  # one process feeds the GPU, its frames overlapped on streams (pcdof.gpu.stream)
     check_positive_flags({"--max-time-difference": max_difference})
     for flag, value in (("--focus-min-cutoff", focus_min_cutoff), ("--fps", fps)):
         check_rate(flag, value)

@@ -9,9 +9,9 @@ import click
 
 from ..errors import InputError
 from ..io.writers import IMAGE_FORMATS
-from ._common import build_render_options, check_output_file, check_positive_flags, check_output_folder, focus_source, \
-    handle_errors, load_source_frame, make_output_folder, render_options, source_arguments, \
-    warn_float_colour
+from ._common import build_render_options, check_device, check_output_file, check_output_folder, \
+    device_option, focus_source, handle_errors, load_source_frame, make_output_folder, render_options, \
+    source_arguments, warn_float_colour
 from ._report import report_decision
 
 #: 8/16-bit image files (screenshots, and renders of 8/16-bit colour).
@@ -27,11 +27,12 @@ MAP_NAMES = ("depth_registered.png", "depth_registered_preview.png", "depth_fill
 @source_arguments
 @click.option("-o", "--output", required=True, type=click.Path(readable=False), help="Output image (.png/.jpg/.tif).")
 @render_options
+@device_option
 @click.option("--save-maps", type=click.Path(readable=False), default=None,
               help="Also write registered depth, filled depth and the CoC map into this folder.")
 @click.option("--explain", is_flag=True, help="Print each stage's time and what was skipped.")
 @handle_errors
-def command(color, depth, calib, depth_scale, frame_index, time_s, output, render_flags, save_maps, explain):
+def command(color, depth, calib, depth_scale, frame_index, time_s, output, render_flags, device, save_maps, explain):
     """Render one frame with a shallow depth of field into OUTPUT.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
@@ -46,7 +47,8 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     if save_maps:
         check_output_folder(save_maps, "--save-maps")
     maps = {f"--save-maps {name}": os.path.join(save_maps, name) for name in MAP_NAMES} if save_maps else {}
-    options = build_render_options(render_flags)
+    options = build_render_options(render_flags).replace(device=device)
+    check_device(device)  # --device gpu without a usable GPU: one line, before any input is read
     frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"-o": output, **maps}, folders={"--save-maps": save_maps})
     warn_float_colour(frame.color, options)

@@ -70,7 +70,7 @@ class TestSkipping:
 
     @pytest.mark.parametrize("overlap", [True, False])
     def test_sharp_frame_with_clipped_lights_skips_the_highlights_estimate(self, monkeypatch, overlap):
-        import pcdof.highlights as highlights_module
+        import pcdof.stages.highlights as highlights_module
         import pcdof.pipeline as pipeline_module
 
         def forbidden(*a, **k):

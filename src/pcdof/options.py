@@ -64,7 +64,7 @@ class RenderOptions:
         if not isinstance(self.linear, bool):
             raise InputError(f"linear must be True or False; got {_short(self.linear)}")
         object.__setattr__(self, "focus_at", parse_focus_pixel(self.focus_at))
-        from .highlights import HIGHLIGHT_METHODS, parse_highlights
+        from .stages.highlights import HIGHLIGHT_METHODS, parse_highlights
 
         _, gain = parse_highlights(self.highlights)  # a method's name stays a name; a number becomes a float
         if not (isinstance(self.highlights, str) and self.highlights in HIGHLIGHT_METHODS):

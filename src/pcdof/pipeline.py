@@ -138,7 +138,7 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
     else *color* and *linear* unchanged (skipped: off, the paper method, linear input, nothing clipped, nothing
     out of focus).
     """
-    from .highlights import parse_highlights, prepare_highlights, reconstruct_prepared
+    from .stages.highlights import parse_highlights, prepare_highlights, reconstruct_prepared
 
     with _Timer(trace, "highlights") as rec:
         how, gain = parse_highlights(highlights)
@@ -171,7 +171,7 @@ def highlights_stage(color, trace: list, *, highlights, method: str, linear: boo
 def _highlights_skip(how: str, method: str, color, linear: bool) -> str:
     """Why the highlights stage has nothing to do before its colour is read ("": it may; then only a clipped
     pixel decides)."""
-    from .highlights import needs_reconstruction
+    from .stages.highlights import needs_reconstruction
 
     return ("off" if how == "off" else "the paper method blends as written" if method != "physical"
             else "linear input is not clipped" if not needs_reconstruction(color, linear=linear) else "")
@@ -210,7 +210,7 @@ def _start_colour_side(color, opts):
     (on one thread below its parallel threshold; its first kernel, the hole index, on one thread always)."""
     import numba
 
-    from .highlights import parse_highlights, prepare_highlights
+    from .stages.highlights import parse_highlights, prepare_highlights
 
     color = np.asarray(color)
     how, _ = parse_highlights(opts.highlights)

@@ -164,7 +164,7 @@ def render_variant(variant, sf, lens) -> np.ndarray:
 def _render_reconstructed(frame, lens, options: dict, *, quality: str) -> np.ndarray:
     """*frame* registered and filled as :func:`pcdof.pipeline.run` does, its colour reconstructed with
     :func:`pcdof.highlights.reconstruct_highlights` (*options*), rendered as linear light."""
-    from ..highlights import reconstruct_highlights
+    from ..stages.highlights import reconstruct_highlights
     from ..options import as_options
     from ..pipeline import fill_stage, register_stage, render_from_depth
 
@@ -257,7 +257,7 @@ def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, reference_width_
     """
     from tqdm.auto import tqdm
 
-    from ..highlights import parse_highlights
+    from ..stages.highlights import parse_highlights
     from ..synth.wide import generate_wide, lens_for_blur
 
     parse_highlights(highlights)

@@ -1,0 +1,1 @@
+"""The pipeline's stages, one package each: registration, hole filling, circle of confusion, highlights, render."""

@@ -265,14 +265,16 @@ class TestWarmupCoversTheFrame:
         assert proc.stdout.splitlines()[-1] == "[]"
 
 
-@pytest.mark.parametrize("module_name", ["pcdof.renderer", "pcdof.register", "pcdof.fill"])
-def test_stage_warmup_reaches_every_kernel_of_its_module(module_name):
+@pytest.mark.parametrize("module_name, kernel_module", [
+    ("pcdof.renderer", "pcdof.renderer"), ("pcdof.stages.register", "pcdof.stages.register.project"),
+    ("pcdof.stages.register", "pcdof.stages.register.raster"), ("pcdof.fill", "pcdof.fill")])
+def test_stage_warmup_reaches_every_kernel_of_its_module(module_name, kernel_module):
     """A stage's warm-up takes every path of its module, so a first frame never compiles a kernel silently."""
     import importlib
 
     module = importlib.import_module(module_name)
     module.warmup()
-    missed = [d.__name__ for d in kernels._cached_dispatchers(module_name) if not d.signatures]
+    missed = [d.__name__ for d in kernels._cached_dispatchers(kernel_module) if not d.signatures]
     assert missed == []
 
 

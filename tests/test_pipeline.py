@@ -32,7 +32,7 @@ def stage(result, name):
 
 class TestSkipping:
     def test_registered_rig_is_not_reprojected(self, monkeypatch):
-        import pcdof.register as register_module
+        import pcdof.stages.register as register_module
 
         def forbidden(*a, **k):
             raise AssertionError("registration ran for a registered rig")

@@ -40,8 +40,8 @@ from pathlib import Path
 logger = logging.getLogger(__name__)
 
 #: modules whose kernels are compiled ahead of time: every stage's (see :data:`pcdof.kernels.STAGES`)
-MODULES = ("pcdof.register", "pcdof.distortion", "pcdof.fill", "pcdof.renderer", "pcdof.tiles", "pcdof.lens",
-           "pcdof.color")
+MODULES = ("pcdof.stages.register.project", "pcdof.stages.register.raster", "pcdof.distortion", "pcdof.fill",
+           "pcdof.renderer", "pcdof.tiles", "pcdof.lens", "pcdof.color")
 
 _PACKAGE = Path(__file__).resolve().parent
 _PREFIX = "pcdof_ahead_"

@@ -96,7 +96,7 @@ class _Timer:
 
 def register_stage(frame: RGBDFrame, trace: list) -> np.ndarray:
     """Registered depth (colour grid); skipped for a rig whose cameras coincide."""
-    from .register import needs_registration, plan_for, plan_info, register_depth
+    from .stages.register import needs_registration, plan_for, plan_info, register_depth
 
     with _Timer(trace, "register") as rec:
         needed, reason = needs_registration(frame.rig)

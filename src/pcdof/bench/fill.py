@@ -25,7 +25,7 @@ WRONG_SURFACE_RATIO = 0.05
 
 def _case(name: str, size, depth_size, seed: int):
     from ..camera import RGBDFrame
-    from ..register import register_depth
+    from ..stages.register import register_depth
     from ..synth import generate_scene
 
     kwargs = {} if depth_size is None else {"depth_size": tuple(depth_size)}

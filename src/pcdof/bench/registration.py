@@ -282,7 +282,7 @@ def score(registered_m: np.ndarray, depth_color_m: np.ndarray, measured: np.ndar
 
 def register_pcdof(depth_m: np.ndarray, rig: Rig) -> np.ndarray:
     """pcdof's triangle rasteriser (:func:`pcdof.register.reproject_depth`)."""
-    from ..register import reproject_depth
+    from ..stages.register import reproject_depth
 
     return reproject_depth(depth_m, rig)
 
@@ -362,7 +362,7 @@ def _start_method(name: str, jobs: list) -> tuple[float, list]:
     fn = METHODS[name]
     warmup_ms = 0.0
     if name == "pcdof":
-        from ..register import warmup
+        from ..stages.register import warmup
 
         t0 = time.perf_counter()
         warmup()

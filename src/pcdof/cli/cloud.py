@@ -27,7 +27,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, no_fi
     """
     from ..cloud import colored_points, write_ply
     from ..io import output_format
-    from ..register import register_depth
+    from ..stages.register import register_depth
 
     check_output_file(output)
     check_output_paths(source_inputs(color, depth, calib), {"-o": output})

@@ -86,7 +86,7 @@ def export_frames(src, output: str, indices, *, registered: bool, color_format: 
     """Write *indices* of *src* and ``calib.json``; returns (frames written, indices that failed to decode)."""
     from ..camera import Rig
     from ..io import write_depth, write_image, write_json
-    from ..register import register_depth
+    from ..stages.register import register_depth
 
     rig = src.rig
     out_rig = Rig.registered(rig.color, depth_scale=0.001, max_range_m=rig.max_range_m) if registered else rig

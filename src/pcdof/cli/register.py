@@ -25,7 +25,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, fill,
     (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
     """
     from ..io import DEPTH_FORMATS, output_format, write_depth
-    from ..register import register_depth
+    from ..stages.register import register_depth
 
     check_output_file(output)
     check_output_paths(source_inputs(color, depth, calib), {"-o": output})

@@ -48,7 +48,7 @@ def fill_stage(module, depth_m, color, method="joint-bilateral"):
 
 def speed_frame(size):
     """(registered depth, colour) of the benchmark's speed frame at colour *size* (W, H)."""
-    from pcdof.register import register_depth
+    from pcdof.stages.register import register_depth
     from pcdof.synth import generate_scene
 
     sf = generate_scene("portrait", color_size=size, depth_size=(512, 424), seed=0)
@@ -57,7 +57,7 @@ def speed_frame(size):
 
 def random_frames(seeds, sizes):
     """(name, registered depth, colour) of every synthetic scene (and wide scene) for *seeds* at *sizes*."""
-    from pcdof.register import register_depth
+    from pcdof.stages.register import register_depth
     from pcdof.synth import SCENES, generate_scene
     from pcdof.synth.wide import WIDE_SCENES, generate_wide
 
@@ -74,7 +74,7 @@ def random_frames(seeds, sizes):
 def real_frames():
     """(name, registered depth, colour) of the bundled real frames that come with a calibration."""
     from pcdof.io import load_frame
-    from pcdof.register import register_depth
+    from pcdof.stages.register import register_depth
 
     for name, folder, color, depth in [
         ("nyu", REAL / "nyu_v2_raw_open3d", "color.png", "depth.png"),

@@ -1,7 +1,10 @@
-"""The highlights stage with an earlier src/pcdof/highlights.py and the current one, side by side.
+"""The highlights stage of an earlier revision and the current one, side by side.
 
-    git show REV:src/pcdof/highlights.py > before_highlights.py
-    python scripts/highlights_side_by_side.py before_highlights.py --repeats 21
+    mkdir before && git archive REV src/pcdof/stages/highlights | tar -x -C before
+    python scripts/highlights_side_by_side.py before/src/pcdof/stages/highlights --repeats 21
+
+(a revision from before the stage became a package: ``git show REV:src/pcdof/highlights.py > before.py`` and
+pass ``before.py``.)
 
 Frames: the benchmark's speed frames (synthetic portrait, 512x424 depth, the scene's default lens) at
 --sizes; frames with many clipped blobs (the ``highlights`` scene and the wide benchmark's ``night`` and
@@ -12,11 +15,13 @@ colour and circle-of-confusion map, the stage's inputs. Timed: the part of the s
 beside the fill; it is timed too, and each module reconstructs from its own). Both modules run in one
 process, alternated per repeat (ABBA, so neither always goes first); medians in ms, their ratio, and whether
 the two outputs are bit-identical (every frame, every repeat). --pipeline: also the whole pipeline on the speed
-frames with each module in turn as ``pcdof.highlights`` (the stage's record and the frame's time, and the images).
+frames with each module in turn as ``pcdof.stages.highlights`` (the stage's record and the frame's time, and the
+images).
 """
 
 import argparse
 import importlib.util
+import os
 import statistics
 import sys
 import time
@@ -25,10 +30,16 @@ import numpy as np
 
 
 def load_before(path: str):
-    """The highlights module in *path*, as ``pcdof._highlights_before`` (its relative imports are pcdof's)."""
-    import pcdof  # noqa: F401  (the parent package of the module loaded)
+    """The highlights stage in *path*: a package folder, as ``pcdof.stages._highlights_before``, or an earlier
+    single module, as ``pcdof._highlights_before`` (either way its relative imports are pcdof's)."""
+    import pcdof.stages  # noqa: F401  (the parent packages of the module loaded)
 
-    spec = importlib.util.spec_from_file_location("pcdof._highlights_before", path)
+    if os.path.isdir(path):
+        spec = importlib.util.spec_from_file_location("pcdof.stages._highlights_before",
+                                                      os.path.join(path, "__init__.py"),
+                                                      submodule_search_locations=[path])
+    else:
+        spec = importlib.util.spec_from_file_location("pcdof._highlights_before", path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
     spec.loader.exec_module(module)
@@ -75,7 +86,7 @@ def frames(args):
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("before", help="an earlier src/pcdof/highlights.py (git show REV:src/pcdof/highlights.py > FILE)")
+    ap.add_argument("before", help="an earlier src/pcdof/stages/highlights folder (or src/pcdof/highlights.py)")
     ap.add_argument("--repeats", type=int, default=21)
     ap.add_argument("--sizes", default="640x480,1920x1080")
     ap.add_argument("--many-size", default="640x480")
@@ -83,7 +94,7 @@ def main(argv=None) -> None:
     ap.add_argument("--pipeline", action="store_true", help="also the whole pipeline with each module")
     args = ap.parse_args(argv)
 
-    from pcdof import highlights
+    from pcdof.stages import highlights
 
     modules = {"before": load_before(args.before), "now": highlights}
 
@@ -124,13 +135,13 @@ def main(argv=None) -> None:
 
 
 def pipeline_side_by_side(modules, args) -> None:
-    """The whole pipeline on the speed frames with each module as ``pcdof.highlights`` (the pipeline imports the
-    stage's functions when it runs it), alternated per repeat: the highlights record's ms, the frame's ms and
+    """The whole pipeline on the speed frames with each module as ``pcdof.stages.highlights`` (the pipeline imports
+    the stage's functions when it runs it), alternated per repeat: the highlights record's ms, the frame's ms and
     whether the images are bit-identical."""
     from pcdof import pipeline
     from pcdof.synth import generate_scene
 
-    name = "pcdof.highlights"
+    name = "pcdof.stages.highlights"
     print(f"\npipeline (medians of {args.repeats}): highlights stage ms before / now = ratio; frame ms before / now")
     for w, h in [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]:
         sf = generate_scene("portrait", color_size=(w, h), depth_size=(512, 424), seed=0)

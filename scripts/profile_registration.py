@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Where registration spends its time: the two passes of ``pcdof.register`` timed apart.
+"""Where registration spends its time: the two passes of ``pcdof.stages.register`` timed apart.
 
 On the registration benchmark's calibrated box scene at Kinect v2 size (512x424 depth ->
 1920x1080 colour, with sensor noise), times pass 1 (project the depth rows and code their quads)
@@ -49,14 +49,17 @@ def main(argv=None) -> int:
     import numba
     import numpy as np
 
-    from pcdof import register as reg
     from pcdof.bench import registration as rb
+    from pcdof.stages import register as reg
+    from pcdof.stages.register import project, raster
+    from pcdof.stages.register.reproject import UNKNOWN_REACH
+    from pcdof.stages.register.rig import rig_constants
 
     depth_size = (512, 424) if cw * 9 == ch * 16 else (640, 480)
     rig = rb.bench_rig(depth_size, (cw, ch), distortion=True)
     clean, _ = rb.render_depths(rb.BOXES_SCENE, rig)
     depth = rb.add_sensor_noise(clean)
-    consts = reg._rig_constants(rig)
+    consts = rig_constants(rig)
     plan = reg.plan_for(rig)
     ratio = 1.0 + reg.default_depth_ratio(rig.depth)
     h, w = depth.shape
@@ -66,13 +69,13 @@ def main(argv=None) -> int:
     out = np.empty(rig.color.shape, np.float32)
 
     def project_and_code():
-        reg._run_tasks(reg._prepare, numba.get_num_threads(), min(plan.chunks, h), depth, consts.rays, consts.t,
-                       consts.cam, consts.dist, consts.tilt, consts.has_dist, consts.r2_max, float(consts.foot[1]),
-                       ratio, U, V, IZ, row_lo, row_hi, codes)
+        project.project_and_code(numba.get_num_threads(), min(plan.chunks, h), depth, consts.rays, consts.t,
+                                 consts.cam, consts.dist, consts.tilt, consts.has_dist, consts.r2_max,
+                                 float(consts.foot[1]), ratio, U, V, IZ, row_lo, row_hi, codes)
 
     def draw():
-        reg._run_tasks(reg._rasterise, numba.get_num_threads(), min(plan.bands, ch), plan.block_kernel, depth, U, V,
-                       IZ, codes, row_lo, row_hi, consts.foot, ratio, reg._UNKNOWN_REACH, out)
+        raster.rasterise(numba.get_num_threads(), min(plan.bands, ch), plan.block_kernel, depth, U, V, IZ, codes,
+                         row_lo, row_hi, consts.foot, ratio, UNKNOWN_REACH, out)
 
     def whole():
         reg.reproject_depth(depth, rig, plan=dataclasses.replace(plan, threads=numba.get_num_threads()))

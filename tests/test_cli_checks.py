@@ -173,7 +173,7 @@ class TestFollowUps:
 
     @pytest.mark.parametrize("ratio", [10 ** 400, "0.1", True, -1, float("nan")])
     def test_reproject_depth_ratio(self, ratio):
-        from pcdof.register import reproject_depth
+        from pcdof.stages.register import reproject_depth
 
         frame = load_frame(*FRAME[:2], FRAME[3])
         with pytest.raises(InputError, match="max_depth_ratio"):

@@ -364,7 +364,7 @@ class TestTelea:
 
 def test_synthetic_scene_beats_telea():
     """On a ray-traced scene through the registration, at the holes, against the exact depth."""
-    from pcdof.register import register_depth
+    from pcdof.stages.register import register_depth
     from pcdof.synth import generate_scene
 
     sf = generate_scene("portrait", color_size=(320, 240), depth_size=(256, 212), seed=0)

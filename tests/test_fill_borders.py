@@ -17,7 +17,7 @@ EDGE_RATIO = 0.04  # the default: two depths further apart than this (relative) 
 
 def registered(folder, color_name, depth_name):
     from pcdof.io import load_frame
-    from pcdof.register import register_depth
+    from pcdof.stages.register import register_depth
 
     frame = load_frame(folder / color_name, folder / depth_name, folder / "calib.json")
     return register_depth(frame), frame.color

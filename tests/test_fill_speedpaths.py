@@ -231,7 +231,7 @@ def test_combine_matches_the_plain_vote(seed, h, w, levels, hole_frac, edge_rati
 
 def test_combine_matches_the_plain_vote_on_a_synthetic_frame():
     """A registered synthetic frame: disocclusions beside near objects, where the colour vote runs most."""
-    from pcdof.register import register_depth
+    from pcdof.stages.register import register_depth
     from pcdof.synth import generate_scene
 
     sf = generate_scene("portrait", color_size=(320, 240), depth_size=(256, 212), seed=3)

@@ -167,8 +167,8 @@ def test_coc_matches_reference():
 @pytest.mark.parametrize("distorted", [False, True])
 def test_register_matches_reference(distorted):
     from pcdof.gpu.register import register_depth
-    from pcdof.reference.register import reproject_depth
-    from pcdof.register import default_depth_ratio
+    from pcdof.stages.register.reference import reproject_depth
+    from pcdof.stages.register import default_depth_ratio
 
     frame, _ = _frame(distorted)
     rig = frame.rig
@@ -270,7 +270,7 @@ def test_pipeline_on_the_gpu_matches_the_references_chained():
     from pcdof.pipeline import RenderResult
     from pcdof.reference.coc import signed_coc_px
     from pcdof.reference.fill import fill_directional
-    from pcdof.reference.register import reproject_depth
+    from pcdof.stages.register.reference import reproject_depth
     from pcdof.reference.render import render_physical
 
     frame, lens = _frame()
@@ -341,7 +341,7 @@ def test_highlights_and_paper_paths():
     from pcdof.camera import Intrinsics, RGBDFrame, Rig
     from pcdof.color import encode_from_linear
     from pcdof.gpu.api import run
-    from pcdof.highlights import prepare_highlights, reconstruct_prepared
+    from pcdof.stages.highlights import prepare_highlights, reconstruct_prepared
     from pcdof.lens import PaperLens, ThinLens
     from pcdof.options import RenderOptions
     from pcdof.reference.coc import signed_coc_px

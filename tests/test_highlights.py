@@ -1,4 +1,4 @@
-"""pcdof.highlights: clipped-highlight reconstruction."""
+"""pcdof.stages.highlights: clipped-highlight reconstruction."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pcdof.errors import InputError
-from pcdof.highlights import (CLIP_LEVEL, HIGHLIGHT_METHODS, _components, clipped_mask, needs_reconstruction,
-                              reconstruct_highlights, rim_level)
+from pcdof.stages.highlights import (CLIP_LEVEL, HIGHLIGHT_METHODS, clipped_mask, needs_reconstruction,
+                                     reconstruct_highlights, rim_level)
+from pcdof.stages.highlights.clipped import blob_components
 
 
 def _box_filtered_disc(level, radius=3.3, bg=0.1, size=24, k=8):
@@ -59,13 +60,13 @@ def test_gain_raises_clipped_channels_only():
 def test_rim_estimate_grows_with_the_radiance_of_a_box_filtered_source():
     """Edge-pixel counts of an independent forward model (a box-filtered sharp disc) rise with its
     radiance and stay within a factor 2.2 below it (the estimator is biased low, see the module notes)."""
-    from pcdof.highlights import _fill
+    from pcdof.stages.highlights.rim import raise_blobs
 
     estimates = []
     for level in (1.5, 2.5, 4.0):
         clipped, _ = _box_filtered_disc(level, radius=5.2, size=32)
         got = []
-        _fill(clipped, CLIP_LEVEL, lambda b, m, r: got.append(rim_level(b, m, r)) or 1.0)
+        raise_blobs(clipped, CLIP_LEVEL, lambda b, m, r: got.append(rim_level(b, m, r)) or 1.0)
         assert len(got) == 1 and got[0] is not None
         assert level / 2.2 <= got[0] <= level * 1.3
         estimates.append(got[0])
@@ -147,7 +148,7 @@ class TestComponents:
         """Each blob's box and pixels against cv2.connectedComponentsWithStats (which labels the same way)."""
         rng = np.random.default_rng(seed)
         clipped = rng.random((h, w)) < share
-        labels, boxes, pixels = _components(clipped)
+        labels, boxes, pixels = blob_components(clipped)
         n, want_labels, stats, _ = cv2.connectedComponentsWithStats(clipped.astype(np.uint8), connectivity=8)
         np.testing.assert_array_equal(labels, want_labels)
         assert len(boxes) == len(pixels) == n - 1

@@ -2,7 +2,7 @@
 
 :func:`plain_prior` below is the method written blob by blob and channel by channel: each blob's median CoC
 with ``np.median``, each clipped channel's footprint blurred on its own and its level chosen on its own
-(:func:`pcdof.highlights.expected_best_level`). The module gathers every footprint's samples into one batch,
+(:func:`pcdof.stages.highlights.expected_best_level`). The module gathers every footprint's samples into one batch,
 shares the blurs of a mask among the channels clipped in the same pixels and finds the medians of every blob
 in one sort; the output must not change by a bit.
 """
@@ -17,8 +17,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pcdof import highlights
-from pcdof.highlights import CLIP_LEVEL, MAX_FOOTPRINT_PX, MAX_KERNEL_PX, PRIOR_MAX, PRIOR_SAMPLES
+from pcdof.lens import MAX_COC_PX
+from pcdof.stages import highlights
+from pcdof.stages.highlights import CLIP_LEVEL, MAX_FOOTPRINT_PX, MAX_KERNEL_PX, PRIOR_MAX, PRIOR_SAMPLES, footprints
+from pcdof.stages.highlights.clipped import blob_components, run_medians
 
 
 def _plain_edge(m):
@@ -68,7 +70,7 @@ def plain_prior(img, coc, *, clip_level=CLIP_LEVEL, prior_max=PRIOR_MAX, max_rat
     h, w = clipped.shape
     for b in range(1, n):
         ys, xs = np.nonzero(labels == b)
-        d = float(np.median(np.minimum(np.abs(coc[ys, xs].astype(np.float32)), highlights.MAX_COC_PX)))
+        d = float(np.median(np.minimum(np.abs(coc[ys, xs].astype(np.float32)), MAX_COC_PX)))
         if d < 1.0:
             continue
         p = math.ceil(d / 2) + 1
@@ -152,7 +154,7 @@ def test_medians_are_numpys(seed, n):
     if rng.random() < 0.1:
         values[rng.integers(0, values.size)] = np.nan
     starts = np.concatenate(([0], np.cumsum(sizes)))
-    got = highlights._medians(values, starts)
+    got = run_medians(values, starts)
     want = [np.median(values[a:b]) for a, b in zip(starts[:-1], starts[1:])]
     assert got.dtype == values.dtype
     np.testing.assert_array_equal(got, np.array(want, values.dtype))
@@ -171,10 +173,10 @@ def test_samples_of_many_footprints_are_each_ones(d):
         if shape == (30, 30):
             m[12:18, 12:18] = False
         edge, keep = _plain_edge(m), float(rng.uniform(0.9, 1.0))
-        layers.append(highlights._layers(chan, m, edge, d))
+        layers.append(footprints.footprint_layers(chan, m, edge, d))
         keeps.append(keep)
         alone.append(_plain_footprint(chan, m, edge, keep, d))
-    base, k, weight, counts = highlights._samples(layers, keeps)
+    base, k, weight, counts = footprints.footprint_samples(layers, keeps)
     assert counts.tolist() == [a[0].size for a in alone]
     assert alone[1][2][0] > max(1.0, d / MAX_KERNEL_PX) ** 2  # (the large one was subsampled)
     for got, want in zip((base, k, weight), zip(*alone)):
@@ -192,7 +194,7 @@ def test_components_labelled_in_their_box_are_the_whole_frames(seed, h, w, n):
         y, x = rng.integers(0, h), rng.integers(0, w)
         clipped[y:y + rng.integers(1, 12), x:x + rng.integers(1, 12)] = rng.random() < 0.9
         clipped[rng.integers(0, h), rng.integers(0, w)] = True
-    labels, boxes, pixels = highlights._components(clipped)
+    labels, boxes, pixels = blob_components(clipped)
     _, want = cv2.connectedComponents(clipped.astype(np.uint8), connectivity=8)
     np.testing.assert_array_equal(labels, want)
     assert len(boxes) == len(pixels) == want.max()
@@ -226,5 +228,5 @@ def test_median_is_numpys(seed, n, dtype):
     values = values.astype(dtype)
     if rng.random() < 0.1:
         values[rng.integers(0, n)] = np.nan
-    got, want = highlights._median(values), np.median(values)
+    got, want = footprints.median_1d(values), np.median(values)
     assert got.dtype == want.dtype and (got == want or (np.isnan(got) and np.isnan(want)))

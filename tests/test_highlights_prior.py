@@ -1,4 +1,4 @@
-"""pcdof.highlights, the ``prior`` method (``auto``): the level of least expected output error."""
+"""pcdof.stages.highlights, the ``prior`` method (``auto``): the level of least expected output error."""
 
 from __future__ import annotations
 
@@ -9,10 +9,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pcdof.camera import Intrinsics, RGBDFrame, Rig
-from pcdof.highlights import (CLIP_LEVEL, HIGHLIGHT_METHODS, _chosen_levels, _display, disc_kernel,
-                              expected_best_level, prior_levels, reconstruct_highlights, rim_likelihood)
 from pcdof.lens import ThinLens
 from pcdof.pipeline import run
+from pcdof.stages.highlights import (CLIP_LEVEL, HIGHLIGHT_METHODS, disc_kernel, expected_best_level,
+                                     prior_levels, reconstruct_highlights, rim_likelihood)
+from pcdof.stages.highlights.loss import chosen_levels, display
 
 PROPERTY = settings(deadline=None, derandomize=True, max_examples=25, database=None,
                     suppress_health_check=[HealthCheck.too_slow])
@@ -66,9 +67,9 @@ class TestExpectedBestLevel:
             probs = rng.uniform(0.1, 1, t) if rng.random() < 0.5 else np.ones(t)
             problems.append((base, k, rng.integers(1, 5, n).astype(float), np.concatenate(([1.0], levels)),
                              probs / probs.sum()))
-        got = _chosen_levels(problems, max_samples=max_samples)
+        got = chosen_levels(problems, max_samples=max_samples)
         for (base, k, weight, cands, probs), level in zip(problems, got):
-            shown = _display(base[None, :] + cands[:, None] * k[None, :])
+            shown = display(base[None, :] + cands[:, None] * k[None, :])
             table = np.array([[np.sum(weight * (a - b) ** 2) for b in shown[1:]] for a in shown]) @ probs
             assert level in cands
             assert table[list(cands).index(level)] <= table.min() + 1e-7 * max(weight.sum(), 1.0) + 1e-9
@@ -113,7 +114,7 @@ class TestReconstructPrior:
     def test_wide_blur_on_a_shrunk_window_matches_the_full_one(self, d, monkeypatch):
         """A blur wider than MAX_KERNEL_PX is weighed on a shrunk window: the same levels within one step of the
         prior's grid as the full-resolution footprint."""
-        import pcdof.highlights as hl
+        from pcdof.stages.highlights import footprints
 
         rng = np.random.default_rng(int(d))
         img = rng.uniform(0.0, 0.3, (120, 150, 3)).astype(np.float32)
@@ -121,7 +122,7 @@ class TestReconstructPrior:
             img[y - r: y + r + 1, x - r: x + r + 1, : 1 + r % 3] = 1.0
         coc = np.full(img.shape[:2], d)
         small = reconstruct_highlights(img, method="prior", coc_px=coc, prior_max=64.0, max_channel_ratio=np.inf)
-        monkeypatch.setattr(hl, "MAX_KERNEL_PX", 1e9)
+        monkeypatch.setattr(footprints, "MAX_KERNEL_PX", 1e9)
         full = reconstruct_highlights(img, method="prior", coc_px=coc, prior_max=64.0, max_channel_ratio=np.inf)
         raised = full > 1.0
         assert raised.any() and np.array_equal(raised, small > 1.0)
@@ -142,7 +143,7 @@ class TestReconstructPrior:
         kern = disc_kernel(d)
 
         def shown(a):
-            return _display(cv2.filter2D(a, -1, kern, borderType=cv2.BORDER_REPLICATE))
+            return display(cv2.filter2D(a, -1, kern, borderType=cv2.BORDER_REPLICATE))
 
         out = reconstruct_highlights(clipped, method="prior", coc_px=np.full(clipped.shape[:2], d))
         err = lambda a: float(np.mean((shown(a) - shown(true)) ** 2))  # noqa: E731

@@ -14,8 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pcdof import highlights
-from pcdof.highlights import CLIP_LEVEL, clipped_mask, prior_levels
+from pcdof.stages.highlights import CLIP_LEVEL, clipped_mask, footprints, loss, prior_levels
 
 
 class TestClippedMaskOfCodes:
@@ -42,7 +41,7 @@ def _display_plainly(linear):
 def test_display_is_the_clipped_srgb_curve():
     v = np.concatenate([np.linspace(-1.0, 3.0, 40001), [np.nan, np.inf, -np.inf, 0.0031308, 1.0,
                                                         np.nextafter(0.0031308, 1.0), np.nextafter(1.0, 0.0)]])
-    np.testing.assert_array_equal(highlights._display(np.stack([v, v[::-1]])), _display_plainly(np.stack([v, v[::-1]])))
+    np.testing.assert_array_equal(loss.display(np.stack([v, v[::-1]])), _display_plainly(np.stack([v, v[::-1]])))
 
 
 def test_prior_levels_are_fresh_arrays_of_the_formula():
@@ -59,15 +58,15 @@ def test_shared_cover_gives_each_channel_its_own_footprint(d):
     block = rng.random((40, 50, 3)).astype(np.float32)
     m = np.zeros((40, 50), bool)
     m[12:25, 15:33] = True
-    edge = highlights._edge(m)
+    edge = footprints.edge_of(m)
     cover = {}
     for c in range(3):  # the second and third channels reuse the first one's blurred mask
-        shared = highlights._footprint(block[..., c], m, edge, 1.0, d, cover)
-        alone = highlights._footprint(block[..., c], m, edge, 1.0, d)
+        shared = footprints.footprint(block[..., c], m, edge, 1.0, d, cover)
+        alone = footprints.footprint(block[..., c], m, edge, 1.0, d)
         for a, b in zip(shared, alone):
             np.testing.assert_array_equal(a, b)
     assert len(cover) == 1
     other = m.copy()
     other[12, 15] = False  # another mask: blurred anew
-    highlights._footprint(block[..., 0], other, highlights._edge(other), 1.0, d, cover)
+    footprints.footprint(block[..., 0], other, footprints.edge_of(other), 1.0, d, cover)
     assert len(cover) == 2

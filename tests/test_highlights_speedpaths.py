@@ -17,9 +17,10 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pcdof import highlights
 from pcdof.color import decode_to_linear
-from pcdof.highlights import CLIP_LEVEL, MAX_KERNEL_PX, PRIOR_MAX
+from pcdof.stages import highlights
+from pcdof.stages.highlights import CLIP_LEVEL, MAX_KERNEL_PX, PRIOR_MAX, footprints, loss, prior
+from pcdof.stages.highlights.clipped import find_blobs
 
 from test_highlights_batched import _frame, _plain_channel_bound, _plain_edge, _plain_footprint, plain_prior
 
@@ -37,7 +38,7 @@ def _plain_display(v):
 
 
 def _plain_best_levels(base, k, weight, starts, cands, probs):
-    """:func:`pcdof.highlights._best_levels` with every sample's probabilities repeated (one row per footprint)."""
+    """:func:`pcdof.loss.best_levels` with every sample's probabilities repeated (one row per footprint)."""
     counts = np.diff(starts)
     table = np.repeat(cands.T, counts, axis=1)
     table *= k
@@ -62,7 +63,7 @@ def test_mean_over_truths_is_the_einsum_of_repeated_weights(seed, t, n):
     shown = rng.random((t + 1, n)) * (rng.random((t + 1, n)) < 0.9)  # (row 0 is the keep's: left out)
     counts = rng.multinomial(n, np.ones(3) / 3)
     repeated = np.repeat(np.repeat(probs[None, :], 3, axis=0).T, counts, axis=1)
-    np.testing.assert_array_equal(highlights._mean_over_truths(probs, shown[1:]),
+    np.testing.assert_array_equal(loss.mean_over_truths(probs, shown[1:]),
                                   np.einsum("tn,tn->n", repeated, shown[1:]))
 
 
@@ -83,7 +84,7 @@ def test_best_levels_are_the_plain_ones(seed, j, t, one_prior, weighted, dark):
     cands = np.column_stack((rng.uniform(CLIP_LEVEL, 1.0, j), levels))
     probs = np.repeat(rng.random((1, t)), j, axis=0) if one_prior else rng.random((j, t))
     probs /= probs.sum(axis=1, keepdims=True)
-    got = highlights._best_levels(base, k, weight, starts, cands, probs)
+    got = loss.best_levels(base, k, weight, starts, cands, probs)
     np.testing.assert_array_equal(got, _plain_best_levels(base, k, weight, starts, cands, probs))
 
 
@@ -96,7 +97,7 @@ def test_display_of_tables_above_the_linear_segment(seed, rows, n):
     if rng.random() < 0.5:
         v[rng.integers(rows), rng.integers(n)] = rng.choice([0.0, 0.0031308, 0.001, -0.5])  # one on it
     v = np.nextafter(v, 2.0) if rng.random() < 0.3 else v
-    np.testing.assert_array_equal(highlights._display(v), _plain_display(v))
+    np.testing.assert_array_equal(loss.display(v), _plain_display(v))
 
 
 @settings(max_examples=80, deadline=None)
@@ -104,7 +105,7 @@ def test_display_of_tables_above_the_linear_segment(seed, rows, n):
 def test_interior_of_every_channel_is_each_mask_less_its_edge(seed, h, w):
     rng = np.random.default_rng(seed)
     clipped_ch = rng.random((h, w, 3)) < rng.uniform(0.2, 0.95)
-    interior = highlights._interior(clipped_ch)
+    interior = footprints.interior_of(clipped_ch)
     assert interior.shape == (h, w, 3) and interior.dtype == bool
     for c in range(3):
         m = clipped_ch[..., c]
@@ -120,11 +121,11 @@ def test_channel_layers_from_the_interior_are_the_plain_blurs(seed, h, w, d):
     rng = np.random.default_rng(seed)
     block = rng.random((h, w, 2)).astype(np.float32)
     m = rng.random((h, w)) < rng.uniform(0.1, 0.9)
-    inner = highlights._interior(np.repeat(m[..., None], 3, axis=2))[..., 0]
+    inner = footprints.interior_of(np.repeat(m[..., None], 3, axis=2))[..., 0]
     cover = {}
     for c in range(2):
-        got = highlights._channel_layers(block[..., c], m, inner, d, cover, "mask")
-        want = highlights._layers(block[..., c], m, _plain_edge(m), d)
+        got = footprints.channel_layers(block[..., c], m, inner, d, cover, "mask")
+        want = footprints.footprint_layers(block[..., c], m, _plain_edge(m), d)
         assert got[3] == want[3]
         for a, b in zip(got[:3], want[:3]):
             np.testing.assert_array_equal(a, b)
@@ -150,8 +151,8 @@ def test_tops_are_each_blobs_channel_bounds(seed, n, ratio, prior_max):
     img, _ = _frame(seed, 50, 70, n, 3.0)
     rng = np.random.default_rng(seed)
     img[rng.random(img.shape[:2]) < 0.05, rng.integers(3)] = 1.0
-    found = highlights._find_blobs(img, CLIP_LEVEL)
-    tops = highlights._tops(found, (CLIP_LEVEL, prior_max, ratio))
+    found = find_blobs(img, CLIP_LEVEL)
+    tops = prior.prior_tops(found, (CLIP_LEVEL, prior_max, ratio))
     assert tops.shape == (len(found.boxes), 3)
     for i, (win, clipped_ch) in enumerate(_blob_windows(img, found)):
         for c in range(3):
@@ -167,7 +168,7 @@ def test_found_blobs_are_the_plain_ones(seed, h, w, n):
     """The blobs of numpy's nonzero pixels, whether their channels are clipped alike, and each value's slot
     (blob * 3 + channel) and index in the frame, against OpenCV's labelling of the whole frame."""
     img, _ = _frame(seed, h, w, n, 3.0)
-    found = highlights._find_blobs(img, CLIP_LEVEL)
+    found = find_blobs(img, CLIP_LEVEL)
     clipped = (img >= CLIP_LEVEL).any(axis=2)
     count, labels = cv2.connectedComponents(clipped.astype(np.uint8), connectivity=8)
     assert len(found.boxes) == count - 1
@@ -201,11 +202,11 @@ def test_samples_of_channels_clipped_alike_are_each_ones(seed, d):
         cover = {}
         for c, mc in enumerate(masks):
             edge, keep = _plain_edge(mc), float(rng.uniform(0.9, 1.0))
-            layers.append(highlights._layers(block[..., c], mc, edge, d, cover))
+            layers.append(footprints.footprint_layers(block[..., c], mc, edge, d, cover))
             keeps.append(keep)
             alone.append(_plain_footprint(block[..., c], mc, edge, keep, d))
     assert any(a[1] is b[1] for a, b in zip(layers, layers[1:]))  # (some share their blurs)
-    base, k, weight, counts = highlights._samples(layers, keeps)
+    base, k, weight, counts = footprints.footprint_samples(layers, keeps)
     assert counts.tolist() == [a[0].size for a in alone]
     for got, want in zip((base, k, weight), zip(*alone)):
         np.testing.assert_array_equal(got, np.concatenate(want))
@@ -218,12 +219,12 @@ def test_levels_written_at_once_are_each_footprints(seed, n, layout):
     interior to L, the edge to (L + keep) / 2, none below its value), into the input, a copy or a Fortran-ordered
     copy."""
     img, _ = _frame(seed, 40, 60, n, 3.0)
-    found = highlights._find_blobs(img, CLIP_LEVEL)
+    found = find_blobs(img, CLIP_LEVEL)
     rng = np.random.default_rng(seed)
     feet, chosen, interior, want = [], [], np.zeros(found.flags.shape, bool), img.copy()
     for i, (win, clipped_ch) in enumerate(_blob_windows(img, found)):
         a, b = found.starts[i], found.starts[i + 1]
-        inner = highlights._interior(clipped_ch)
+        inner = footprints.interior_of(clipped_ch)
         interior[a:b] = inner[found.ys[a:b] - win[0].start, found.xs[a:b] - win[1].start]
         for c in range(3):
             if not clipped_ch[..., c].any() or rng.random() < 0.2:
@@ -237,7 +238,7 @@ def test_levels_written_at_once_are_each_footprints(seed, n, layout):
     if not feet:
         return
     out = img if layout == "in place" else img.copy() if layout == "copy" else np.asfortranarray(img)
-    highlights._write_levels(out, found, feet, np.array(chosen), interior)
+    prior.write_levels(out, found, feet, np.array(chosen), interior)
     np.testing.assert_array_equal(out, want)
 
 

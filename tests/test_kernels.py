@@ -265,14 +265,16 @@ class TestWarmupCoversTheFrame:
         assert proc.stdout.splitlines()[-1] == "[]"
 
 
-@pytest.mark.parametrize("module_name", ["pcdof.renderer", "pcdof.register", "pcdof.fill"])
-def test_stage_warmup_reaches_every_kernel_of_its_module(module_name):
+@pytest.mark.parametrize("module_name, kernel_module", [
+    ("pcdof.renderer", "pcdof.renderer"), ("pcdof.stages.register", "pcdof.stages.register.project"),
+    ("pcdof.stages.register", "pcdof.stages.register.raster"), ("pcdof.fill", "pcdof.fill")])
+def test_stage_warmup_reaches_every_kernel_of_its_module(module_name, kernel_module):
     """A stage's warm-up takes every path of its module, so a first frame never compiles a kernel silently."""
     import importlib
 
     module = importlib.import_module(module_name)
     module.warmup()
-    missed = [d.__name__ for d in kernels._cached_dispatchers(module_name) if not d.signatures]
+    missed = [d.__name__ for d in kernels._cached_dispatchers(kernel_module) if not d.signatures]
     assert missed == []
 
 
@@ -306,11 +308,11 @@ def test_compiling_relaxes_the_collector_and_puts_it_back(monkeypatch):
                         lambda name: type("Stage", (), {"warmup": staticmethod(lambda: seen.append(gc.get_threshold()))}))
     before = gc.get_threshold()
     gc.unfreeze()
-    kernels._warm_stage("fill")
+    kernels.warm_stage("fill")
     assert seen == [kernels._COMPILE_GC_THRESHOLDS]
     assert gc.get_threshold() == before
     assert gc.get_freeze_count() == 0  # a process that does more than compile keeps its collector as it was
-    kernels._warm_stage("fill", whole_process=True)
+    kernels.warm_stage("fill", whole_process=True)
     assert gc.get_freeze_count() > 0  # a process that only compiles leaves the modules out of the passes
     gc.unfreeze()
     assert gc.get_threshold() == before

@@ -1,6 +1,5 @@
 """The pipeline executor: stages skip the work a frame does not need, and say so in the trace."""
 
-import sys
 
 import numpy as np
 import pytest
@@ -32,7 +31,7 @@ def stage(result, name):
 
 class TestSkipping:
     def test_registered_rig_is_not_reprojected(self, monkeypatch):
-        import pcdof.register as register_module
+        import pcdof.stages.register as register_module
 
         def forbidden(*a, **k):
             raise AssertionError("registration ran for a registered rig")
@@ -70,7 +69,7 @@ class TestSkipping:
 
     @pytest.mark.parametrize("overlap", [True, False])
     def test_sharp_frame_with_clipped_lights_skips_the_highlights_estimate(self, monkeypatch, overlap):
-        import pcdof.highlights as highlights_module
+        import pcdof.stages.highlights as highlights_module
         import pcdof.stages.highlights.stage as highlights_stage
 
         def forbidden(*a, **k):

@@ -7,14 +7,14 @@ import numba
 import numpy as np
 import pytest
 
-import pcdof.highlights as highlights
+import pcdof.stages.highlights as highlights
 import pcdof.pipeline as pipeline
 import pcdof.runtime.threads as runtime_threads
 import pcdof.stages.highlights.stage as highlights_stage
 from pcdof.camera import RGBDFrame
 from pcdof.color import decode_to_linear, srgb_to_linear
 from pcdof.errors import InputError
-from pcdof.highlights import (HIGHLIGHT_METHODS, ClippedColor, clipped_mask, prepare_highlights,
+from pcdof.stages.highlights import (HIGHLIGHT_METHODS, ClippedColor, clipped_mask, prepare_highlights,
                               reconstruct_highlights, reconstruct_prepared)
 from pcdof.lens import PaperLens, ThinLens
 from pcdof.synth.rig import kinect_rig

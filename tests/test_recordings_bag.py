@@ -17,7 +17,7 @@ from pcdof.cli.export import command as export_command  # noqa: E402
 from pcdof.cli.info import command as info_command  # noqa: E402
 from pcdof.errors import ImageReadError, InputError  # noqa: E402
 from pcdof.io import load_frame  # noqa: E402
-from pcdof.register import register_depth  # noqa: E402
+from pcdof.stages.register import register_depth  # noqa: E402
 from pcdof.sources import open_source  # noqa: E402
 
 BAG = os.path.join(os.path.dirname(__file__), "..", "data", "real", "realsense_d435_bag",

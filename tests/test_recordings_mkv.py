@@ -16,7 +16,7 @@ from pcdof.cli.export import command as export_command  # noqa: E402
 from pcdof.cli.info import command as info_command  # noqa: E402
 from pcdof.errors import CalibrationError, ImageReadError, InputError  # noqa: E402
 from pcdof.io import load_frame, read_calibration, write_depth, write_image, write_json  # noqa: E402
-from pcdof.register import register_depth  # noqa: E402
+from pcdof.stages.register import register_depth  # noqa: E402
 from pcdof.sources import open_source  # noqa: E402
 from pcdof.sources.k4a_writer import write_k4a_recording  # noqa: E402
 from pcdof.synth import generate_scene  # noqa: E402

@@ -1,4 +1,4 @@
-"""pcdof.register: depth re-sampled into the colour camera.
+"""pcdof.stages.register: depth re-sampled into the colour camera.
 
 References: closed-form depth of planes and boxes (rays from cv2.undistortPoints, not from
 pcdof.geometry), cv2.registerDepth, and real captured RGB-D data with calibration.
@@ -15,11 +15,14 @@ import cv2
 import numpy as np
 import pytest
 
-import pcdof.register as register_mod
+import pcdof.stages.register as register_mod
 from pcdof.camera import Intrinsics, RGBDFrame, Rig
 from pcdof.errors import InputError
 from pcdof.plans import RegisterPlan, plan_register
-from pcdof.register import needs_registration, register_depth, reproject_depth, warmup
+from pcdof.stages.register import needs_registration, register_depth, reproject_depth, warmup
+from pcdof.stages.register import reproject as register_reproject
+from pcdof.stages.register import tasks as register_tasks
+from pcdof.stages.register.rig import rig_constants
 
 DATA = Path(__file__).resolve().parent.parent / "data" / "real"
 
@@ -248,8 +251,8 @@ class TestRegisterDepth:
         def boom(*args, **kwargs):
             raise AssertionError("reprojection kernel called for a registered rig")
 
-        for name in ("_prepare", "_rasterise", "reproject_depth"):
-            monkeypatch.setattr(register_mod, name, boom)
+        for name in ("project_and_code", "rasterise", "reproject_depth"):  # the two passes' kernels, and their caller
+            monkeypatch.setattr(register_reproject, name, boom)
         depth = np.random.default_rng(0).uniform(0.5, 3.0, (30, 40)).astype(np.float32)
         depth[3, 4] = 0.0
         frame = RGBDFrame(np.zeros((30, 40, 3), np.uint8), depth, rig)
@@ -355,7 +358,7 @@ class TestRegisterDepth:
         busy = ThreadPoolExecutor(max_workers=1)
         try:
             busy.submit(lambda: released.append(release.wait(120)))  # the only helper thread is taken
-            monkeypatch.setattr(register_mod, "_thread_pool", lambda: busy)
+            monkeypatch.setattr(register_tasks, "thread_pool", lambda: busy)
             out = reproject_depth(depth, rig)  # the caller does every task
             release.set()
             np.testing.assert_array_equal(out, ref)
@@ -367,11 +370,11 @@ class TestRegisterDepth:
     def test_rig_work_is_done_once_per_calibration(self):
         rig = make_rig(ddist=DEPTH_DIST, cdist=COLOR_DIST)
         twin = Rig(rig.color, rig.depth, np.array(rig.T_color_from_depth))  # another object, same calibration
-        consts = register_mod._rig_constants(rig)
-        assert register_mod._rig_constants(twin) is consts
+        consts = rig_constants(rig)
+        assert rig_constants(twin) is consts
         assert not consts.rays.flags.writeable and consts.rays.shape == (3, *rig.depth.shape)
         other = make_rig(ddist=DEPTH_DIST, cdist=COLOR_DIST, t=(-0.04, 0.0, 0.0))
-        assert register_mod._rig_constants(other) is not consts
+        assert rig_constants(other) is not consts
 
     def test_full_opencv_lens_model(self):
         # rational (k4..k6), thin prism (s1..s4) and tilted-sensor terms of the colour camera; each

@@ -1,4 +1,4 @@
-"""pcdof.register's row kernel (quads up to 16 colour pixels wide) against closed forms and its per-triangle path.
+"""pcdof.stages.register's row kernel (quads up to 16 colour pixels wide) against closed forms and its per-triangle path.
 
 The row kernel evaluates float32 edge functions relative to each quad's own origin; these tests
 check that a surface tiled by quads whose corners fall on (or within float rounding of) pixel
@@ -17,9 +17,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import pcdof.register as register_mod
+import pcdof.stages.register as register_mod
 from pcdof.camera import Intrinsics, Rig
-from pcdof.register import reproject_depth, warmup
+from pcdof.stages.register import reproject_depth, warmup
 
 
 @pytest.fixture(scope="module", autouse=True)

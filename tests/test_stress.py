@@ -27,7 +27,7 @@ from pcdof.camera import MAX_FLOAT_COLOR, Intrinsics, RGBDFrame, Rig, as_depth_m
 from pcdof.errors import CalibrationError, InputError, LensError, PcdofError
 from pcdof.lens import MAX_COC_PX, PaperLens, ThinLens
 from pcdof.pipeline import render_from_depth, run
-from pcdof.register import register_depth
+from pcdof.stages.register import register_depth
 from pcdof.plans import plan_render
 from pcdof.renderer import LAYER_EDGES_PX, QUALITIES, render_image, render_layers_linear
 

@@ -43,7 +43,7 @@ def colored_points(color, depth_m, intrinsics: Intrinsics, *, stride: int = 1) -
     ----------
     color : (H, W, 3) RGB or (H, W) grey ndarray, uint8, uint16 or float in [0, 1]
     depth_m : (H, W) float ndarray, metres, z-depth in the colour camera's pixel grid
-        (see :func:`pcdof.register.register_depth`); 0, NaN, inf and negative values are unknown
+        (see :func:`pcdof.stages.register.register_depth`); 0, NaN, inf and negative values are unknown
     intrinsics : Intrinsics, the colour camera's (its distortion is undone)
     stride : int, >= 1; keep every *stride*-th pixel in x and y (rows and columns 0, stride, 2 stride, ...)
 

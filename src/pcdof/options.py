@@ -36,7 +36,7 @@ class RenderOptions:
     focus_at : None (the lens's focus distance), an (x, y) colour pixel or "center" (the image centre): the
         focus distance becomes the robust depth there (:mod:`pcdof.focus`)
     highlights : radiance of clipped highlights before the blur (physical method, 8/16-bit sRGB input
-        only; linear input is never touched): a key of :data:`pcdof.highlights.HIGHLIGHT_METHODS`
+        only; linear input is never touched): a key of :data:`pcdof.stages.highlights.HIGHLIGHT_METHODS`
         ("auto", the default: each clipped channel raised to the level of least expected error under a
         stated prior, chosen on the wide benchmark's tuning seeds; "off", "gain", "rim", "prior",
         "prior-rim") or a gain >= 1. Only clipped channels are raised, so every output pixel stays
@@ -67,7 +67,7 @@ class RenderOptions:
         if not isinstance(self.linear, bool):
             raise InputError(f"linear must be True or False; got {short_repr(self.linear)}")
         object.__setattr__(self, "focus_at", parse_focus_at(self.focus_at))
-        from .highlights import HIGHLIGHT_METHODS, parse_highlights
+        from .stages.highlights import HIGHLIGHT_METHODS, parse_highlights
 
         _, gain = parse_highlights(self.highlights)  # a method's name stays a name; a number becomes a float
         if not (isinstance(self.highlights, str) and self.highlights in HIGHLIGHT_METHODS):

@@ -1,6 +1,6 @@
 """How the registration and render stages run: one plan per stage, chosen from the input and the options.
 
-The stage modules (:mod:`pcdof.register`, :mod:`pcdof.renderer`) say *what* is computed; a plan
+The stage modules (:mod:`pcdof.stages.register`, :mod:`pcdof.renderer`) say *what* is computed; a plan
 says *how*: thread count, work split, tiles, reduced-resolution layers, which kernel. Each public
 stage function takes ``plan=None`` (the planner's choice) or a plan made here (or changed with
 ``dataclasses.replace``), and reports the plan it ran with, so the pipeline trace records it and
@@ -10,7 +10,7 @@ tolerance stated on its field (Halide's split of algorithm from schedule).
 The renderer runs on numba's ``prange``: its plan's ``threads`` is applied with
 :func:`numba.set_num_threads` for the duration of the call (:func:`threads_for`). Registration
 takes ``threads`` numba threads of its own (the caller and helpers sharing tasks through an atomic
-counter; see :mod:`pcdof.register` for why it does not use ``prange``).
+counter; see :mod:`pcdof.stages.register` for why it does not use ``prange``).
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def as_dict(plan) -> dict:
 # ----------------------------------------------------------------------------- registration
 @dataclass(frozen=True)
 class RegisterPlan:
-    """How :func:`pcdof.register.reproject_depth` runs. Every plan gives the same result, bit for bit,
+    """How :func:`pcdof.stages.register.reproject_depth` runs. Every plan gives the same result, bit for bit,
     except ``block_kernel``, which changes how small quads are rasterised (within float32 rounding
     of the 1/z plane: pixel centres on a triangle edge may fall either way).
 

@@ -41,7 +41,7 @@ def measure_focus_track(sequence: Sequence, rig: Rig, xy, *, n_frames: int | Non
     raw_m : (n,) float64 ndarray, metres, NaN where the frame has no depth near *xy* or cannot be read
     problems : {frame index: reason} for the NaN entries
     """
-    from ..register import needs_registration, reproject_depth
+    from ..stages.register import needs_registration, reproject_depth
 
     x, y = check_xy(xy, rig)
     check_radius_px(radius_px)  # once, not once per frame

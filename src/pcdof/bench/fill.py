@@ -1,7 +1,7 @@
 """Hole filling against cv2.inpaint (Telea) on the ray-traced ground truth.
 
 For each synthetic scene the sensor's noisy depth is registered into the colour camera
-(:func:`pcdof.register.register_depth`); its holes are what every method fills, and the error is
+(:func:`pcdof.stages.register.register_depth`); its holes are what every method fills, and the error is
 measured at those pixels against the exact colour-camera depth (``depth_color_m``). Holes are
 split into *disocclusions* (still missing when the exact, noise-free depth is registered: the
 colour camera sees what the depth camera does not, or outside its view) and *sensor* holes (the
@@ -25,7 +25,7 @@ WRONG_SURFACE_RATIO = 0.05
 
 def _case(name: str, size, depth_size, seed: int):
     from ..camera import RGBDFrame
-    from ..register import register_depth
+    from ..stages.register import register_depth
     from ..synth import generate_scene
 
     kwargs = {} if depth_size is None else {"depth_size": tuple(depth_size)}

@@ -22,7 +22,7 @@ z-depth of the colour camera:
   OpenMP thread pools left spinning by one library (numba's, Open3D's) slow the next
   library's calls in the same process several-fold. The first call (rays of a new
   calibration, library initialisation) is reported separately; pcdof's JIT warm-up
-  (:func:`pcdof.register.warmup`) is excluded and reported once. The fastest single call is
+  (:func:`pcdof.stages.register.warmup`) is excluded and reported once. The fastest single call is
   reported too (Open3D's time per call is bimodal on some machines).
 
 Peers: ``cv2.registerDepth`` (OpenCV contrib rgbd; point splat with a z-buffer, optionally
@@ -281,8 +281,8 @@ def score(registered_m: np.ndarray, depth_color_m: np.ndarray, measured: np.ndar
 
 
 def register_pcdof(depth_m: np.ndarray, rig: Rig) -> np.ndarray:
-    """pcdof's triangle rasteriser (:func:`pcdof.register.reproject_depth`)."""
-    from ..register import reproject_depth
+    """pcdof's triangle rasteriser (:func:`pcdof.stages.register.reproject_depth`)."""
+    from ..stages.register import reproject_depth
 
     return reproject_depth(depth_m, rig)
 
@@ -362,7 +362,7 @@ def _start_method(name: str, jobs: list) -> tuple[float, list]:
     fn = METHODS[name]
     warmup_ms = 0.0
     if name == "pcdof":
-        from ..register import warmup
+        from ..stages.register import warmup
 
         t0 = time.perf_counter()
         warmup()

@@ -56,7 +56,7 @@ class Variant:
     true_depth : the exact depth registered to the colour camera instead of the sensor's
     colour : "8bit" (the clipped sRGB input) or "linear" (the unclipped linear radiance)
     highlights : a ``RenderOptions.highlights`` value, or a dict of
-        :func:`pcdof.highlights.reconstruct_highlights` options (any method and gain, for tuning)
+        :func:`pcdof.stages.highlights.reconstruct_highlights` options (any method and gain, for tuning)
     quality : a key of :data:`pcdof.plans.QUALITIES`
     """
 
@@ -163,8 +163,8 @@ def render_variant(variant, sf, lens) -> np.ndarray:
 
 def _render_reconstructed(frame, lens, options: dict, *, quality: str) -> np.ndarray:
     """*frame* registered and filled as :func:`pcdof.pipeline.run` does, its colour reconstructed with
-    :func:`pcdof.highlights.reconstruct_highlights` (*options*), rendered as linear light."""
-    from ..highlights import reconstruct_highlights
+    :func:`pcdof.stages.highlights.reconstruct_highlights` (*options*), rendered as linear light."""
+    from ..stages.highlights import reconstruct_highlights
     from ..pipeline import prepare_depth, render_from_depth
 
     _registered, filled, _trace = prepare_depth(frame, lens)
@@ -255,7 +255,7 @@ def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, reference_width_
     """
     from tqdm.auto import tqdm
 
-    from ..highlights import parse_highlights
+    from ..stages.highlights import parse_highlights
     from ..synth.wide import generate_wide, lens_for_blur
 
     parse_highlights(highlights)

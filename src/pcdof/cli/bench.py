@@ -274,7 +274,7 @@ def _blurs(text: str) -> tuple[float, ...]:
 
 def _highlights(text: str):
     """--wide-highlights as a RenderOptions.highlights value, or a usage error."""
-    from ..highlights import parse_highlights
+    from ..stages.highlights import parse_highlights
 
     try:
         how, gain = parse_highlights(text)

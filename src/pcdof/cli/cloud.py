@@ -27,13 +27,15 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, no_fi
     """
     from ..cloud import colored_points, write_ply
     from ..io import output_format
-    from ..register import register_depth
+    from ..stages.register import register_depth
+    from ..runtime.kernels import ensure_warm
 
     check_output_file(output)
     check_output_paths(source_inputs(color, depth, calib), {"-o": output})
     output_format(output, (".ply",), name="output")
     frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"-o": output})
+    ensure_warm(stages=("register", "fill"))  # the first run after an install compiles them, and says so
     depth_m = register_depth(frame)
     if not no_fill:
         depth_m = fill_depth(depth_m, frame.color, method=fill_method)

@@ -86,7 +86,8 @@ def export_frames(src, output: str, indices, *, registered: bool, color_format: 
     """Write *indices* of *src* and ``calib.json``; returns (frames written, indices that failed to decode)."""
     from ..camera import Rig
     from ..io import write_depth, write_image, write_json
-    from ..register import register_depth
+    from ..stages.register import register_depth
+    from ..runtime.kernels import ensure_warm
 
     rig = src.rig
     out_rig = Rig.registered(rig.color, depth_scale=0.001, max_range_m=rig.max_range_m) if registered else rig
@@ -101,6 +102,7 @@ def export_frames(src, output: str, indices, *, registered: bool, color_format: 
         write_image(os.path.join(output, "color", f"{i:06d}.{color_format}"), frame.color)
         depth_path = os.path.join(output, "depth", f"{i:06d}.png")
         if registered:
+            ensure_warm(stages=("register", "fill"))  # the first run after an install compiles them, and says so
             write_depth(depth_path, register_depth(frame.rgbd()))
         else:
             write_image(depth_path, raw_depth(frame.depth_m, rig.depth_scale))

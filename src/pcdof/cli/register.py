@@ -25,13 +25,15 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, fill,
     (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
     """
     from ..io import DEPTH_FORMATS, output_format, write_depth
-    from ..register import register_depth
+    from ..stages.register import register_depth
+    from ..runtime.kernels import ensure_warm
 
     check_output_file(output)
     check_output_paths(source_inputs(color, depth, calib), {"-o": output})
     output_format(output, DEPTH_FORMATS, name="output")
     frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"-o": output})
+    ensure_warm(stages=("register", "fill"))  # the first run after an install compiles them, and says so
     depth_m = register_depth(frame)
     if fill:
         depth_m = fill_depth(depth_m, frame.color, method=fill_method)

@@ -1,6 +1,6 @@
 """Registration on the GPU: depth re-sampled in the colour camera by a per-triangle z-buffer.
 
-The rules are those of :mod:`pcdof.reference.register` (projection, the two splits of each quad, triangles
+The rules are those of :mod:`pcdof.stages.register.reference` (projection, the two splits of each quad, triangles
 drawn over the pixel centres they cover with 1/z interpolated, footprints of pixels outside the whole mesh),
 run as three kernels: one thread per depth pixel projects it; one thread per quad draws its kept triangles
 with an atomic maximum of 1/z (the nearest surface wins whatever the order); one thread per pixel outside the
@@ -23,7 +23,7 @@ from numba import cuda
 from ..camera import RGBDFrame, Rig
 from ..errors import InputError
 from ..geometry import dist14, max_radius2, pixel_rays, tilt_matrix
-from ..register import MAX_PRIMITIVE_PX, default_depth_ratio
+from ..stages.register import MAX_PRIMITIVE_PX, default_depth_ratio
 from .launch import on_device, grid_2d, to_device, zeros
 
 _MIN_Z_M = 1e-6
@@ -240,7 +240,7 @@ def register_depth(depth_m, rig: Rig, *, max_depth_ratio: float | None = None, s
     ----------
     depth_m : (h, w) float32 array (host or device), metres, ``rig.depth`` size; 0, NaN, inf, negative unknown
     rig : Rig
-    max_depth_ratio : float > 0 or None (:func:`pcdof.register.default_depth_ratio` of the depth camera)
+    max_depth_ratio : float > 0 or None (:func:`pcdof.stages.register.default_depth_ratio` of the depth camera)
 
     Returns
     -------

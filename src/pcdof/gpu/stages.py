@@ -51,7 +51,7 @@ class _Stage:
 
 
 def _register(frame: RGBDFrame, depth_dev, trace, stream, sync):
-    from ..register import needs_registration
+    from ..stages.register import needs_registration
 
     with _Stage(trace, "register", stream, sync) as rec:
         needed, reason = needs_registration(frame.rig)
@@ -86,7 +86,7 @@ def _fill(registered, frame: RGBDFrame, color_dev, opts, trace, stream, sync):
 
 def _highlights(color, opts, coc_size, cmax, trace):
     """(linear float32 host colour or None, whether it was reconstructed): the CPU's highlights stage."""
-    from ..highlights import needs_reconstruction, parse_highlights, prepare_highlights, reconstruct_prepared
+    from ..stages.highlights import needs_reconstruction, parse_highlights, prepare_highlights, reconstruct_prepared
 
     t0 = time.perf_counter()
     rec = {"name": "highlights", "seconds": 0.0, "skipped": True, "reason": "", "detail": {"device": "cpu"}}

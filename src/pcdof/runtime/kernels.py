@@ -22,7 +22,8 @@ import time
 
 #: stage -> (modules whose ``warmup()`` compiles its kernels, modules whose cached kernels those compile)
 STAGES = {
-    "register": (("pcdof.register",), ("pcdof.register", "pcdof.distortion")),
+    "register": (("pcdof.stages.register",), ("pcdof.stages.register.project", "pcdof.stages.register.raster",
+                                             "pcdof.distortion")),
     "fill": (("pcdof.fill",), ("pcdof.fill",)),
     "render": (("pcdof.renderer", "pcdof.tiles"), ("pcdof.renderer", "pcdof.tiles", "pcdof.lens", "pcdof.color")),
 }

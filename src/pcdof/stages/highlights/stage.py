@@ -1,5 +1,5 @@
 """The highlights stage: clipped highlights raised to an estimate of their radiance before the blur
-(:mod:`pcdof.highlights`). Its colour-only half (decoding, finding the clipped blobs) starts beside the fill."""
+(:mod:`pcdof.stages.highlights`). Its colour-only half (decoding, finding the clipped blobs) starts beside the fill."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ OVERLAP = True
 def skip_reason(how: str, method: str, color, linear: bool) -> str:
     """Why the highlights stage has nothing to do before its colour is read ("": it may; then only a clipped
     pixel decides)."""
-    from ...highlights import needs_reconstruction
+    from . import needs_reconstruction
 
     return ("off" if how == "off" else "the paper method blends as written" if method != "physical"
             else "linear input is not clipped" if not needs_reconstruction(color, linear=linear) else "")
@@ -31,11 +31,11 @@ class HighlightsStage(Stage):
     starts_before = "fill"
 
     def start(self, state: FrameState, options):
-        """Start :func:`pcdof.highlights.prepare_highlights` of the colour on the runtime's colour worker when the
+        """Start :func:`pcdof.stages.highlights.prepare_highlights` of the colour on the runtime's colour worker when the
         stage will need it (the physical method, highlights not off, 8/16-bit sRGB colour with a channel at its
         top code) and a second thread may run. Returns the waiter ((found, seconds, perf_counter when done)) or
         None (such frames use no thread, nor does a call at interpreter exit)."""
-        from ...highlights import parse_highlights, prepare_highlights
+        from . import parse_highlights, prepare_highlights
         from ...runtime.threads import current_threads, worker_pool
 
         color = np.asarray(state.color)
@@ -56,7 +56,7 @@ class HighlightsStage(Stage):
             return None
 
     def skip(self, state: FrameState, options) -> str | None:
-        from ...highlights import parse_highlights
+        from . import parse_highlights
         from ...renderer import SHARP_COC_PX
 
         how, _ = parse_highlights(options.highlights)
@@ -73,7 +73,7 @@ class HighlightsStage(Stage):
         return {"source": state.color, "source_linear": options.linear}
 
     def run(self, state: FrameState, plan, options) -> StageOutput:
-        from ...highlights import parse_highlights, prepare_highlights, reconstruct_prepared
+        from . import parse_highlights, prepare_highlights, reconstruct_prepared
 
         how, gain = parse_highlights(options.highlights)
         waiter = state.started.get(self.name)

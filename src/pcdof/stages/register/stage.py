@@ -1,4 +1,4 @@
-"""The registration stage: depth drawn into the colour camera (:func:`pcdof.register.register_depth`)."""
+"""The registration stage: depth drawn into the colour camera (:func:`pcdof.stages.register.register_depth`)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ class RegisterStage(Stage):
     name = "register"
 
     def skip(self, state: FrameState, options) -> str | None:
-        from ...register import needs_registration
+        from . import needs_registration
 
         needed, reason = needs_registration(state.rig)
         return None if needed else reason
@@ -22,13 +22,13 @@ class RegisterStage(Stage):
         return {"registered_m": state.depth_m.copy()}
 
     def plan(self, state: FrameState, options):
-        from ...register import plan_for
+        from . import plan_for
 
         return plan_for(state.rig)
 
     def run(self, state: FrameState, plan, options) -> StageOutput:
         from ...camera import RGBDFrame
-        from ...register import needs_registration, plan_info, register_depth
+        from . import needs_registration, plan_info, register_depth
 
         depth = register_depth(RGBDFrame(state.color, state.depth_m, state.rig), plan=plan)
         return StageOutput({"registered_m": depth}, needs_registration(state.rig)[1],

@@ -1,6 +1,6 @@
 """Reference registration: depth re-sampled in the colour camera by a per-triangle z-buffer, in float64.
 
-Rules stated here (those of :func:`pcdof.register.reproject_depth`):
+Rules stated here (those of :func:`pcdof.stages.register.reproject_depth`):
 
 1. Each known depth pixel (0 < z < inf, its ray defined) is back-projected, moved into the colour
    camera with ``rig.T_color_from_depth`` and projected with the colour intrinsics and distortion;
@@ -25,8 +25,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import pixel_rays, project_points
-from ..register import MAX_PRIMITIVE_PX, default_depth_ratio
+from ...geometry import pixel_rays, project_points
+from .constants import MAX_PRIMITIVE_PX
+from .reproject import default_depth_ratio
 
 _MIN_Z_M = 1e-6  # colour-frame z below which a point is on or behind the colour camera
 _EDGE_EPS = 1e-9  # relative edge tolerance: pixel centres on an edge are inside
@@ -129,7 +130,7 @@ def reproject_depth(depth_m, rig, *, max_depth_ratio: float | None = None) -> np
     ----------
     depth_m : (h, w) float ndarray, metres (``rig.depth`` size); 0, NaN, inf and negative are unknown
     rig : pcdof.camera.Rig
-    max_depth_ratio : float > 0 or None (``pcdof.register.default_depth_ratio`` of the depth camera)
+    max_depth_ratio : float > 0 or None (``pcdof.stages.register.default_depth_ratio`` of the depth camera)
 
     Returns
     -------

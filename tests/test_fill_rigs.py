@@ -95,3 +95,23 @@ def test_rig_case_is_reproducible():
     assert a.metadata["rig"] == tuple(RIG_KINDS)[5 % 4] and a.metadata["scene_kind"] == SCENE_KINDS[5]
     np.testing.assert_array_equal(a.depth_m, b.depth_m)
     np.testing.assert_array_equal(a.color, b.color)
+
+
+def test_cli_part_writes_its_section(tmp_path):
+    from click.testing import CliRunner
+
+    from pcdof.cli import main
+
+    result = CliRunner().invoke(main, ["bench", "-o", str(tmp_path), "--only", "fill-rigs", "--quick"])
+    assert result.exit_code == 0, result.output
+    md = (tmp_path / "report.md").read_text()
+    assert "## Hole filling on rigs of real devices" in md and "### Per rig" in md
+    assert "outside-view MAE" in md and "Report seeds 1000-1003" in md
+
+
+def test_fill_trace_says_what_the_border_rule_assumes():
+    from pcdof.fill import BORDER_ASSUMPTIONS, DEFAULT_BORDER, plan_fill
+
+    text = plan_fill(np.array([[1.0, 0.0]], np.float32)).describe()
+    assert f"border {DEFAULT_BORDER}: {BORDER_ASSUMPTIONS[DEFAULT_BORDER]}" in text
+    assert "without preferring the farthest" in text

@@ -57,42 +57,46 @@ def moto():
     return depth, color, fill_depth(depth, color)
 
 
-class TestNyuBorder:
-    """The raw NYU frame: after registration the right strip and the top band are outside the
-    depth camera's view. They must continue the surfaces just inside, not the background."""
+def constant_blocks(depth, out, k=8):
+    """Windows k x k at the frame border (every second position) whose pixels are all holes filled with one
+    value: a straight-edged constant block, what holding a depth constant leaves in the corners."""
+    h, w = out.shape
+    n = 0
+    for y in range(0, h - k + 1, 2):
+        for x in range(0, w - k + 1, 2):
+            if not (y == 0 or x == 0 or y + k == h or x + k == w) or (depth[y:y + k, x:x + k] > 0).any():
+                continue
+            win = out[y:y + k, x:x + k]
+            n += win.max() - win.min() <= 1e-6 * win.max()
+    return n
 
-    def test_right_strip_per_row(self, nyu):
+
+class TestNyuBorder:
+    """The raw NYU frame (`make demo`'s): after registration the right strip, the left strip and the top band
+    are outside the depth camera's view. They must continue the surfaces just inside, with no constant
+    blocks, and the near floor at the bottom right must not become the background."""
+
+    def test_no_constant_block_at_the_border(self, nyu):
+        depth, color, out = nyu
+        assert constant_blocks(depth, out) == 0
+        # holding the depth just inside (the rule before) leaves such blocks in the corners
+        assert constant_blocks(depth, fill_depth(depth, color, border="hold")) > 10
+
+    def test_right_strip_continues_the_surface_inside(self, nyu):
+        """Per row, the strip's median within 3 % of the 5 known pixels just inside for half the rows, 8 % for
+        90 % (the surfaces continue along their planes; colour picks among them where several reach)."""
         depth, _, out = nyu
         known = depth > 0
-        rows = np.flatnonzero(known.any(axis=1))
         devs = []
-        for y in rows:
+        for y in np.flatnonzero(known.any(axis=1)):
             last = np.flatnonzero(known[y])[-1]
             if last >= depth.shape[1] - 8:
                 continue
-            ref = inside_value(depth, y, last, (0, -1))
-            # the pixels outside by their row alone (a column with known pixels may offer a nearer edge)
             strip = out[y, last + 1:][~known[:, last + 1:].any(axis=0)]
             if strip.size:
-                devs.append(np.abs(strip / ref - 1).max())
-        # the depth just inside, held: every row within 6 % of the median of the 5 known pixels
-        # there (the fill takes the edge pixel's plane-fitted depth), 95 % of rows within 2 %
+                devs.append(abs(np.median(strip) / inside_value(depth, y, last, (0, -1)) - 1))
         assert len(devs) > 300  # the strip spans most rows
-        assert max(devs) < 0.06 and np.percentile(devs, 95) < 0.02
-
-    def test_top_band_per_column(self, nyu):
-        depth, _, out = nyu
-        known = depth > 0
-        empty_rows = ~known.any(axis=1)  # pixels there are outside by their column alone
-        devs = []
-        for x in np.flatnonzero(known.any(axis=0)):
-            first = np.flatnonzero(known[:, x])[0]
-            band = out[:first, x][empty_rows[:first]]
-            if band.size:
-                devs.append(np.abs(band / inside_value(depth, first, x, (1, 0)) - 1).max())
-        # 95 % of columns within 2 %, 98 % within 6 % (a stray first pixel of another surface is held too)
-        assert len(devs) > 500
-        assert np.percentile(devs, 98) < 0.06 and np.percentile(devs, 95) < 0.02
+        assert np.percentile(devs, 50) < 0.03 and np.percentile(devs, 90) < 0.08
 
     def test_not_background(self, nyu):
         """The old rule filled the strip with 4.4-6 m background; the near floor and chair at the
@@ -138,9 +142,12 @@ def scene(rng, h, w):
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31 - 1), sides=st.sets(st.sampled_from("lrtb"), min_size=1, max_size=4),
        width=st.integers(1, 12))
-def test_border_bands_are_extended(seed, sides, width):
-    """Cut bands off random sides: each band pixel outside along its row or column holds the depth
-    of the surface just inside (flat boxes, a plane wall: the plane fit is exact), never the far wall."""
+def test_border_bands_are_held(seed, sides, width):
+    """Cut bands off random sides: with the rule "hold", each band pixel outside along its row or column
+    holds the depth of the surface just inside (flat boxes, a plane wall of gentle slope: within 4 % of its
+    edge pixel), never the far wall. ("extend" does not always: a box whose edge pixel sees only a sliver
+    of it gets a steep plane, and extrapolating it leaves the box: one reason the benchmark chose neither.)"""
+    border = "hold"
     rng = np.random.default_rng(seed)
     h, w = 48, 64
     truth, color = scene(rng, h, w)
@@ -150,7 +157,7 @@ def test_border_bands_are_extended(seed, sides, width):
     for s in sides:
         depth[cut[s]] = 0
     out, kind = _fill_directional(depth, color, use_color=True, edge_ratio=EDGE_RATIO, sigma_color=0.04,
-                                  background_bias=6.0, with_kinds=True)
+                                  background_bias=6.0, with_kinds=True, border=border)
     hy, hx = np.nonzero(depth == 0)
     y_in, x_in = max(("t" in sides) * width, 0), max(("l" in sides) * width, 0)
     y_out, x_out = h - 1 - ("b" in sides) * width, w - 1 - ("r" in sides) * width
@@ -212,4 +219,25 @@ def test_lost_pixels_take_the_nearest_straight_pixel(h, w, seed):
         tied = np.flatnonzero(d2 == d2.min())
         best = min(tied, key=lambda i: order.get((int(np.sign(ny[i] - y)), int(np.sign(nx[i] - x))), 9))
         assert got[y, x] == depth[ny[best], nx[best]]
+    np.testing.assert_array_equal(got[~lost], depth[~lost])
+
+
+@settings(max_examples=60, deadline=None)
+@given(h=st.integers(1, 12), w=st.integers(1, 12), seed=st.integers(0, 2**32 - 1))
+def test_lost_pixels_blend_the_nearest_straight_pixels(h, w, seed):
+    """With the rules "candidates" and "extend", lost pixels take 1/d weights on 1/z of the nearest pixels that
+    are not lost up, left, down and right: the fast searches against the reference's walks."""
+    from pcdof.fill import _blend_not_lost
+    from pcdof.reference.fill import blend_not_lost
+
+    rng = np.random.default_rng(seed)
+    rows, cols = rng.random(h) < 0.5, rng.random(w) < 0.5
+    lost = rows[:, None] & cols[None, :]
+    if lost.all():
+        rows[rng.integers(h)] = False
+        lost = rows[:, None] & cols[None, :]
+    depth = rng.uniform(0.5, 5.0, (h, w)).astype(np.float32)
+    got = _blend_not_lost(depth, lost)
+    for y, x in zip(*np.nonzero(lost)):
+        assert got[y, x] == pytest.approx(blend_not_lost(depth, lost, y, x), rel=1e-6)
     np.testing.assert_array_equal(got[~lost], depth[~lost])

@@ -29,7 +29,7 @@ from pcdof.fill import BORDER, GAP, LOST, SURFACE, _color_sim  # the similarity 
 
 
 @njit
-def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, z, order):
+def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, z, order, bias0):
     for j in range(m):  # insertion sort, far to near
         zq = 1.0 / iv[j]
         i = j
@@ -43,7 +43,7 @@ def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, 
     while end0 < m and z[end0 - 1] - z[end0] <= rules.edge_ratio * z[end0 - 1]:
         end0 += 1
     kind = GAP if rules.use_color and fill._gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
-    bias = rules.bias * rules.bias if kind == GAP else rules.bias
+    bias = bias0 * bias0 if kind == GAP else bias0
     c0 = float(color[py, px, 0]) if rules.use_color else 0.0
     c1 = float(color[py, px, 1]) if rules.use_color else 0.0
     c2 = float(color[py, px, 2]) if rules.use_color else 0.0
@@ -97,9 +97,14 @@ def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
         py = holes.y[h]
         px = holes.x[h]
         r_near[h] = 0.0
-        inv = fill._border_inv(holes, bnd, h, rules)
+        inv, r_border = fill._border_inv(holes, bnd, h, rules)
+        outside = inv >= 0.0
+        if outside and rules.border == 0:  # "candidates": from the candidates, with the border's bias
+            inv = -1.0
         if inv >= 0.0:
             kind[h] = BORDER if inv > 0.0 else LOST
+            if rules.border_median:
+                r_near[h] = r_border
         else:
             m = fill._candidates(holes, bnd, h, rules, iv, r, kq, qs, slot)
             if m == 0:
@@ -118,7 +123,9 @@ def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
                 kind[h] = SURFACE
             else:
                 inv, kind[h] = _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot,
-                                                     z, order)
+                                                     z, order, rules.border_bias if outside else rules.bias)
+            if outside:
+                kind[h] = BORDER
         if kind[h] != LOST:
             out[py, px] = np.float32(min(max(1.0 / inv, rules.zmin), rules.zmax))
 
@@ -184,13 +191,13 @@ def _frame(rng, h, w, levels, hole_frac, grey, colours=None, noise=40):
     return depth, color
 
 
-def _kernel_inputs(depth, color, *, edge_ratio, sigma_color, bias, use_color, sixteen_bit):
+def _kernel_inputs(depth, color, *, edge_ratio, sigma_color, bias, use_color, sixteen_bit, border=fill.DEFAULT_BORDER):
     depth, color, _, _, _ = fill._prepare(depth, color, need_color=True)
     guide, unit = fill._color_for_kernel(color.astype(np.uint16) * 257 if sixteen_bit else color)
     depth, guide = fill.read_only(depth), fill.read_only(guide)
     code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = fill._index(depth)
     rules = fill._rules(depth.shape, use_color=use_color, unit=unit, edge_ratio=edge_ratio, sigma_color=sigma_color,
-                        background_bias=bias, zmin=zmin, zmax=zmax)
+                        background_bias=bias, zmin=zmin, zmax=zmax, border=border)
     holes = fill._Holes(hole_y, hole_x, fill._sweep(code, hole_x, row_start, fill._DIRS, fill._HALF))
     bnd = fill._Boundary(b_y, b_x, np.empty((b_y.size, 3)))
     fill._fit_boundary(depth, b_y, b_x, fill._FIT_RADIUS_STEPS * rules.step, rules.step, edge_ratio, bnd.plane)
@@ -214,14 +221,15 @@ def _run_combine(fn, depth, guide, holes, bnd, rules):
        hole_frac=st.floats(0.0, 0.7), edge_ratio=st.sampled_from([0.01, 0.04, 0.2]),
        sigma_color=st.sampled_from([0.01, 0.04, 0.3, 3.0]), bias=st.sampled_from([1.0, 1.5, 6.0, 40.0]),
        use_color=st.booleans(), grey=st.booleans(), colours=st.sampled_from([None, 1, 2]),
-       noise=st.sampled_from([0, 3, 40]), sixteen_bit=st.booleans(), parallel=st.booleans())
+       noise=st.sampled_from([0, 3, 40]), sixteen_bit=st.booleans(), parallel=st.booleans(),
+       border=st.sampled_from(fill.BORDER_RULES))
 def test_combine_matches_the_plain_vote(seed, h, w, levels, hole_frac, edge_ratio, sigma_color, bias, use_color, grey,
-                                        colours, noise, sixteen_bit, parallel):
+                                        colours, noise, sixteen_bit, parallel, border):
     depth, color = _frame(np.random.default_rng(seed), h, w, levels, hole_frac, grey, colours, noise)
     if (depth > 0).all() and depth.size > 1:
         depth[h // 2, w // 2] = 0
     args = _kernel_inputs(depth, color, edge_ratio=edge_ratio, sigma_color=sigma_color, bias=bias,
-                          use_color=use_color, sixteen_bit=sixteen_bit)
+                          use_color=use_color, sixteen_bit=sixteen_bit, border=border)
     with fill._threads(numba.get_num_threads() if parallel else 1):
         fast = _run_combine(fill._combine, *args)
     plain = _run_combine(_plain_combine, *args)

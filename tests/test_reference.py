@@ -260,7 +260,8 @@ def _border_band(side):
 
 def _corner(rng, h=24, w=30):
     """Known depth only in a diamond in the middle: the four corners have no known pixel on their row or
-    column (the nearest-filled fallback), and its tied choices (a row's pixel or a column's) differ in depth."""
+    column (with border="hold", the nearest-filled fallback, whose tied choices, a row's pixel or a column's,
+    differ in depth; by default the diagonal candidates reach them)."""
     depth, color = _slanted_wall(h, w, rng)
     yy, xx = np.mgrid[0:h, 0:w]
     depth[np.abs(yy - 12) + np.abs(xx - 15) > 6] = 0.0
@@ -327,7 +328,7 @@ FILL_CASES = {
     "one-row": (_one_row, {fast_fill.SURFACE, fast_fill.BORDER}),
     **{f"border-{side}": (_border_band(side), {fast_fill.BORDER, fast_fill.SURFACE})
        for side in ("top", "bottom", "left", "right")},
-    "corner": (_corner, {fast_fill.BORDER, fast_fill.LOST}),
+    "corner": (_corner, {fast_fill.BORDER}),  # lost only with border="hold" (the diagonals reach the corners)
     "narrow-gap": (_narrow_gap, {fast_fill.GAP}),
     "speckle": (_speckle, {fast_fill.SURFACE}),
 }
@@ -358,10 +359,27 @@ def test_reference_fill_rules_decide_the_adversarial_frames(monkeypatch):
     out = ref_fill.fill_directional(depth, color)
     assert out[12, 14] == pytest.approx(3.0) and np.allclose(out[:, 12:17], 3.0)
     depth, _ = _corner(np.random.default_rng(5))
-    out = ref_fill.fill_directional(depth, None, use_color=False)
+    out = ref_fill.fill_directional(depth, None, use_color=False, border="hold")
     # corner pixel (5, 8): down, (6, 8), held from row 6's known pixel (6, 15), and right, (5, 9), held from
     # column 9's known pixel (12, 9), are the nearest filled pixels, both 1 away: down comes before right
     assert out[5, 8] == out[6, 8] != out[5, 9]
+    # the border rules differ where a band is cut off a slanted wall: holding, extending, and the candidates
+    depth, color = _border_band("left")(np.random.default_rng(5))
+    outs = [ref_fill.fill_directional(depth, color, border=b) for b in fast_fill.BORDER_RULES]
+    assert not np.allclose(outs[0][:, :5], outs[1][:, :5]) and not np.allclose(outs[1][:, :5], outs[2][:, :5])
+
+
+@pytest.mark.parametrize("border", list(fast_fill.BORDER_RULES))
+@pytest.mark.parametrize("use_color", [True, False], ids=["joint-bilateral", "nearest-background"])
+@pytest.mark.parametrize("case", ["lone-known-pixel", "one-row", "border-top", "border-right", "corner"])
+def test_fill_border_rules_match_reference(case, use_color, border):
+    """Every rule outside the depth camera's view, fast path against the reference."""
+    depth, color = FILL_CASES[case][0](np.random.default_rng(5))
+    guide = color if use_color else None
+    fast = fast_fill._fill_directional(depth, guide, use_color=use_color, edge_ratio=fast_fill.DEFAULT_EDGE_RATIO,
+                                       sigma_color=fast_fill.DEFAULT_SIGMA_COLOR,
+                                       background_bias=fast_fill.DEFAULT_BACKGROUND_BIAS, border=border)
+    _assert_fill_matches(fast, ref_fill.fill_directional(depth, guide, use_color=use_color, border=border))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -33,11 +33,19 @@ The default method, ``"joint-bilateral"``, handles both with one rule per hole p
 
 Three rules come before and after these steps:
 
-* **Outside the view.** A hole is outside the depth camera's field of view when, on its row or
-  its column, one side has no known pixel up to the frame border and neither line has known
-  pixels on both sides. It is not a disocclusion: it takes the plane-fitted depth of the nearest
-  known pixel on the other side of that line (the surface just inside the view), held constant.
-  Where neither its row nor its column has a known pixel (a corner), the nearest filled pixel.
+* **Outside the view.** A hole is outside the depth camera's field of view when neither its row
+  nor its column has known pixels on both sides (a colour camera wider than the depth camera leaves
+  such strips at the frame border). Nothing is measured there, and it is not a disocclusion: by
+  default (``border="candidates"``) it is filled from its 16 candidates as any hole (steps 1-5), so
+  the surfaces that reach the border continue along their planes, but a nearer surface needs only
+  4 times the farthest one's colour support (not ``background_bias``, 6): a near object cut by the
+  border stays near where its colour continues, and the wall is not pulled forward where it does
+  not. A corner that no line reaches blends the nearest filled pixels up, left, down and right
+  (1/d weights on 1/z). ``border="extend"`` continues the plane of the nearest inside pixel along
+  the row or column (for at most 64 px at 640 across, then held); ``border="hold"`` holds its depth
+  (the rule of earlier releases: constant strips, and triangles in the corners). The choice was
+  made on the benchmark of real rigs (:mod:`pcdof.bench.fill_rigs`, tuning seeds; docs/fill.md):
+  mean error at outside-view holes 179 mm (candidates), 211 (extend), 306 (hold).
 * **Narrow gaps.** When at least 4 of the 8 opposite pairs of candidates are both on surfaces
   nearer than the farthest one and at most 48 pixels apart (at 640 across), the hole lies in a
   narrow gap between foreground parts: a nearer surface needs ``background_bias ** 2`` times the
@@ -82,6 +90,20 @@ DEFAULT_SIGMA_COLOR = 0.04
 DEFAULT_BACKGROUND_BIAS = 6.0
 #: Default radius (pixels) of cv2.inpaint's neighbourhood for ``method="telea"``.
 DEFAULT_TELEA_RADIUS_PX = 5.0
+#: Rules for holes outside the depth camera's view (module docstring): "candidates" (the default) fills them
+#: from the 16 directional candidates as other holes, without the preference for the farthest surface;
+#: "extend" continues the plane of the surface that reaches the border along the row or column; "hold" holds
+#: its depth constant (the rule of the releases before the benchmark of real rigs, pcdof.bench.fill_rigs).
+BORDER_RULES = ("candidates", "extend", "hold")
+DEFAULT_BORDER = "candidates"
+#: What each border rule assumes, one line (the fill stage's trace and docs/fill.md say it).
+BORDER_ASSUMPTIONS = {
+    "candidates": "outside the depth view the surfaces at the border continue along their planes and colour "
+                  "chooses among them without preferring the farthest (no disocclusion lies there)",
+    "extend": "outside the depth view the surface at the border continues along its plane on the row or column "
+              "(64 px at 640 across), then holds",
+    "hold": "outside the depth view the surface at the border holds its depth along the row or column",
+}
 
 # The spatial constants below hold for images _REFERENCE_SIZE_PX across (longest side) and
 # scale with the image (the extrapolation cap only grows): they were tuned on the synthetic
@@ -92,6 +114,16 @@ _REFERENCE_SIZE_PX = 640.0
 _FIT_RADIUS_STEPS = 5
 # A candidate is extrapolated along its plane by at most this distance (pixels).
 _EXTRAPOLATE_PX = 64.0
+# Outside the view ("extend"), the surface at the border continues along its plane for at most this distance
+# (pixels), then holds; chosen on the tuning seeds of pcdof.bench.fill_rigs.
+_BORDER_EXTEND_PX = 64.0
+# ... and its holes farther than _MEDIAN_MIN_R_STEPS from the inside pixel get the median of step 5.
+_BORDER_MEDIAN = True
+# Outside the view ("candidates"), the factor by which a nearer surface's colour support must exceed the
+# farthest one's (inside, background_bias): no disocclusion lies there to prefer the background for. Chosen
+# on the tuning seeds of pcdof.bench.fill_rigs: the lowest mean error with no scene type more than 2 mm
+# worse than release 6787386 at outside-view holes (1: 179 mm, 2: 177.5, 4: 178.6, 6: 180.4).
+_BORDER_BIAS = 4.0
 # Surface support weight 1 / (r + _SUPPORT_PX): near candidates count more, far ones still count.
 _SUPPORT_PX = 20.0
 # Colour samples per candidate, walked one step apart from it into the known region along its ray.
@@ -434,7 +466,9 @@ def _color_sim(color, depth, c0, c1, c2, qy, qx, uy, ux, n_samples, inv_two_sigm
 _Holes = namedtuple("_Holes", "y x cand")
 _Boundary = namedtuple("_Boundary", "y x plane")
 _Rules = namedtuple("_Rules", "use_color inv_two_sigma2 edge_ratio bias extrapolate_px support_px gap_px "
-                              "n_samples step inv_lo inv_hi zmin zmax")
+                              "n_samples step inv_lo inv_hi zmin zmax border border_px border_median border_bias")
+# The border rules' codes in _Rules.border (the order of BORDER_RULES).
+_CANDIDATES, _EXTEND, _HOLD = 0, 1, 2
 
 # Kinds of hole, as the combine kernel classifies them: inside or between surfaces, outside the
 # depth camera's view, in a narrow gap, and with nothing to take a depth from (filled afterwards).
@@ -454,14 +488,14 @@ def _extrapolate(bnd, q, px, py, cap_px, rules):
 
 @njit(cache=True, inline="always")
 def _border_inv(holes, bnd, h, rules):
-    """1/z of hole *h* if it lies outside the depth camera's view, else -1 (0: outside, with
-    nothing on its row or column to extend).
+    """(1/z, distance) of hole *h* if it lies outside the depth camera's view, else (-1, 0); (0, 0): outside,
+    with nothing on its row or column to take a depth from.
 
     Outside: on its row or its column, one side has no known pixel up to the frame border (the
     other side's nearest known pixel is the surface just inside the view), and neither line has
     known pixels on both sides (that hole is enclosed: a disocclusion or a sensor hole). The hole
-    takes the depth of the nearest such inside pixel, denoised by its plane fit, held constant:
-    that fit has known pixels on one side only, and its slope, extrapolated, amplifies noise.
+    takes the plane of the nearest such inside pixel: extrapolated to it for at most
+    ``rules.border_px`` and held beyond (``"extend"``), or its depth held from the start (``"hold"``).
     """
     best_r = np.inf
     best = 0.0
@@ -469,14 +503,17 @@ def _border_inv(holes, bnd, h, rules):
         qa = holes.cand[2 * a, h]
         qb = holes.cand[2 * a + 4, h]
         if qa >= 0 and qb >= 0:
-            return -1.0
+            return -1.0, 0.0
         q = max(qa, qb)
         if q >= 0:
             rq = abs(holes.x[h] - bnd.x[q]) + abs(holes.y[h] - bnd.y[q])  # along an axis: the distance
             if rq < best_r:
                 best_r = rq
-                best = min(max(bnd.plane[q, 0], rules.inv_lo), rules.inv_hi)
-    return best
+                if rules.border == _EXTEND:
+                    best = _extrapolate(bnd, q, holes.x[h], holes.y[h], rules.border_px, rules)[0]
+                else:
+                    best = min(max(bnd.plane[q, 0], rules.inv_lo), rules.inv_hi)
+    return best, (best_r if best > 0.0 else 0.0)
 
 
 @njit(cache=True, inline="always")
@@ -591,8 +628,9 @@ def _sort_far_to_near(iv, m, zu, z, order):
 
 
 @njit(cache=True, inline="always")
-def _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, zu, z, order, ends, bounds):
-    """(1/z, kind) of a hole whose candidates span several surfaces (steps 2-4)."""
+def _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, zu, z, order, ends, bounds,
+                    bias0):
+    """(1/z, kind) of a hole whose candidates span several surfaces (steps 2-4); *bias0*: the background bias."""
     _sort_far_to_near(iv, m, zu, z, order)
     end0 = _surface_end(z, 0, m, rules.edge_ratio)
     # in a narrow gap the foreground around it needs bias**2 times the support (not bias times) of
@@ -600,7 +638,7 @@ def _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, sl
     kind = GAP if rules.use_color and _gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
     if not rules.use_color:
         return _interpolate(iv, r, order, 0, end0), kind  # the farthest surface
-    bias = rules.bias * rules.bias if kind == GAP else rules.bias
+    bias = bias0 * bias0 if kind == GAP else bias0
     # the nearer surfaces and the most each can score (every colour similarity 1), divided by the bias
     n_near = 0
     near_max = -np.inf
@@ -663,9 +701,15 @@ def _combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
             py = holes.y[h]
             px = holes.x[h]
             r_near[h] = 0.0
-            inv = _border_inv(holes, bnd, h, rules)
+            inv = -1.0
+            inv, r_border = _border_inv(holes, bnd, h, rules)
+            outside = inv >= 0.0
+            if outside and rules.border == _CANDIDATES:
+                inv = -1.0  # filled from its candidates below, with the border's bias
             if inv >= 0.0:
                 kind[h] = BORDER if inv > 0.0 else LOST
+                if rules.border_median:
+                    r_near[h] = r_border  # deep in a strip, the median cleans what one row's pixel puts there
             else:
                 m = _candidates(holes, bnd, h, rules, iv, r, kq, qs, slot)
                 if m == 0:
@@ -691,7 +735,10 @@ def _combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
                     kind[h] = SURFACE
                 else:
                     inv, kind[h] = _choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot,
-                                                   zu, z, order, ends, bounds)
+                                                   zu, z, order, ends, bounds,
+                                                   rules.border_bias if outside else rules.bias)
+                if outside:
+                    kind[h] = BORDER
             if kind[h] != LOST:
                 # zmin, zmax are float32 values: clamping before the cast keeps the result inside them
                 out[py, px] = np.float32(min(max(1.0 / inv, rules.zmin), rules.zmax))
@@ -886,15 +933,49 @@ def _nearest_not_lost(depth: np.ndarray, lost: np.ndarray) -> np.ndarray:
     return out
 
 
+def _blend_not_lost(depth: np.ndarray, lost: np.ndarray) -> np.ndarray:
+    """At each lost pixel, inverse-distance weights 1/d on 1/z of the nearest pixels that are not lost straight
+    up, left, down and right of it (those that exist); *depth* elsewhere.
+
+    A corner outside the depth camera's view meets a strip filled along rows and one filled along columns: a
+    choice of the nearer one draws a diagonal edge (a triangle), the blend joins them without one.
+    """
+    h, w = lost.shape
+    ok = ~lost
+    rows = np.arange(h)[:, None]
+    cols = np.arange(w)[None, :]
+    up = np.maximum.accumulate(np.where(ok, rows, -1), axis=0)
+    down = np.minimum.accumulate(np.where(ok, rows, h)[::-1], axis=0)[::-1]
+    left = np.maximum.accumulate(np.where(ok, cols, -1), axis=1)
+    right = np.minimum.accumulate(np.where(ok, cols, w)[:, ::-1], axis=1)[:, ::-1]
+    ly, lx = np.nonzero(lost)
+    sw = np.zeros(ly.size)
+    swi = np.zeros(ly.size)
+    for found, ys, xs, dist in ((up[ly, lx] >= 0, up[ly, lx], lx, ly - up[ly, lx]),
+                                (left[ly, lx] >= 0, ly, left[ly, lx], lx - left[ly, lx]),
+                                (down[ly, lx] < h, down[ly, lx], lx, down[ly, lx] - ly),
+                                (right[ly, lx] < w, ly, right[ly, lx], right[ly, lx] - lx)):
+        wgt = np.where(found, 1.0 / np.maximum(dist, 1), 0.0)
+        z = depth[np.clip(ys, 0, h - 1), np.clip(xs, 0, w - 1)].astype(np.float64)
+        sw += wgt
+        swi += wgt / np.where(found, z, 1.0)
+    out = depth.copy()
+    out[ly, lx] = (sw / swi).astype(np.float32)
+    return out
+
+
 class FillPlan(NamedTuple):
     """How :func:`fill_depth` runs on one input; chosen by :func:`plan_fill`, shown in the trace."""
 
     holes: int  #: unknown pixels
     threads: int  #: numba threads of the kernels (1: serial)
     reason: str  #: one line, why this many threads
+    border: str = DEFAULT_BORDER  #: the rule outside the depth camera's view (:data:`BORDER_RULES`)
 
     def describe(self) -> str:
-        return f"{self.threads} thread{'s' if self.threads != 1 else ''}: {self.reason}"
+        """Threads and why, and what the rule outside the depth camera's view assumes (one line)."""
+        return (f"{self.threads} thread{'s' if self.threads != 1 else ''}: {self.reason}; "
+                f"border {self.border}: {BORDER_ASSUMPTIONS[self.border]}")
 
 
 def plan_fill(depth_m, *, parallel: bool | None = None) -> FillPlan:
@@ -940,7 +1021,8 @@ def _threads(n: int):
         numba.set_num_threads(before)
 
 
-def _rules(shape, *, use_color, unit, edge_ratio, sigma_color, background_bias, zmin, zmax) -> _Rules:
+def _rules(shape, *, use_color, unit, edge_ratio, sigma_color, background_bias, zmin, zmax,
+           border=DEFAULT_BORDER) -> _Rules:
     """The kernel's scalars: the spatial constants scaled to an image of *shape*, colour in kernel units."""
     scale = max(shape) / _REFERENCE_SIZE_PX
     return _Rules(
@@ -948,17 +1030,19 @@ def _rules(shape, *, use_color, unit, edge_ratio, sigma_color, background_bias, 
         edge_ratio=float(edge_ratio), bias=float(background_bias), extrapolate_px=_EXTRAPOLATE_PX * max(scale, 1.0),
         support_px=_SUPPORT_PX * scale, gap_px=_GAP_PX * scale,
         n_samples=_COLOR_SAMPLES, step=max(1, int(round(scale))), inv_lo=1.0 / zmax, inv_hi=1.0 / zmin,
-        zmin=zmin, zmax=zmax,
+        zmin=zmin, zmax=zmax, border=BORDER_RULES.index(border), border_px=_BORDER_EXTEND_PX * max(scale, 1.0),
+        border_median=bool(_BORDER_MEDIAN and border == "extend"), border_bias=float(_BORDER_BIAS),
     )
 
 
-def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, background_bias, out=None):
+def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, background_bias, border=DEFAULT_BORDER,
+                  out=None):
     """Filled depth and each hole's kind (``SURFACE``, ``BORDER``, ``GAP``, ``LOST``), by hole index; *out*: a
     copy of *depth* to fill (made here when None)."""
     depth, guide = read_only(depth), read_only(guide)  # one kernel type whatever the caller's flags
     code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = _index(depth)
     rules = _rules(depth.shape, use_color=use_color, unit=unit, edge_ratio=edge_ratio, sigma_color=sigma_color,
-                   background_bias=background_bias, zmin=zmin, zmax=zmax)
+                   background_bias=background_bias, zmin=zmin, zmax=zmax, border=border)
     holes = _Holes(hole_y, hole_x, _sweep(code, hole_x, row_start, _DIRS, _HALF))
     bnd = _Boundary(b_y, b_x, np.empty((b_y.size, 3), np.float64))
     _fit_boundary(depth, b_y, b_x, _FIT_RADIUS_STEPS * rules.step, rules.step, edge_ratio, bnd.plane)
@@ -972,16 +1056,24 @@ def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, bac
         # any of the 16 lines (a small island off every line): the nearest filled or known pixel
         lost_mask = np.zeros(depth.shape, bool)
         lost_mask[hole_y[lost], hole_x[lost]] = True
-        out = _nearest_not_lost(out, lost_mask)
+        out = _nearest_not_lost(out, lost_mask) if border == "hold" else _blend_not_lost(out, lost_mask)
     _median_far(out, hole_y, hole_x, r_near, _MEDIAN_MIN_R_STEPS * rules.step, rules.step, edge_ratio,
                 _MEDIAN_ITERATIONS)
     _despeckle(out, hole_y, hole_x, edge_ratio)
     return out, kind
 
 
+def check_border(border, name: str = "border") -> str:
+    """*border* if it is one of :data:`BORDER_RULES`, else an InputError naming *name*."""
+    if not isinstance(border, str) or border not in BORDER_RULES:
+        raise InputError(f"{name} must be one of {', '.join(BORDER_RULES)}; got {border!r}")
+    return border
+
+
 def _fill_directional(depth_m, color, *, use_color, edge_ratio, sigma_color, background_bias, parallel=None,
-                      with_kinds=False):
+                      with_kinds=False, border=DEFAULT_BORDER):
     """Validated options and inputs, then the planned kernels (see the module docstring)."""
+    border = check_border(border)
     edge_ratio = _number("edge_ratio", edge_ratio, minimum=0.0)
     sigma_color = _number("sigma_color", sigma_color, minimum=0.0)
     background_bias = _number("background_bias", background_bias, minimum=1.0, inclusive=True)
@@ -992,7 +1084,7 @@ def _fill_directional(depth_m, color, *, use_color, edge_ratio, sigma_color, bac
     guide, unit = _color_for_kernel(color) if use_color else (np.zeros((1, 1, 3), np.uint8), 1.0)
     with _threads(threads):
         out, kind = _fill_kernels(depth, guide, unit, use_color=use_color, edge_ratio=edge_ratio,
-                                  sigma_color=sigma_color, background_bias=background_bias, out=out)
+                                  sigma_color=sigma_color, background_bias=background_bias, border=border, out=out)
     return (out, kind) if with_kinds else out
 
 
@@ -1002,7 +1094,7 @@ def _fill_directional(depth_m, color, *, use_color, edge_ratio, sigma_color, bac
 
 def fill_joint_bilateral(depth_m, color, *, edge_ratio: float = DEFAULT_EDGE_RATIO,
                          sigma_color: float = DEFAULT_SIGMA_COLOR, background_bias: float = DEFAULT_BACKGROUND_BIAS,
-                         parallel: bool | None = None) -> np.ndarray:
+                         parallel: bool | None = None, border: str = DEFAULT_BORDER) -> np.ndarray:
     """Colour-guided, background-preferring fill (the default; see the module docstring).
 
     Parameters
@@ -1014,17 +1106,18 @@ def fill_joint_bilateral(depth_m, color, *, edge_ratio: float = DEFAULT_EDGE_RAT
     background_bias : float >= 1, how many times more colour support a nearer surface needs than
         the farthest one to be chosen
     parallel : None, True or False, see :func:`plan_fill`
+    border : str, the rule outside the depth camera's view, one of :data:`BORDER_RULES`
 
     Returns
     -------
     (H, W) float32 ndarray, metres, no zeros; known pixels unchanged
     """
     return _fill_directional(depth_m, color, use_color=True, edge_ratio=edge_ratio, sigma_color=sigma_color,
-                             background_bias=background_bias, parallel=parallel)
+                             background_bias=background_bias, parallel=parallel, border=border)
 
 
 def fill_nearest_background(depth_m, color=None, *, edge_ratio: float = DEFAULT_EDGE_RATIO,
-                            parallel: bool | None = None) -> np.ndarray:
+                            parallel: bool | None = None, border: str = DEFAULT_BORDER) -> np.ndarray:
     """Fill from the farthest surface among the 16 directional candidates, ignoring colour.
 
     Parameters
@@ -1033,6 +1126,7 @@ def fill_nearest_background(depth_m, color=None, *, edge_ratio: float = DEFAULT_
     color : (H, W, 3) or (H, W) ndarray or None; validated when given, not used
     edge_ratio : float > 0, relative depth gap that separates two surfaces
     parallel : None, True or False, see :func:`plan_fill`
+    border : str, the rule outside the depth camera's view, one of :data:`BORDER_RULES`
 
     Returns
     -------
@@ -1040,7 +1134,7 @@ def fill_nearest_background(depth_m, color=None, *, edge_ratio: float = DEFAULT_
     """
     return _fill_directional(depth_m, color, use_color=False, edge_ratio=edge_ratio,
                              sigma_color=DEFAULT_SIGMA_COLOR, background_bias=DEFAULT_BACKGROUND_BIAS,
-                             parallel=parallel)
+                             parallel=parallel, border=border)
 
 
 def _inpaint_telea(codes: np.ndarray, holes: np.ndarray, radius_px: float) -> np.ndarray:
@@ -1122,7 +1216,7 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", parallel: boo
     parallel : None (chosen from the number of holes by :func:`plan_fill`), True or False: run the
         kernels on all numba threads or on one; the result is the same
     **options : keyword options of the chosen method (``edge_ratio``, ``sigma_color``,
-        ``background_bias`` for ``"joint-bilateral"``; ``edge_ratio`` for
+        ``background_bias``, ``border`` for ``"joint-bilateral"``; ``edge_ratio``, ``border`` for
         ``"nearest-background"``; ``radius_px`` for ``"telea"``)
 
     Returns

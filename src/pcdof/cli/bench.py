@@ -14,12 +14,12 @@ from ..versions import library_versions
 from ._common import check_output_file, check_output_folder, handle_errors, make_output_folder
 
 #: every part; "wide-tune" (choosing the highlight default on the tuning seeds), "tiers" (the quality tiers'
-#: thresholds from the error-vs-blur curve, on the tuning seeds) and "hidden" (what the hidden background
-#: costs) run only when named
-PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune", "tiers", "hidden")
+#: thresholds from the error-vs-blur curve, on the tuning seeds), "hidden" (what the hidden background
+#: costs) and "fill-rigs" (the fill on rigs of real devices, inside and outside the depth view) run only when named
+PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune", "tiers", "hidden", "fill-rigs")
 DEFAULT_PARTS = ("dof", "wide", "speed", "registration", "fill")
 #: the order the parts run in (the report's sections follow it)
-RUN_ORDER = ("dof", "wide", "wide-tune", "tiers", "hidden", "speed", "registration", "fill")
+RUN_ORDER = ("dof", "wide", "wide-tune", "tiers", "hidden", "speed", "registration", "fill", "fill-rigs")
 #: the stages each side of the speed table sums
 PCDOF_STAGES, PAPER_STAGES = ("register", "fill", "coc", "highlights", "render"), ("register", "fill", "render")
 
@@ -124,7 +124,8 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes, see
              "tiers": lambda: _tiers_part(report, md, output, run["seeds"], run["wide_kw"]),
              "hidden": lambda: _hidden_part(report, md, output, run["seeds"], run["wide_kw"]),
              "speed": lambda: _speed_part(report, md, run), "registration": lambda: _registration_part(report, md, run),
-             "fill": lambda: _fill_part(report, md, run)}
+             "fill": lambda: _fill_part(report, md, run),
+             "fill-rigs": lambda: _fill_rigs_part(report, md, seeds, run["quick"])}
     for part in (p for p in RUN_ORDER if p in only):
         steps[part]()
         _save(output, report, md)  # after every part, so a long run that stops keeps what it measured
@@ -254,6 +255,25 @@ def _fill_part(report, md, run) -> None:
 
     report["fill"] = rows = fill.run_fill_bench(quick=run["quick"])
     _table_section(md, "## Hole filling against cv2.inpaint\n", fill.markdown_table(rows))
+
+
+def _fill_rigs_part(report, md, seeds, quick) -> None:
+    from ..bench import fill_rigs
+
+    # --seeds counts scenes per type elsewhere; here each of 28 consecutive seeds is one (scene, rig) pairing
+    seed_list = fill_rigs.REPORT_SEEDS[:4] if quick else fill_rigs.REPORT_SEEDS[:min(28, 14 * seeds)]
+    width = 96 if quick else 256
+    rows = fill_rigs.run_fill_rigs(seeds=seed_list, color_width=width, render=not quick)
+    report["fill_rigs"] = rows
+    note = (f"Report seeds {seed_list[0]}-{seed_list[-1]} (the border rule was chosen on seeds "
+            f"{fill_rigs.TUNING_SEEDS[0]}-{fill_rigs.TUNING_SEEDS[-1]}), colour {width} px wide; errors at the holes "
+            f"of the registered sensor depth, mm; too near / far: off by more than {fill_rigs.OFF_M * 100:g} cm; "
+            "render dB: pcdof's render from the filled depth against its render from the exact depth.")
+    tables = [fill_rigs.markdown_table(rows), "", "### Per scene\n", fill_rigs.markdown_table(rows, "scene"), "",
+              "### Per rig\n", fill_rigs.markdown_table(rows, "rig"), ""]
+    md += ["## Hole filling on rigs of real devices\n", note, "", *tables]
+    click.echo(note)
+    click.echo("\n".join(tables))
 
 
 def _table_section(md: list, title: str, table: str) -> None:

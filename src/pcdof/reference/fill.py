@@ -12,10 +12,14 @@ step = max(1, round(scale))):
    with fewer than 6 of them or a near-singular fit, the flat mean. The candidate's 1/z at the hole is
    the plane extrapolated by at most 64 px (x max(1, scale)), clamped to the known 1/z range.
 3. Outside the view (border): the candidates along the row (directions (1, 0), (-1, 0)) and the
-   column ((0, 1), (0, -1)). If neither line has a candidate on both sides but one has a candidate
-   on one side, the hole is outside the view: it takes the plane's own 1/z (a, not extrapolated),
-   clamped to the known 1/z range, of the nearer of those one-sided candidates (ties: the row's),
-   and skips rules 4, 5 and 7. If neither line has any candidate (a corner) it is *lost* (rule 6).
+   column ((0, 1), (0, -1)). If neither line has a candidate on both sides, the hole is outside the
+   view. ``"candidates"`` (the default): it goes through rules 4 and 5 as any hole, with nearer
+   surfaces' scores divided by 4 (``BORDER_BIAS``) instead of ``background_bias``; with no candidate on
+   any line it is *lost* (rule 6). ``"extend"`` and ``"hold"``: if one of the lines has a candidate on one
+   side, it takes the plane of the nearer of those one-sided candidates (ties: the row's), clamped to
+   the known 1/z range, and skips rules 4 and 5: ``"extend"`` the plane extrapolated to the hole as in
+   rule 2 but for at most 64 px x max(1, scale), ``"hold"`` the plane's own 1/z (a); if neither line
+   has any candidate (a corner) it is *lost* (rule 6).
 4. If the candidate depths span at most ``edge_ratio`` of the farthest: inverse-distance weights 1/r
    on 1/z over all of them. Otherwise sort them far to near (stable), split where neighbours differ
    by more than ``edge_ratio`` (relative to the farther) and score each surface by its colour support
@@ -29,14 +33,17 @@ step = max(1, round(scale))):
    both lie strictly nearer than the farthest surface (depth below its nearest member). With at least
    4 such pairs, nearer surfaces' scores are divided by ``background_bias ** 2`` instead.
 6. Clamp to [min known, max known]. A lost hole (no known pixel on its row nor on its column; a hole
-   with no candidate on any of the 16 lines is one of these) takes the value, after rules 3-5, of the
-   nearest pixel that is not lost. The pixels that are not lost are whole rows and whole columns, so
-   the nearest lies straight up, left, down or right; among equally near ones the first in that
-   order (:mod:`pcdof.fill` searches the four directions itself, so the rule does not hang on a
-   library's scan order).
+   with no candidate on any of the 16 lines is one of these) is filled, after rules 3-5, from the
+   nearest pixels that are not lost straight up, left, down and right of it (the pixels that are not
+   lost are whole rows and whole columns). ``"candidates"`` and ``"extend"``: inverse-distance weights 1/d
+   on 1/z over those that exist. ``"hold"``: the value of the nearest; among equally near ones the first in
+   the order up, left, down, right (:mod:`pcdof.fill` searches the four directions itself, so the rule
+   does not hang on a library's scan order).
 7. Holes farther than 3 steps from their nearest candidate: twice (Jacobi), the median of their
    5 x 5 neighbourhood (taps one step apart, clamped at the border) when its range exceeds
-   ``edge_ratio`` relative; otherwise unchanged. Border and lost holes are never "far".
+   ``edge_ratio`` relative; otherwise unchanged. A border hole's distance is that to its nearest
+   candidate with ``"candidates"``, to the candidate it took with ``"extend"``, 0 (never far) with
+   ``"hold"``; lost holes are never far.
 8. Speckles, after rule 7, over every hole (border and lost ones too), one Jacobi pass: a hole whose
    depth differs from each of its neighbours inside the image (8, fewer at the frame border) by more
    than ``edge_ratio`` (max > (1 + edge_ratio) min) takes their lower median (the ((n - 1) // 2)-th
@@ -56,6 +63,9 @@ _DIRS = [(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1),
 #: Opposite pairs of directions (as indices into _DIRS) that rule 5 counts.
 _PAIRS = [(0, 4), (1, 5), (2, 6), (3, 7), (8, 12), (9, 13), (10, 14), (11, 15)]
 _GAP_MIN_PAIRS = 4
+#: Rule 3's extrapolation limit (px at 640 across), and the background bias outside the view.
+_BORDER_EXTEND_PX = 64.0
+BORDER_BIAS = 4.0
 #: Rule 6's order among equally near pixels: (dy, dx) signs of up, left, down, right.
 _LOST_TIE_ORDER = [(-1, 0), (0, -1), (1, 0), (0, 1)]
 
@@ -178,25 +188,45 @@ def _choose(cands, color, known, y, x, use_color, edge_ratio, sigma, bias, suppo
     return best_iv
 
 
-def border_inv(known, planes, y, x, inv_lo, inv_hi):
-    """Rule 3: ("inside", None), ("border", 1/z) or ("lost", None) for hole (y, x).
+def border_inv(known, planes, y, x, inv_lo, inv_hi, border="extend", cap_px=_BORDER_EXTEND_PX):
+    """Rule 3: ("inside", None, 0), ("border", 1/z, distance) or ("lost", None, 0) for hole (y, x).
 
-    *planes* maps a known pixel (row, col) to its plane (rule 2).
+    *planes* maps a known pixel (row, col) to its plane (rule 2); *cap_px*: the extrapolation limit (px).
     """
     best = None
     for axis in ((1, 0), (0, 1)):  # the row, then the column
         qa = candidate(known, y, x, axis[0], axis[1])
         qb = candidate(known, y, x, -axis[0], -axis[1])
         if qa is not None and qb is not None:
-            return "inside", None
+            return "inside", None, 0.0
         q = qa if qa is not None else qb
         if q is not None:
             r = abs(q[0] - y) + abs(q[1] - x)
             if best is None or r < best[0]:
                 best = (r, q)
     if best is None:
-        return "lost", None
-    return "border", min(max(planes[best[1]][0], inv_lo), inv_hi)
+        return "lost", None, 0.0
+    r, q = best
+    a, gx, gy = planes[q]
+    if border == "hold":
+        return "border", min(max(a, inv_lo), inv_hi), 0.0
+    f = 1.0 if r <= cap_px else cap_px / r
+    return "border", min(max(a + f * (gx * (x - q[1]) + gy * (y - q[0])), inv_lo), inv_hi), float(r)
+
+
+def blend_not_lost(out, lost, y, x) -> float:
+    """Rule 6 with ``"candidates"`` and ``"extend"``: 1/d weights on 1/z of the nearest pixels that are not lost
+    up, left, down and right."""
+    H, W = out.shape
+    sw = swi = 0.0
+    for dy, dx in _LOST_TIE_ORDER:
+        v, u, d = y + dy, x + dx, 1
+        while 0 <= v < H and 0 <= u < W and lost[v, u]:
+            v, u, d = v + dy, u + dx, d + 1
+        if 0 <= v < H and 0 <= u < W:
+            sw += 1.0 / d
+            swi += 1.0 / (d * float(out[v, u]))
+    return sw / swi
 
 
 def nearest_not_lost(out, lost, y, x) -> float:
@@ -239,9 +269,11 @@ def despeckle(out, holes, edge_ratio) -> None:
 
 def _hole_inv(depth, known, color, planes, y, x, rules):
     """(1/z or None for a lost hole, distance to the nearest candidate, 0 for border and lost) of hole (y, x)."""
-    kind, inv = border_inv(known, planes, y, x, rules["inv_lo"], rules["inv_hi"])
-    if kind != "inside":
-        return inv, 0.0
+    kind, inv, r_border = border_inv(known, planes, y, x, rules["inv_lo"], rules["inv_hi"], rules["border"],
+                                     rules["border_px"])
+    if kind != "inside" and rules["border"] != "candidates":
+        return inv, r_border
+    bias = rules["bias"] if kind == "inside" else BORDER_BIAS
     cands = []
     for k, (dx, dy) in enumerate(_DIRS):
         q = candidate(known, y, x, dx, dy)
@@ -253,22 +285,23 @@ def _hole_inv(depth, known, color, planes, y, x, rules):
         f = 1.0 if r <= rules["extrapolate_px"] else rules["extrapolate_px"] / r
         iv = min(max(a + f * (gx * ddx + gy * ddy), rules["inv_lo"]), rules["inv_hi"])
         cands.append({"iv": iv, "r": r, "k": k, "q": q})
-    # a hole inside (a known pixel on both sides of its row or column) always has candidates
-    inv = _choose(cands, color, known, y, x, rules["use_color"], rules["edge_ratio"], rules["sigma"], rules["bias"],
+    if not cands:  # outside the view, no line reaches it (with "candidates")
+        return None, 0.0
+    inv = _choose(cands, color, known, y, x, rules["use_color"], rules["edge_ratio"], rules["sigma"], bias,
                   rules["support_px"], rules["gap_px"], rules["step"])
     return inv, min(c["r"] for c in cands)
 
 
 def fill_directional(depth_m, color=None, *, use_color: bool = True, edge_ratio: float = DEFAULT_EDGE_RATIO,
                      sigma_color: float = DEFAULT_SIGMA_COLOR,
-                     background_bias: float = DEFAULT_BACKGROUND_BIAS) -> np.ndarray:
+                     background_bias: float = DEFAULT_BACKGROUND_BIAS, border: str = "candidates") -> np.ndarray:
     """Fill every unknown pixel (0, NaN, inf, negative) by the module's rules.
 
     Parameters
     ----------
     depth_m : (H, W) float ndarray, metres, with at least one known pixel
     color : (H, W, 3) float ndarray in [0, 1] (the guide), or None without colour
-    use_color, edge_ratio, sigma_color, background_bias : as in :func:`pcdof.fill.fill_joint_bilateral`
+    use_color, edge_ratio, sigma_color, background_bias, border : as in :func:`pcdof.fill.fill_joint_bilateral`
 
     Returns
     -------
@@ -285,7 +318,8 @@ def fill_directional(depth_m, color=None, *, use_color: bool = True, edge_ratio:
     zmin, zmax = float(depth[known].min()), float(depth[known].max())
     rules = {"use_color": use_color, "edge_ratio": edge_ratio, "sigma": sigma_color, "bias": background_bias,
              "extrapolate_px": 64.0 * max(scale, 1.0), "support_px": 20.0 * scale, "gap_px": 48.0 * scale,
-             "step": step, "inv_lo": 1.0 / zmax, "inv_hi": 1.0 / zmin}
+             "step": step, "inv_lo": 1.0 / zmax, "inv_hi": 1.0 / zmin, "border": border,
+             "border_px": _BORDER_EXTEND_PX * max(scale, 1.0)}
     planes = {(y, x): fit_plane(depth, y, x, 5 * step, step, edge_ratio) for y, x in zip(*np.nonzero(known))}
     out = depth.copy()
     holes = [(int(y), int(x)) for y, x in zip(*np.nonzero(~known))]
@@ -298,7 +332,8 @@ def fill_directional(depth_m, color=None, *, use_color: bool = True, edge_ratio:
             lost[y, x] = True
         else:
             out[y, x] = np.float32(min(max(1.0 / inv, zmin), zmax))
-    lost_values = [(y, x, nearest_not_lost(out, lost, y, x)) for y, x in zip(*np.nonzero(lost))]
+    pick = nearest_not_lost if border == "hold" else blend_not_lost
+    lost_values = [(y, x, pick(out, lost, y, x)) for y, x in zip(*np.nonzero(lost))]
     for y, x, v in lost_values:
         out[y, x] = v
     _median_far(out, holes, r_near, 3.0 * step, step, edge_ratio)
@@ -311,9 +346,10 @@ def fill_joint_bilateral(depth_m, color, **options) -> np.ndarray:
     return fill_directional(depth_m, np.asarray(color, np.float64), use_color=True, **options)
 
 
-def fill_nearest_background(depth_m, color=None, *, edge_ratio: float = DEFAULT_EDGE_RATIO) -> np.ndarray:
+def fill_nearest_background(depth_m, color=None, *, edge_ratio: float = DEFAULT_EDGE_RATIO,
+                            border: str = "candidates") -> np.ndarray:
     """The farthest surface among the directional candidates, no colour (``"nearest-background"``)."""
-    return fill_directional(depth_m, None, use_color=False, edge_ratio=edge_ratio)
+    return fill_directional(depth_m, None, use_color=False, edge_ratio=edge_ratio, border=border)
 
 
 #: Reference fill methods by the name of the fast method they state.

@@ -42,7 +42,8 @@ def parse_size(size, name: str) -> tuple[int, int]:
     return w, h
 
 
-def _rotation(deg_xyz) -> np.ndarray:
+def rotation_xyz(deg_xyz) -> np.ndarray:
+    """Rotation matrix (3, 3) of angles *deg_xyz* (degrees) about x, y and z, applied z, then y, then x."""
     ax, ay, az = (math.radians(v) for v in deg_xyz)
     rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
     ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
@@ -77,6 +78,6 @@ def kinect_rig(color_size=(640, 480), depth_size=DEPTH_SIZE, *, max_range_m: flo
     # a real depth camera's principal point is rarely centred: offset it a little (scaled with size)
     depth = pinhole(ds, DEPTH_HFOV_DEG, principal_offset_px=(2.3 * ds[0] / 512, -1.7 * ds[0] / 512))
     T = np.eye(4)
-    T[:3, :3] = _rotation(DEPTH_ROTATION_DEG)
+    T[:3, :3] = rotation_xyz(DEPTH_ROTATION_DEG)
     T[:3, 3] = DEPTH_POSITION_M
     return Rig(color, depth, T, depth_scale=0.001, max_range_m=max_range_m)

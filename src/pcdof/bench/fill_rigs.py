@@ -111,7 +111,7 @@ def run_fill_rigs(*, seeds=REPORT_SEEDS, color_width: int = 256, methods=None, r
     from tqdm.auto import tqdm
 
     from ..metrics import psnr
-    from ..register import register_depth
+    from ..stages.register import register_depth
     from ..synth.rigs import rig_case
 
     seeds = [int(s) for s in seeds]

@@ -23,7 +23,7 @@ from typing import Callable
 
 from ..errors import ImageReadError, InputError
 from ..io._files import fspath
-from . import azure_kinect, folder, listfile, realsense_bag, tum
+from . import azure_kinect, depth_jpeg, folder, heif_depth, listfile, realsense_bag, tum
 from .base import FrameSource, RecordingSource, SourceFrame, pair_by_time
 from .pair import pair_source
 
@@ -56,6 +56,10 @@ SOURCES: dict[str, SourceKind] = {
                                "Azure Kinect recording (k4arecorder .mkv)", recording=True),
     "realsense-bag": SourceKind(realsense_bag.can_open, realsense_bag.RealSenseBagSource.open, (".bag",),
                                 "Intel RealSense recording (ROS bag v2 written by the RealSense SDK)", recording=True),
+    "heif-depth": SourceKind(heif_depth.can_open, heif_depth.HeifDepthSource.open, (".heic", ".heif"),
+                             "HEIF/HEIC photo with a depth image (iPhone Portrait)", recording=True),
+    "depth-jpeg": SourceKind(depth_jpeg.can_open, depth_jpeg.DepthJpegSource.open, (),
+                             "JPEG with a depth map (Android Dynamic Depth 1.0 or GDepth XMP)", recording=True),
     "tum": SourceKind(tum.can_open, tum.TumSource.open, (),
                       "TUM RGB-D folder (rgb.txt and depth.txt, paired by timestamp)"),
     "folder": SourceKind(folder.can_open, folder.FolderSource.open, (),

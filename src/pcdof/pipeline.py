@@ -11,6 +11,7 @@ finishes with the circle of confusion. The results are those of the stages run o
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import threading
@@ -79,6 +80,26 @@ class RenderResult:
         return "\n".join(lines)
 
 
+#: this thread's listener of stage starts and ends (:func:`stage_progress`)
+_progress = threading.local()
+
+
+@contextlib.contextmanager
+def stage_progress(say):
+    """Within the block, call *say(line)* as each stage run on this thread starts and ends (None: silent).
+
+    For work long enough to need a sign of life (a 12-48 MP photo): ``"fill ..."``, ``"fill: 2.6 s"``.
+    """
+    if say is not None and not callable(say):
+        raise InputError(f"say must be a callable taking one line of text, or None; got {type(say).__name__}")
+    before = getattr(_progress, "say", None)
+    _progress.say = say
+    try:
+        yield
+    finally:
+        _progress.say = before
+
+
 class _Timer:
     def __init__(self, trace: list, name: str):
         self.trace, self.name = trace, name
@@ -86,16 +107,23 @@ class _Timer:
     def __enter__(self):
         self.t0 = time.perf_counter()
         self.record = StageTrace(self.name, 0.0, False)
+        say = getattr(_progress, "say", None)
+        if say is not None:
+            say(f"{self.name} ...")
         return self.record
 
     def __exit__(self, *exc):
         self.record.seconds = time.perf_counter() - self.t0
         self.trace.append(self.record)
+        say = getattr(_progress, "say", None)
+        if say is not None and exc[0] is None:
+            say(f"{self.name}: " + ("skipped" if self.record.skipped else f"{self.record.seconds:.1f} s"))
         return False
 
 
 def register_stage(frame: RGBDFrame, trace: list) -> np.ndarray:
     """Registered depth (colour grid); skipped for a rig whose cameras coincide."""
+    from .guided_upsample import open_coarse_edges
     from .register import needs_registration, plan_for, plan_info, register_depth
 
     with _Timer(trace, "register") as rec:
@@ -104,9 +132,11 @@ def register_stage(frame: RGBDFrame, trace: list) -> np.ndarray:
             rec.skipped, rec.reason = True, reason
             return frame.depth_m.copy()
         plan = plan_for(frame.rig)
-        depth = register_depth(frame, plan=plan)
-        rec.reason = reason
-        rec.detail = {"coverage": float(np.count_nonzero(depth) / depth.size), "plan": plan_info(frame.rig, plan)}
+        depth, edges = open_coarse_edges(register_depth(frame, plan=plan), frame.rig)
+        rec.reason = reason + (f"; {edges['opened']} px at depth edges left to the colour-guided fill (depth grid "
+                               f"{edges['scale']:.3g}x coarser)" if edges else "")
+        rec.detail = {"coverage": float(np.count_nonzero(depth) / depth.size), "plan": plan_info(frame.rig, plan),
+                      **({"edges": edges} if edges else {})}
         return depth
 
 

@@ -27,6 +27,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, no_fi
     """
     from ..cloud import colored_points, write_ply
     from ..io import output_format
+    from ..guided_upsample import open_coarse_edges
     from ..register import register_depth
 
     check_output_file(output)
@@ -35,7 +36,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, no_fi
     frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"-o": output})
     one_frame_kernels(frame.color)
-    depth_m = register_depth(frame)
+    depth_m, _edges = open_coarse_edges(register_depth(frame), frame.rig)  # a phone's coarse grid: see guided_upsample
     if not no_fill:
         depth_m = fill_depth(depth_m, frame.color, method=fill_method)
     points, colors = colored_points(frame.color, depth_m, frame.rig.color, stride=stride)

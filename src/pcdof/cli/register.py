@@ -25,6 +25,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, fill,
     (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
     """
     from ..io import DEPTH_FORMATS, output_format, write_depth
+    from ..guided_upsample import open_coarse_edges
     from ..register import register_depth
 
     check_output_file(output)
@@ -33,7 +34,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, fill,
     frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"-o": output})
     one_frame_kernels(frame.color)
-    depth_m = register_depth(frame)
+    depth_m, _edges = open_coarse_edges(register_depth(frame), frame.rig)  # a phone's coarse grid: see guided_upsample
     if fill:
         depth_m = fill_depth(depth_m, frame.color, method=fill_method)
     write_depth(output, depth_m)

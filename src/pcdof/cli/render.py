@@ -14,6 +14,8 @@ from ._common import build_render_options, check_output_file, check_positive_fla
     warn_float_colour
 from ._report import report_decision
 
+#: images of at least this many pixels show each stage as it starts and ends (a phone photo: 12-48 MP)
+BIG_PIXELS = 8_000_000
 #: 8/16-bit image files (screenshots, and renders of 8/16-bit colour).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 #: Everything `pcdof render -o` writes: float (linear) colour needs .tif/.tiff, .exr or .npy.
@@ -56,7 +58,9 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
         raise InputError(f"COLOR is {out_dtype}, which {suffix} cannot store; write the render as "
                          f"{'/'.join(fits)}")
     one_frame_kernels(frame.color)
-    result = pipeline.run(frame, focus_on_centre(options, render_flags, frame.rig))
+    big = frame.color.shape[0] * frame.color.shape[1] >= BIG_PIXELS  # a phone photo: say how far the work is
+    with pipeline.stage_progress((lambda line: click.echo(f"pcdof: {line}", err=True)) if big else None):
+        result = pipeline.run(frame, focus_on_centre(options, render_flags, frame.rig))
     if save_maps:  # the maps first and the image last: a failure leaves neither behind
         created = not os.path.isdir(save_maps)
         make_output_folder(save_maps, "--save-maps")

@@ -260,6 +260,12 @@ def _render_option_decorators() -> list:
         click.option("--focal-length", "focal_length_mm", type=float, default=50.0, show_default=True,
                      help="Simulated focal length in mm (sets the aperture A = f/N)."),
         click.option("--f-number", type=float, default=1.8, show_default=True, help="Simulated f-number N."),
+        click.option("--equivalent-f-number", "f_number_35mm", type=float, default=None, metavar="N",
+                     help="The blur of a full-frame lens at f/N with the photo's own field of view (35 mm terms); "
+                          "replaces --focal-length and --f-number. See docs/phone-photos.md."),
+        click.option("--blur", "blur_percent", type=float, default=None, metavar="PERCENT",
+                     help="A far background blurs into discs PERCENT of the image width wide (needs no metric "
+                          "depth); replaces --focal-length and --f-number."),
         click.option("--focus-distance", "focus_distance_m", type=float, default=None,
                      help="Focus distance in metres (default: depth at the image centre)."),
         click.option("--focus-at", type=str, default=None, callback=_parse_xy, metavar="X,Y",
@@ -293,7 +299,7 @@ def _render_option_decorators() -> list:
 
 
 #: the keyword names of the flags :func:`render_options` adds
-RENDER_FLAG_NAMES = ("focal_length_mm", "f_number", "focus_distance_m", "focus_at", "aperture_blades",
+RENDER_FLAG_NAMES = ("focal_length_mm", "f_number", "f_number_35mm", "blur_percent", "focus_distance_m", "focus_at", "aperture_blades",
                      "aperture_rotation_deg", "method", "quality", "fill_method", "linear", "highlights", "blur_sigma_px",
                      "weight", "weight_sigma", "eq1_aperture")
 
@@ -339,6 +345,7 @@ def build_render_options(flags: dict, *, extra_positive: dict | None = None, thi
                 "--f-number": f["f_number"], "--sigma": f["blur_sigma_px"], "--weight-sigma": f["weight_sigma"],
                 "--eq1-aperture": f["eq1_aperture"], **(extra_positive or {})}
     check_positive_flags(positive, LensError)  # every lens flag is checked, whichever method uses it
+    check_photo_lens_flags(f)
     provisional = f["focus_distance_m"] if f["focus_distance_m"] is not None else 1.0
     thin = ThinLens(focal_length_mm=f["focal_length_mm"], f_number=f["f_number"], focus_distance_m=provisional,
                     aperture_blades=f["aperture_blades"], aperture_rotation_deg=f["aperture_rotation_deg"])
@@ -367,10 +374,37 @@ def focus_source(flags: dict) -> str:
 
 
 def focus_on_centre(options, flags: dict, rig):
-    """*options*, focused at the image centre of *rig*'s colour camera when no focus flag (in *flags*) chose one."""
+    """*options*, focused at the image centre of *rig*'s colour camera when no focus flag (in *flags*) chose one,
+    with the lens of ``--equivalent-f-number`` or ``--blur`` (:func:`photo_lens`) for *rig*'s colour camera."""
+    options = photo_lens(options, flags, rig)
     if flags["focus_distance_m"] is not None or flags["focus_at"] is not None:
         return options
     return options.replace(focus_at=((rig.color.width - 1) / 2, (rig.color.height - 1) / 2))
+
+
+def check_photo_lens_flags(flags: dict) -> None:
+    """LensError for ``--equivalent-f-number`` / ``--blur`` values that no lens has, or given together."""
+    from ..errors import LensError
+
+    n, blur = flags.get("f_number_35mm"), flags.get("blur_percent")
+    check_positive_flags({"--equivalent-f-number": n, "--blur": blur}, LensError)
+    if n is not None and blur is not None:
+        raise InputError("--equivalent-f-number and --blur exclude each other; give one")
+    if blur is not None and blur > 100:
+        raise LensError(f"--blur is a percentage of the image width, at most 100; got {blur:g}")
+    if (n is not None or blur is not None) and flags.get("method") == "paper":
+        raise InputError("--equivalent-f-number and --blur set a thin lens; the paper method has none")
+
+
+def photo_lens(options, flags: dict, rig):
+    """*options* with the lens ``--equivalent-f-number`` or ``--blur`` asks for, for *rig*'s colour camera."""
+    from ..phone_lens import BlurShareLens, equivalent_lens
+
+    if flags.get("f_number_35mm") is not None:
+        return options.replace(lens=equivalent_lens(options.lens, rig.color, flags["f_number_35mm"]))
+    if flags.get("blur_percent") is not None:
+        return options.replace(lens=BlurShareLens.for_camera(options.lens, rig.color, flags["blur_percent"] / 100))
+    return options
 
 
 def one_frame_kernels(color) -> None:

@@ -123,6 +123,9 @@ def command(input_path, calib, output_dir, render_flags, focus_keyframes, f_numb
                                   ("--focus-keyframes", focus_keyframes)) if v is not None]
     if len(given) > 1:
         raise InputError(f"{' and '.join(given)} exclude each other; give one")
+    if render_flags["f_number_35mm"] is not None or render_flags["blur_percent"] is not None:
+        raise InputError("--equivalent-f-number and --blur apply to render and view (one photo's camera); "
+                         "give batch --focal-length and --f-number")
     options = build_render_options(render_flags).replace(focus_at=None)  # the focus is followed per frame
     check_positive_flags({"--max-time-difference": max_difference})
     for flag, value in (("--focus-min-cutoff", focus_min_cutoff), ("--fps", fps)):

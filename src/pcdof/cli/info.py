@@ -1,4 +1,4 @@
-"""`pcdof info`: what a recording holds: streams, frame count, resolutions, calibration."""
+"""`pcdof info`: what a recording or phone depth photo holds: streams, frames, depth encoding, calibration."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from ._common import handle_errors
 @click.option("--json", "as_json", is_flag=True, help="Print the description as JSON.")
 @handle_errors
 def command(recording, calib, as_json):
-    """Describe RECORDING (an Azure Kinect .mkv or a RealSense .bag)."""
+    """Describe RECORDING (an Azure Kinect .mkv, a RealSense .bag, or a phone depth photo .heic / .jpg)."""
     from ..sources import open_source
 
     with open_source(recording, calib=calib) as src:

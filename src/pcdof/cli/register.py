@@ -22,7 +22,8 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, fill,
     """Register the depth of one frame into the colour camera and write it to OUTPUT.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
-    (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
+    (.mkv, .bag; --frame or --time chooses the frame), a sequence (folder, TUM folder, list file), or a
+    phone depth photo (iPhone Portrait .heic, Android Dynamic Depth or GDepth .jpg).
     """
     from ..io import DEPTH_FORMATS, output_format, write_depth
     from ..guided_upsample import open_coarse_edges

@@ -37,7 +37,8 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     """Render one frame with a shallow depth of field into OUTPUT.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
-    (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
+    (.mkv, .bag; --frame or --time chooses the frame), a sequence (folder, TUM folder, list file), or a
+    phone depth photo (iPhone Portrait .heic, Android Dynamic Depth or GDepth .jpg).
     """
     from .. import io, pipeline
 

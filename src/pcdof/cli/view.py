@@ -63,7 +63,8 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
     """Inspect the focal plane and depth of field of one frame in 3-D.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
-    (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
+    (.mkv, .bag; --frame or --time chooses the frame), a sequence (folder, TUM folder, list file), or a
+    phone depth photo (iPhone Portrait .heic, Android Dynamic Depth or GDepth .jpg).
 
     Opens a window with the point cloud in the colour camera's frame, the camera frustum, the focal
     plane, the depth-of-field slab and a live preview of the photograph, with sliders for the focus

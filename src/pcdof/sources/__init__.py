@@ -131,8 +131,9 @@ def open_source(path, *, depth=None, calib=None, depth_scale: float | None = Non
 
     Parameters
     ----------
-    path : str or os.PathLike, a recording (``.mkv``, ``.bag``), a folder (``color/`` + ``depth/``,
-        ``NAME_color`` + ``NAME_depth`` images, TUM RGB-D), a list file, or -- with *depth* -- a colour image
+    path : str or os.PathLike, a recording (``.mkv``, ``.bag``), a phone depth photo (HEIC with a depth
+        image, a Dynamic Depth or GDepth JPEG), a folder (``color/`` + ``depth/``, ``NAME_color`` +
+        ``NAME_depth`` images, TUM RGB-D), a list file, or -- with *depth* -- a colour image
     depth : str or os.PathLike, optional, the depth image that goes with the colour image *path*
     calib : str or os.PathLike, optional, a calibration file (any format :func:`pcdof.io.read_calibration`
         reads). Image files: default one of ``calib.json``, ... in the input's folder. Recordings:

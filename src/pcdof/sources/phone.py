@@ -201,6 +201,10 @@ class PhoneDepthSource(FrameSource):
         super().__init__(path, rig, calibration_from=camera_info.get("intrinsics_from", "file"))
         self.color, self.depth_m = color, depth_m
         self.depth_info, self.camera_info = depth_info, camera_info
+        # a one-frame recording to the tools that read recordings by their paired streams (batch): one colour
+        # and one depth image at time 0 (a photo has no clock), paired with each other
+        self.color_times = self.depth_times = np.zeros(1)
+        self.pairs = np.zeros((1, 2), np.int64)
 
     @classmethod
     def check_options(cls, path: str, calib, depth_scale, max_difference_s) -> None:

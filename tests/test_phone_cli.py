@@ -62,6 +62,16 @@ def test_render_focus_on_the_near_square(photo, tmp_path):
     assert sharpness(img[wall]) < 0.35 * sharpness(src[wall])  # the wall behind is blurred
 
 
+def test_explain_and_trace_say_where_the_intrinsics_come_from(photo, tmp_path):
+    result = ok(invoke("render", photo, "--blur", "2", "-o", tmp_path / "r.png", "--explain",
+                       "--save-maps", tmp_path / "maps"))
+    assert "(intrinsics from Dynamic Depth ImagingModel)" in result.stderr
+    trace = json.loads((tmp_path / "maps" / "trace.json").read_text())
+    assert trace["source"].endswith("(intrinsics from Dynamic Depth ImagingModel)")
+    register = next(t for t in trace["trace"] if t["name"] == "register")
+    assert register["detail"]["edges"]["scale"] == pytest.approx(4.0)
+
+
 def test_register_cloud_export(photo, tmp_path):
     ok(invoke("register", photo, "-o", tmp_path / "d.npy", "--fill"))
     depth = np.load(tmp_path / "d.npy")

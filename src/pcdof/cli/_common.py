@@ -203,7 +203,8 @@ def load_source_frame(color, depth=None, *, calib=None, depth_scale=None, frame_
 
     Returns
     -------
-    (RGBDFrame, str): the frame, and what it is (``"rec.bag frame 0 at 12.345 s"``) for messages
+    (RGBDFrame, str): the frame, and what it is (``"rec.bag frame 0 at 12.345 s"``; a phone photo's adds
+    where its intrinsics come from) for messages
     """
     from ..io import load_frame
     from ..sources import open_source
@@ -227,7 +228,9 @@ def load_source_frame(color, depth=None, *, calib=None, depth_scale=None, frame_
             check_output_paths({"COLOR": pairs[index].color, "DEPTH": pairs[index].depth}, outputs or {}, folders)
         frame = src.frame(index)
     when = f" at {frame.timestamp_s:.3f} s" if frame.timestamp_s is not None else ""
-    return frame.rgbd(), f"{color} frame {index}{when}"
+    camera = getattr(src, "camera_info", None)  # a phone photo: say where its intrinsics come from
+    origin = f" (intrinsics from {camera['intrinsics_from']})" if camera else ""
+    return frame.rgbd(), f"{color} frame {index}{when}{origin}"
 
 
 # ------------------------------------------------------------------------------------ render options

@@ -50,7 +50,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
         check_output_folder(save_maps, "--save-maps")
     maps = {f"--save-maps {name}": os.path.join(save_maps, name) for name in MAP_NAMES} if save_maps else {}
     options = build_render_options(render_flags)
-    frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
+    frame, what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"-o": output, **maps}, folders={"--save-maps": save_maps})
     warn_float_colour(frame.color, options)
     out_dtype = "float32" if frame.color.dtype.kind == "f" else frame.color.dtype.name
@@ -67,7 +67,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
         make_output_folder(save_maps, "--save-maps")
         written = []
         try:
-            write_maps(save_maps, result, written)
+            write_maps(save_maps, result, written, source=what)
             io.write_image(output, result.image)
         except BaseException:
             for path in written:
@@ -79,6 +79,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     else:
         io.write_image(output, result.image)
     if explain:
+        click.echo(f"input: {what}", err=True)
         click.echo(f"focus distance: {result.lens.focus_distance_m:.3f} m", err=True)
         click.echo(result.explain(), err=True)
         from ..ahead import active
@@ -90,10 +91,11 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
                     else None, details=f"{options.method} method")
 
 
-def write_maps(folder: str, result, written: list | None = None) -> None:
+def write_maps(folder: str, result, written: list | None = None, *, source: str | None = None) -> None:
     """Registered depth (16-bit mm PNG), filled depth (float32 .npy), CoC (.npy + colour-mapped PNG).
 
-    Each path is appended to *written* once its file is complete (so a caller can remove them).
+    Each path is appended to *written* once its file is complete (so a caller can remove them); *source*
+    (what the frame is, where its intrinsics come from) goes into ``trace.json``.
     """
     from .. import io
 
@@ -120,7 +122,8 @@ def write_maps(folder: str, result, written: list | None = None) -> None:
         put("coc_px.npy", io.write_depth, result.coc_px)
         put("coc_px.png", io.write_image, coc_preview(result.coc_px))  # inferno, scale bar in pixels
     put("trace.json", io.write_json,
-        {"focus_distance_m": result.lens.focus_distance_m, "trace": [t.to_dict() for t in result.trace]})
+        {"focus_distance_m": result.lens.focus_distance_m, "trace": [t.to_dict() for t in result.trace],
+         **({"source": source} if source else {})})
 
 
 def _remove_quietly(path: str) -> None:

@@ -37,7 +37,6 @@ from .phone import PhoneDepthSource, check_aspect, depth_from_normalized, exif_t
 NS_GDEPTH = "http://ns.google.com/photos/1.0/depthmap/"
 _DD = "http://ns.google.com/photos/dd/1.0/"
 NS = {name: f"{_DD}{name.lower()}/" for name in ("Device", "Container", "Item", "Camera", "DepthMap", "ImagingModel")}
-NS_RDF = "http://www.w3.org/1999/02/22-rdf-syntax-ns#"
 #: DepthMap / GDepth Format -> :func:`~pcdof.sources.phone.depth_from_normalized` rule
 FORMATS = {"RangeLinear": "linear", "RangeInverse": "inverse"}
 #: DepthMap:Units / GDepth:Units -> metres per unit (None: the file gives no scale)

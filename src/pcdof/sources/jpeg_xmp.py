@@ -21,7 +21,6 @@ from ..errors import ImageReadError
 XMP_STANDARD = b"http://ns.adobe.com/xap/1.0/\x00"
 XMP_EXTENSION = b"http://ns.adobe.com/xmp/extension/\x00"
 EXIF_HEADER = b"Exif\x00\x00"
-NS_RDF = "http://www.w3.org/1999/02/22-rdf-syntax-ns#"
 NS_XMP_NOTE = "http://ns.adobe.com/xmp/note/"
 _STANDALONE = {0x01, *range(0xD0, 0xD8)}
 

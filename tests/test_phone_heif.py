@@ -148,3 +148,27 @@ class TestHostile:
     def test_options_that_do_not_apply(self, tmp_path):
         result = CliRunner().invoke(main, ["info", PUG, "--calib", str(tmp_path / "c.json")], prog_name="pcdof")
         assert result.exit_code == 6 and result.output.startswith("pcdof: error: calib does not apply")
+
+
+class TestTurnedDepth:
+    """libheif turns the photo upright (irot/imir); a depth image stored without the turn follows the EXIF."""
+
+    @pytest.mark.parametrize("orientation", [6, 8, 5, 7])
+    def test_depth_turned_like_the_photo(self, monkeypatch, tmp_path, orientation):
+        from pcdof.sources import heif_depth
+
+        color = np.zeros((80, 60, 3), np.uint8)  # the upright (portrait) photo as libheif gives it
+        upright = np.zeros((40, 30), np.uint8)  # the depth as it should end up: a far patch top left
+        upright[2:10, 2:12] = 200
+        inverse = {6: 8, 8: 6, 5: 5, 7: 7}[orientation]  # the EXIF turn that undoes *orientation*
+        stored = orient(upright, inverse)  # landscape, as a phone stores it unturned
+        assert stored.shape == (30, 40)
+        exif = Image.Exif()
+        exif[0x0112] = orientation
+        exif.get_ifd(0x8769)[0xA405] = 26
+        meta = {"representation_type": 2, "z_near": 0.5, "z_far": 5.0}
+        monkeypatch.setattr(heif_depth, "decode_heif", lambda path: (color, stored, meta, exif.tobytes()))
+        src = heif_depth.HeifDepthSource.open(str(tmp_path / "x.heic"))
+        frame = src.frame(0)
+        assert frame.depth_m.shape == (40, 30) and src.info()["phone"]["depth"]["turned_by_exif"]
+        assert np.array_equal(frame.depth_m > 4.0, upright > 0)  # 0.5 + 200/255 * 4.5 = 4.03 m on the patch

@@ -113,7 +113,7 @@ class HeifDepthSource(PhoneDepthSource):
              max_difference_s: float | None = None) -> "HeifDepthSource":
         """Decode the photo and its depth map."""
         cls.check_options(path, calib, depth_scale, max_difference_s)
-        color, values, metadata, exif = _decode(path)
+        color, values, metadata, exif = decode_heif(path)
         tags = exif_tags(exif)
         depth_m, depth_info = depth_from_heif(values, metadata)
         turned = False
@@ -130,7 +130,7 @@ class HeifDepthSource(PhoneDepthSource):
         return cls(path, color, depth_m, rig, depth_info=depth_info, camera_info=camera)
 
 
-def _decode(path: str) -> tuple[np.ndarray, np.ndarray, dict, bytes | None]:
+def decode_heif(path: str) -> tuple[np.ndarray, np.ndarray, dict, bytes | None]:
     """(colour (H, W, 3) uint8 upright, depth values (h, w), depth metadata, EXIF bytes) of a HEIF file."""
     pillow_heif = _pillow_heif()
     try:

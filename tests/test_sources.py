@@ -152,7 +152,8 @@ class TestRegistry:
         assert source_format(mkv) == "azure-kinect" and source_format(bag) == "realsense-bag"
         assert source_format(other) is None and source_format(tmp_path) is None
         assert source_format(tmp_path / "missing.mkv") == "azure-kinect"
-        assert set(SOURCES) == {"azure-kinect", "realsense-bag", "tum", "folder", "list"}
+        assert set(SOURCES) == {"azure-kinect", "realsense-bag", "heif-depth", "depth-jpeg", "tum", "folder",
+                                "list"}
 
     def test_open_errors(self, tmp_path):
         with pytest.raises(ImageReadError, match="does not exist"):

@@ -31,7 +31,7 @@ SUBCOMMANDS = {
     "batch": ("pcdof.cli.batch", "Render a sequence or dataset of RGB-D frames."),
     "bench": ("pcdof.cli.bench", "Benchmark time against error on the ray-traced ground truth."),
     "synth": ("pcdof.cli.synth", "Generate a synthetic RGB-D scene with ray-traced ground truth."),
-    "info": ("pcdof.cli.info", "Describe a recording (.mkv / .bag): streams, frames, calibration."),
+    "info": ("pcdof.cli.info", "Describe a recording (.mkv / .bag) or phone depth photo: streams, depth, calibration."),
     "export": ("pcdof.cli.export", "Write a recording's frames as colour/depth PNGs and calib.json."),
     "warmup": ("pcdof.cli.warmup", "Compile every stage's kernels now (once after install), with progress."),
 }

@@ -203,7 +203,8 @@ def load_source_frame(color, depth=None, *, calib=None, depth_scale=None, frame_
 
     Returns
     -------
-    (RGBDFrame, str): the frame, and what it is (``"rec.bag frame 0 at 12.345 s"``) for messages
+    (RGBDFrame, str): the frame, and what it is (``"rec.bag frame 0 at 12.345 s"``; a phone photo's adds
+    where its intrinsics come from) for messages
     """
     from ..io import load_frame
     from ..sources import open_source
@@ -227,7 +228,9 @@ def load_source_frame(color, depth=None, *, calib=None, depth_scale=None, frame_
             check_output_paths({"COLOR": pairs[index].color, "DEPTH": pairs[index].depth}, outputs or {}, folders)
         frame = src.frame(index)
     when = f" at {frame.timestamp_s:.3f} s" if frame.timestamp_s is not None else ""
-    return frame.rgbd(), f"{color} frame {index}{when}"
+    camera = getattr(src, "camera_info", None)  # a phone photo: say where its intrinsics come from
+    origin = f" (intrinsics from {camera['intrinsics_from']})" if camera else ""
+    return frame.rgbd(), f"{color} frame {index}{when}{origin}"
 
 
 # ------------------------------------------------------------------------------------ render options
@@ -260,6 +263,12 @@ def _render_option_decorators() -> list:
         click.option("--focal-length", "focal_length_mm", type=float, default=50.0, show_default=True,
                      help="Simulated focal length in mm (sets the aperture A = f/N)."),
         click.option("--f-number", type=float, default=1.8, show_default=True, help="Simulated f-number N."),
+        click.option("--equivalent-f-number", "f_number_35mm", type=float, default=None, metavar="N",
+                     help="The blur of a full-frame lens at f/N with the photo's own field of view (35 mm terms); "
+                          "replaces --focal-length and --f-number. See docs/phone-photos.md."),
+        click.option("--blur", "blur_percent", type=float, default=None, metavar="PERCENT",
+                     help="A far background blurs into discs PERCENT of the image width wide (needs no metric "
+                          "depth); replaces --focal-length and --f-number."),
         click.option("--focus-distance", "focus_distance_m", type=float, default=None,
                      help="Focus distance in metres (default: depth at the image centre)."),
         click.option("--focus-at", type=str, default=None, callback=_parse_xy, metavar="X,Y",
@@ -293,7 +302,7 @@ def _render_option_decorators() -> list:
 
 
 #: the keyword names of the flags :func:`render_options` adds
-RENDER_FLAG_NAMES = ("focal_length_mm", "f_number", "focus_distance_m", "focus_at", "aperture_blades",
+RENDER_FLAG_NAMES = ("focal_length_mm", "f_number", "f_number_35mm", "blur_percent", "focus_distance_m", "focus_at", "aperture_blades",
                      "aperture_rotation_deg", "method", "quality", "fill_method", "linear", "highlights", "blur_sigma_px",
                      "weight", "weight_sigma", "eq1_aperture")
 
@@ -358,6 +367,7 @@ def build_render_options(flags: dict, *, extra_positive: dict | None = None, thi
                 "--f-number": f["f_number"], "--sigma": f["blur_sigma_px"], "--weight-sigma": f["weight_sigma"],
                 "--eq1-aperture": f["eq1_aperture"], **(extra_positive or {})}
     check_positive_flags(positive, LensError)  # every lens flag is checked, whichever method uses it
+    check_photo_lens_flags(f)
     provisional = f["focus_distance_m"] if f["focus_distance_m"] is not None else 1.0
     thin = ThinLens(focal_length_mm=f["focal_length_mm"], f_number=f["f_number"], focus_distance_m=provisional,
                     aperture_blades=f["aperture_blades"], aperture_rotation_deg=f["aperture_rotation_deg"])
@@ -384,3 +394,30 @@ def focus_source(flags: dict) -> str:
         x, y = flags["focus_at"]
         return f"--focus-at {x:g},{y:g}"
     return "depth at the image centre"
+
+
+
+
+def check_photo_lens_flags(flags: dict) -> None:
+    """LensError for ``--equivalent-f-number`` / ``--blur`` values that no lens has, or given together."""
+    from ..errors import LensError
+
+    n, blur = flags.get("f_number_35mm"), flags.get("blur_percent")
+    check_positive_flags({"--equivalent-f-number": n, "--blur": blur}, LensError)
+    if n is not None and blur is not None:
+        raise InputError("--equivalent-f-number and --blur exclude each other; give one")
+    if blur is not None and blur > 100:
+        raise LensError(f"--blur is a percentage of the image width, at most 100; got {blur:g}")
+    if (n is not None or blur is not None) and flags.get("method") == "paper":
+        raise InputError("--equivalent-f-number and --blur set a thin lens; the paper method has none")
+
+
+def photo_lens(options, flags: dict, rig):
+    """*options* with the lens ``--equivalent-f-number`` or ``--blur`` asks for, for *rig*'s colour camera."""
+    from ..phone_lens import BlurShareLens, equivalent_lens
+
+    if flags.get("f_number_35mm") is not None:
+        return options.replace(lens=equivalent_lens(options.lens, rig.color, flags["f_number_35mm"]))
+    if flags.get("blur_percent") is not None:
+        return options.replace(lens=BlurShareLens.for_camera(options.lens, rig.color, flags["blur_percent"] / 100))
+    return options

@@ -125,6 +125,9 @@ def command(input_path, calib, output_dir, render_flags, device, focus_keyframes
                                   ("--focus-keyframes", focus_keyframes)) if v is not None]
     if len(given) > 1:
         raise InputError(f"{' and '.join(given)} exclude each other; give one")
+    if render_flags["f_number_35mm"] is not None or render_flags["blur_percent"] is not None:
+        raise InputError("--equivalent-f-number and --blur apply to render and view (one photo's camera); "
+                         "give batch --focal-length and --f-number")
     options = build_render_options(render_flags).replace(focus_at=None, device=device)  # focus followed per frame
     if check_device(device) == "gpu" and scheduler is None:
         workers = 1  # one process feeds the GPU, its frames overlapped on streams (pcdof.gpu.stream)

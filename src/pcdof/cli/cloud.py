@@ -23,12 +23,13 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, no_fi
     """Export one frame as a coloured point cloud (metres, colour camera frame) to OUTPUT.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
-    (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
+    (.mkv, .bag; --frame or --time chooses the frame), a sequence (folder, TUM folder, list file), or a
+    phone depth photo (iPhone Portrait .heic, Android Dynamic Depth or GDepth .jpg).
     """
     from ..cloud import colored_points, write_ply
     from ..io import output_format
-    from ..stages.register import register_depth
     from ..runtime.kernels import ensure_warm
+    from ..stages.register import open_coarse_edges, register_depth
 
     check_output_file(output)
     check_output_paths(source_inputs(color, depth, calib), {"-o": output})
@@ -36,7 +37,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, no_fi
     frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"-o": output})
     ensure_warm(stages=("register", "fill"))  # the first run after an install compiles them, and says so
-    depth_m = register_depth(frame)
+    depth_m, _edges = open_coarse_edges(register_depth(frame), frame.rig)  # a phone's coarse grid: see its docstring
     if not no_fill:
         depth_m = fill_depth(depth_m, frame.color, method=fill_method)
     points, colors = colored_points(frame.color, depth_m, frame.rig.color, stride=stride)

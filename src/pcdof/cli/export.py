@@ -1,4 +1,4 @@
-"""`pcdof export`: a recording's frames as the folder layout (colour, 16-bit depth PNG, calib.json).
+"""`pcdof export`: a recording's frames, or a phone depth photo, as the folder layout (colour, depth PNG, calib).
 
 ``DIR/color/NNNNNN.png`` (or ``.jpg``), ``DIR/depth/NNNNNN.png`` and ``DIR/calib.json``, so that
 ``pcdof render DIR/color/000000.png DIR/depth/000000.png --calib DIR/calib.json`` and
@@ -52,7 +52,7 @@ def parse_frames(spec: str | None, n: int) -> range:
               help="Calibration to use instead of the recording's.")
 @handle_errors
 def command(recording, output, registered, frames, color_format, calib):
-    """Write the frames of RECORDING (.mkv / .bag) into the folder OUTPUT."""
+    """Write the frames of RECORDING (.mkv / .bag, or a phone depth photo .heic / .jpg) into the folder OUTPUT."""
     from ..sources import open_source
 
     check_output_folder(output, "output")
@@ -86,8 +86,8 @@ def export_frames(src, output: str, indices, *, registered: bool, color_format: 
     """Write *indices* of *src* and ``calib.json``; returns (frames written, indices that failed to decode)."""
     from ..camera import Rig
     from ..io import write_depth, write_image, write_json
-    from ..stages.register import register_depth
     from ..runtime.kernels import ensure_warm
+    from ..stages.register import open_coarse_edges, register_depth
 
     rig = src.rig
     out_rig = Rig.registered(rig.color, depth_scale=0.001, max_range_m=rig.max_range_m) if registered else rig
@@ -103,7 +103,7 @@ def export_frames(src, output: str, indices, *, registered: bool, color_format: 
         depth_path = os.path.join(output, "depth", f"{i:06d}.png")
         if registered:
             ensure_warm(stages=("register", "fill"))  # the first run after an install compiles them, and says so
-            write_depth(depth_path, register_depth(frame.rgbd()))
+            write_depth(depth_path, open_coarse_edges(register_depth(frame.rgbd()), rig)[0])
         else:
             write_image(depth_path, raw_depth(frame.depth_m, rig.depth_scale))
         written += 1

@@ -10,10 +10,12 @@ import click
 from ..errors import InputError
 from ..io.writers import IMAGE_FORMATS
 from ._common import build_render_options, check_device, check_output_file, check_output_folder, \
-    device_option, focus_source, handle_errors, load_source_frame, make_output_folder, render_options, \
-    source_arguments, warn_float_colour
+    device_option, focus_source, handle_errors, load_source_frame, make_output_folder, photo_lens, \
+    render_options, source_arguments, warn_float_colour
 from ._report import report_decision
 
+#: images of at least this many pixels show each stage as it starts and ends (a phone photo: 12-48 MP)
+BIG_PIXELS = 8_000_000
 #: 8/16-bit image files (screenshots, and renders of 8/16-bit colour).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 #: Everything `pcdof render -o` writes: float (linear) colour needs .tif/.tiff, .exr or .npy.
@@ -36,7 +38,8 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     """Render one frame with a shallow depth of field into OUTPUT.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
-    (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
+    (.mkv, .bag; --frame or --time chooses the frame), a sequence (folder, TUM folder, list file), or a
+    phone depth photo (iPhone Portrait .heic, Android Dynamic Depth or GDepth .jpg).
     """
     from .. import io, pipeline
 
@@ -49,7 +52,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     maps = {f"--save-maps {name}": os.path.join(save_maps, name) for name in MAP_NAMES} if save_maps else {}
     options = build_render_options(render_flags).replace(device=device)
     check_device(device)  # --device gpu without a usable GPU: one line, before any input is read
-    frame, _what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
+    frame, what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
                                      time_s=time_s, outputs={"-o": output, **maps}, folders={"--save-maps": save_maps})
     warn_float_colour(frame.color, options)
     out_dtype = "float32" if frame.color.dtype.kind == "f" else frame.color.dtype.name
@@ -57,13 +60,16 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
         fits = [ext for ext, dtypes in IMAGE_FORMATS.items() if out_dtype in dtypes]
         raise InputError(f"COLOR is {out_dtype}, which {suffix} cannot store; write the render as "
                          f"{'/'.join(fits)}")
-    result = pipeline.run(frame, options)
+    options = photo_lens(options, render_flags, frame.rig)
+    big = frame.color.shape[0] * frame.color.shape[1] >= BIG_PIXELS  # a phone photo: say how far the work is
+    with pipeline.stage_progress((lambda line: click.echo(f"pcdof: {line}", err=True)) if big else None):
+        result = pipeline.run(frame, options)
     if save_maps:  # the maps first and the image last: a failure leaves neither behind
         created = not os.path.isdir(save_maps)
         make_output_folder(save_maps, "--save-maps")
         written = []
         try:
-            write_maps(save_maps, result, written)
+            write_maps(save_maps, result, written, source=what)
             io.write_image(output, result.image)
         except BaseException:
             for path in written:
@@ -75,6 +81,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     else:
         io.write_image(output, result.image)
     if explain:
+        click.echo(f"input: {what}", err=True)
         click.echo(f"focus distance: {result.lens.focus_distance_m:.3f} m", err=True)
         click.echo(result.explain(), err=True)
     report_decision("render", output=output, focus_distance_m=float(result.lens.focus_distance_m),
@@ -83,10 +90,11 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
                     else None, details=f"{options.method} method")
 
 
-def write_maps(folder: str, result, written: list | None = None) -> None:
+def write_maps(folder: str, result, written: list | None = None, *, source: str | None = None) -> None:
     """Registered depth (16-bit mm PNG), filled depth (float32 .npy), CoC (.npy + colour-mapped PNG).
 
-    Each path is appended to *written* once its file is complete (so a caller can remove them).
+    Each path is appended to *written* once its file is complete (so a caller can remove them); *source*
+    (what the frame is, where its intrinsics come from) goes into ``trace.json``.
     """
     from .. import io
 
@@ -113,7 +121,8 @@ def write_maps(folder: str, result, written: list | None = None) -> None:
         put("coc_px.npy", io.write_depth, result.coc_px)
         put("coc_px.png", io.write_image, coc_preview(result.coc_px))  # inferno, scale bar in pixels
     put("trace.json", io.write_json,
-        {"focus_distance_m": result.lens.focus_distance_m, "trace": [t.to_dict() for t in result.trace]})
+        {"focus_distance_m": result.lens.focus_distance_m, "trace": [t.to_dict() for t in result.trace],
+         **({"source": source} if source else {})})
 
 
 def _remove_quietly(path: str) -> None:

@@ -10,7 +10,7 @@ import click
 
 from ..errors import InputError
 from ._common import build_render_options, check_output_file, check_output_folder, focus_source, \
-    handle_errors, load_source_frame, render_options, source_arguments, warn_float_colour
+    handle_errors, load_source_frame, photo_lens, render_options, source_arguments, warn_float_colour
 from ._report import report_decision
 from .render import IMAGE_SUFFIXES
 
@@ -63,7 +63,8 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
     """Inspect the focal plane and depth of field of one frame in 3-D.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
-    (.mkv, .bag; --frame or --time chooses the frame) or a sequence (folder, TUM folder, list file).
+    (.mkv, .bag; --frame or --time chooses the frame), a sequence (folder, TUM folder, list file), or a
+    phone depth photo (iPhone Portrait .heic, Android Dynamic Depth or GDepth .jpg).
 
     Opens a window with the point cloud in the colour camera's frame, the camera frustum, the focal
     plane, the depth-of-field slab and a live preview of the photograph, with sliders for the focus
@@ -105,6 +106,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
                                      time_s=time_s, outputs={"--screenshot": screenshot, "--html": html_path},
                                      folders={"--output-dir": output_dir})
     warn_float_colour(frame.color, options)
+    options = photo_lens(options, render_flags, frame.rig)  # --equivalent-f-number / --blur for this camera
     if serve:
         serve_frame(frame, options, coc_limit_px=coc_limit_px, stride=stride, color_by=color_by,
                     source_name=os.path.basename(color), host=host, port=port, output_dir=output_dir)

@@ -23,7 +23,7 @@ from typing import Callable
 
 from ..errors import ImageReadError, InputError
 from ..io._files import fspath
-from . import azure_kinect, folder, listfile, realsense_bag, tum
+from . import azure_kinect, depth_jpeg, folder, heif_depth, listfile, realsense_bag, tum
 from .base import FrameSource, RecordingSource, SourceFrame, pair_by_time
 from .pair import pair_source
 
@@ -56,6 +56,10 @@ SOURCES: dict[str, SourceKind] = {
                                "Azure Kinect recording (k4arecorder .mkv)", recording=True),
     "realsense-bag": SourceKind(realsense_bag.can_open, realsense_bag.RealSenseBagSource.open, (".bag",),
                                 "Intel RealSense recording (ROS bag v2 written by the RealSense SDK)", recording=True),
+    "heif-depth": SourceKind(heif_depth.can_open, heif_depth.HeifDepthSource.open, (".heic", ".heif"),
+                             "HEIF/HEIC photo with a depth image (iPhone Portrait)", recording=True),
+    "depth-jpeg": SourceKind(depth_jpeg.can_open, depth_jpeg.DepthJpegSource.open, (),
+                             "JPEG with a depth map (Android Dynamic Depth 1.0 or GDepth XMP)", recording=True),
     "tum": SourceKind(tum.can_open, tum.TumSource.open, (),
                       "TUM RGB-D folder (rgb.txt and depth.txt, paired by timestamp)"),
     "folder": SourceKind(folder.can_open, folder.FolderSource.open, (),
@@ -127,8 +131,9 @@ def open_source(path, *, depth=None, calib=None, depth_scale: float | None = Non
 
     Parameters
     ----------
-    path : str or os.PathLike, a recording (``.mkv``, ``.bag``), a folder (``color/`` + ``depth/``,
-        ``NAME_color`` + ``NAME_depth`` images, TUM RGB-D), a list file, or -- with *depth* -- a colour image
+    path : str or os.PathLike, a recording (``.mkv``, ``.bag``), a phone depth photo (HEIC with a depth
+        image, a Dynamic Depth or GDepth JPEG), a folder (``color/`` + ``depth/``, ``NAME_color`` +
+        ``NAME_depth`` images, TUM RGB-D), a list file, or -- with *depth* -- a colour image
     depth : str or os.PathLike, optional, the depth image that goes with the colour image *path*
     calib : str or os.PathLike, optional, a calibration file (any format :func:`pcdof.io.read_calibration`
         reads). Image files: default one of ``calib.json``, ... in the input's folder. Recordings:

@@ -50,13 +50,16 @@ Modules
 * :mod:`~pcdof.stages.register.tasks`: tasks claimed from an atomic counter, and the helper threads
 * :mod:`~pcdof.stages.register.constants`: what the kernels share
 * :mod:`~pcdof.stages.register.reference`: the plain per-triangle specification the kernels are tested against
+* :mod:`~pcdof.stages.register.guided`: a depth grid coarser than the colour in the same camera (phone depth
+  photos): the registered depth's edges opened for the colour-guided fill
 """
 
 from .constants import MAX_PRIMITIVE_PX
+from .guided import open_coarse_edges
 from .reproject import (MAX_INCIDENCE_DEG, MIN_DEPTH_RATIO, default_depth_ratio, needs_registration, plan_for,
                         plan_info, register_depth, reproject_depth, warmup)
 
 __all__ = [
     "MAX_INCIDENCE_DEG", "MAX_PRIMITIVE_PX", "MIN_DEPTH_RATIO", "default_depth_ratio", "needs_registration",
-    "plan_for", "plan_info", "register_depth", "reproject_depth", "warmup",
+    "open_coarse_edges", "plan_for", "plan_info", "register_depth", "reproject_depth", "warmup",
 ]

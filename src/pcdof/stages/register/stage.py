@@ -28,9 +28,13 @@ class RegisterStage(Stage):
 
     def run(self, state: FrameState, plan, options) -> StageOutput:
         from ...camera import RGBDFrame
-        from . import needs_registration, plan_info, register_depth
+        from . import needs_registration, open_coarse_edges, plan_info, register_depth
 
-        depth = register_depth(RGBDFrame(state.color, state.depth_m, state.rig), plan=plan)
-        return StageOutput({"registered_m": depth}, needs_registration(state.rig)[1],
+        depth, edges = open_coarse_edges(register_depth(RGBDFrame(state.color, state.depth_m, state.rig), plan=plan),
+                                         state.rig)
+        reason = needs_registration(state.rig)[1] + (
+            f"; {edges['opened']} px at depth edges left to the colour-guided fill (depth grid "
+            f"{edges['scale']:.3g}x coarser)" if edges else "")
+        return StageOutput({"registered_m": depth}, reason,
                            {"coverage": float(np.count_nonzero(depth) / depth.size),
-                            "plan": plan_info(state.rig, plan)})
+                            "plan": plan_info(state.rig, plan), **({"edges": edges} if edges else {})})

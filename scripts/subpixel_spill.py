@@ -67,8 +67,8 @@ def with_area_sources(image: np.ndarray, lin: np.ndarray, coc: np.ndarray, white
 
 
 def _scores(image, gt, band):
-    err = np.mean((wide._encode(image) - gt) ** 2, axis=2)
-    return wide._psnr(float(err.sum()), err.size), wide._psnr(float(err[band].sum()), int(band.sum()))
+    err = np.mean((wide.encode_srgb8(image) - gt) ** 2, axis=2)
+    return wide.psnr_of_sse(float(err.sum()), err.size), wide.psnr_of_sse(float(err[band].sum()), int(band.sum()))
 
 
 def spill_shares(lin, gt, coc) -> np.ndarray:
@@ -98,7 +98,7 @@ def main():
             lin = sf.color_linear.astype(np.float32)
             for focus in FOCUS_POSITIONS:
                 lens = lens_for_blur(sf.depth_color_m, sf.rig.color.fx, spec.focus_m[focus], blur)
-                gt_lin = wide._ground_truth(sf, lens, cache_dir=a.cache,
+                gt_lin = wide.ground_truth(sf, lens, cache_dir=a.cache,
                                             key=["wide", kind, seed, focus, blur, list(SIZE), list(DEPTH_SIZE), 2])
                 coc = lens.signed_coc_px(sf.depth_color_m, sf.rig.color.fx)
                 shares.append(spill_shares(lin, gt_lin, coc))

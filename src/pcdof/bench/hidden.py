@@ -135,7 +135,7 @@ def trace_layers(scene, intrinsics, groups, *, pixel_samples: int = 1) -> list[H
     depth is the pinhole frame's, and with a single group holding every object its light is the
     pinhole image (:func:`pcdof.synth.render.render_pinhole`, bit for bit).
     """
-    from ..synth.render import _pixel_directions
+    from ..synth.render import pixel_directions
     from ..synth.scene import Scene
 
     groups = _check_groups(groups, len(scene.meshes))
@@ -143,7 +143,7 @@ def trace_layers(scene, intrinsics, groups, *, pixel_samples: int = 1) -> list[H
         raise InputError(f"pixel_samples must be an integer >= 1; got {pixel_samples!r}")
     k = int(pixel_samples)
     h, w = intrinsics.height, intrinsics.width
-    dirs = _pixel_directions(intrinsics).astype(np.float32)
+    dirs = pixel_directions(intrinsics).astype(np.float32)
     origins = np.zeros_like(dirs)
     offs = [None] if k == 1 else (np.arange(k) + 0.5) / k - 0.5
     layers = []
@@ -266,14 +266,14 @@ def merge_similar_blur(groups, layers, lens, fx: float) -> list[tuple[str, list[
 
 def _case_row(case, lens, size, method, image, gt, coc, band) -> dict:
     """One scored row, in the wide part's row format (:func:`pcdof.bench.wide.run_wide`)."""
-    from .wide import _bucket_sums, _encode, _psnr
+    from .wide import bucket_sums, encode_srgb8, psnr_of_sse
 
     kind, seed, focus, blur = case
-    err = np.mean((_encode(image) - gt) ** 2, axis=2)
+    err = np.mean((encode_srgb8(image) - gt) ** 2, axis=2)
     return {"scene": kind, "seed": seed, "focus": focus, "blur_px": blur, "blur_share": blur / size[0],
             "f_number": lens.f_number, "focus_distance_m": lens.focus_distance_m, "method": method,
-            "psnr": _psnr(float(err.sum()), err.size), "psnr_edge": _psnr(float(err[band].sum()), int(band.sum())),
-            "sse": _bucket_sums(err, coc, band)}
+            "psnr": psnr_of_sse(float(err.sum()), err.size), "psnr_edge": psnr_of_sse(float(err[band].sum()), int(band.sum())),
+            "sse": bucket_sums(err, coc, band)}
 
 
 def run_hidden(*, kinds=None, seeds=None, blurs=None, reference_width_px=640, size=(256, 192), depth_size=(256, 212),
@@ -299,15 +299,15 @@ def run_hidden(*, kinds=None, seeds=None, blurs=None, reference_width_px=640, si
     check_quality(quality)
     seeds = wide.REPORT_SEEDS if seeds is None else seeds
     blurs = wide.BLURS_PX if blurs is None else blurs
-    px = wide.scaled_blurs(wide._check(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
-    cases = wide.wide_cases(*wide._check(kinds, seeds, px))
+    px = wide.scaled_blurs(wide.check_cases(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
+    cases = wide.wide_cases(*wide.check_cases(kinds, seeds, px))
     rows, frame = [], None
     for case in tqdm(cases, desc="hidden bench", unit="case", disable=not progress):
         if frame is None or frame.key != case[:2]:
             frame = _Frame.make(case[:2], size, depth_size)
         sf, (kind, seed, focus, blur) = frame.sf, case
         lens = frame.lens(focus, blur)
-        gt = linear_to_srgb(np.clip(wide._ground_truth(
+        gt = linear_to_srgb(np.clip(wide.ground_truth(
             sf, lens, cache_dir=cache_dir, key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2]),
             0, 1))
         coc = lens.coc_px(sf.depth_color_m, sf.rig.color.fx)

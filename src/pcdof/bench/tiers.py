@@ -97,13 +97,13 @@ def run_tiers(*, kinds=None, seeds=(0, 1, 2, 3, 4), blurs=(16, 64), reference_wi
     from ..color import linear_to_srgb
     from ..metrics import depth_edge_band
     from ..synth.wide import generate_wide, lens_for_blur
-    from .wide import _check, _encode, _ground_truth, scaled_blurs, wide_cases
+    from .wide import check_cases, encode_srgb8, ground_truth, scaled_blurs, wide_cases
 
     ladder = tuple(float(m) for m in ladder)
     if not ladder or any(not (math.isfinite(m) and m > 0) for m in ladder):
         raise InputError(f"ladder must be numbers > 0; got {ladder!r}")
-    px = scaled_blurs(_check(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
-    kinds, seeds, blurs = _check(kinds, seeds, px)
+    px = scaled_blurs(check_cases(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
+    kinds, seeds, blurs = check_cases(kinds, seeds, px)
     cases, curve = [], {}
     todo = wide_cases(kinds, seeds, blurs)
     frames = {}
@@ -112,17 +112,17 @@ def run_tiers(*, kinds=None, seeds=(0, 1, 2, 3, 4), blurs=(16, 64), reference_wi
             frames = {(kind, seed): generate_wide(kind, seed=seed, color_size=size, depth_size=depth_size)}
         sf, spec = frames[(kind, seed)]
         lens = lens_for_blur(sf.depth_color_m, sf.rig.color.fx, spec.focus_m[focus], blur)
-        gt_lin = _ground_truth(sf, lens, cache_dir=cache_dir,
+        gt_lin = ground_truth(sf, lens, cache_dir=cache_dir,
                                key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2])
         gt = linear_to_srgb(np.clip(gt_lin, 0, 1))
         band = depth_edge_band(sf.depth_color_m, max(3, int(round(blur / 2))))
         exact, reduced, coc_abs = _renders(sf, lens, ladder)
-        err_x = np.mean((_encode(exact) - gt) ** 2, axis=2)
+        err_x = np.mean((encode_srgb8(exact) - gt) ** 2, axis=2)
         row = {"scene": kind, "seed": seed, "focus": focus, "blur_px": blur,
                "psnr_exact": _psnr(float(err_x.sum()), err_x.size),
                "psnr_edge_exact": _psnr(float(err_x[band].sum()), int(band.sum())), "delta": {}, "delta_edge": {}}
         for m, img in reduced.items():
-            err_t = np.mean((_encode(img) - gt) ** 2, axis=2)
+            err_t = np.mean((encode_srgb8(img) - gt) ** 2, axis=2)
             row["delta"][m] = _psnr(float(err_t.sum()), err_t.size) - row["psnr_exact"]
             row["delta_edge"][m] = _psnr(float(err_t[band].sum()), int(band.sum())) - row["psnr_edge_exact"]
             for key, (st, sx, n) in _case_curve(err_t, err_x, coc_abs, m).items():

@@ -95,14 +95,14 @@ def scaled_blurs(blurs, width_px: int, *, reference_width_px=REFERENCE_WIDTH_PX)
     return tuple(round(b * int(width_px) / reference_width_px, 3) for b in blurs)
 
 
-def _encode(image) -> np.ndarray:
+def encode_srgb8(image) -> np.ndarray:
     """A method's output as float sRGB in [0, 1] (uint8 decoded, linear float encoded with clipping)."""
     if image.dtype.kind == "f":
         return linear_to_srgb(np.clip(image, 0.0, 1.0))
     return to_float(image)
 
 
-def _ground_truth(sf, lens, *, cache_dir, key):
+def ground_truth(sf, lens, *, cache_dir, key):
     from ..synth.emitters import render_thin_lens_split
 
     path = None
@@ -174,7 +174,7 @@ def _render_reconstructed(frame, lens, options: dict, *, quality: str) -> np.nda
                              quality=quality)[0]
 
 
-def _bucket_sums(err, coc, band) -> dict:
+def bucket_sums(err, coc, band) -> dict:
     """Squared-error sums and pixel counts per bucket, overall and in the edge band."""
     out = {}
     for lo, hi, label in BUCKETS:
@@ -184,7 +184,7 @@ def _bucket_sums(err, coc, band) -> dict:
     return out
 
 
-def _psnr(sse: float, n: int) -> float:
+def psnr_of_sse(sse: float, n: int) -> float:
     if n == 0:
         return float("nan")
     mse = sse / n
@@ -198,7 +198,7 @@ def wide_cases(kinds, seeds, blurs) -> list[tuple]:
     return [(k, s, f, b) for k in kinds for s in seeds for f in FOCUS_POSITIONS for b in blurs]
 
 
-def _check(kinds, seeds, blurs):
+def check_cases(kinds, seeds, blurs):
     from ..synth.wide import WIDE_SCENES
 
     kinds = list(kinds or WIDE_SCENES)
@@ -259,8 +259,8 @@ def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, reference_width_
     from ..synth.wide import generate_wide, lens_for_blur
 
     parse_highlights(highlights)
-    px = scaled_blurs(_check(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
-    kinds, seeds, blurs = _check(kinds, seeds, px)
+    px = scaled_blurs(check_cases(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
+    kinds, seeds, blurs = check_cases(kinds, seeds, px)
     renderers = _renderers(methods, budget, highlights, variants)
     rows, frames = [], {}
     cases = wide_cases(kinds, seeds, blurs)
@@ -271,7 +271,7 @@ def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, reference_width_
         sf, spec = frames[(kind, seed)]
         lens = lens_for_blur(sf.depth_color_m, sf.rig.color.fx, spec.focus_m[focus], blur)
         bar.set_postfix_str(f"{kind}/{seed}/{focus}/{blur:g}px: ground truth")
-        gt_lin = _ground_truth(sf, lens, cache_dir=cache_dir,
+        gt_lin = ground_truth(sf, lens, cache_dir=cache_dir,
                                key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2])
         bar.update()
         gt = linear_to_srgb(np.clip(gt_lin, 0, 1))
@@ -279,13 +279,13 @@ def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, reference_width_
         band = depth_edge_band(sf.depth_color_m, max(3, int(round(blur / 2))))
         for name, render in renderers.items():
             bar.set_postfix_str(f"{kind}/{seed}/{focus}/{blur:g}px: {name}")
-            err = np.mean((_encode(render(sf, lens)) - gt) ** 2, axis=2)
+            err = np.mean((encode_srgb8(render(sf, lens)) - gt) ** 2, axis=2)
             rows.append({"scene": kind, "seed": seed, "focus": focus, "blur_px": blur,
                          "blur_share": blur / size[0], "f_number": lens.f_number,
                          "focus_distance_m": lens.focus_distance_m, "method": name,
-                         "psnr": _psnr(float(err.sum()), err.size),
-                         "psnr_edge": _psnr(float(err[band].sum()), int(band.sum())),
-                         "sse": _bucket_sums(err, coc, band)})
+                         "psnr": psnr_of_sse(float(err.sum()), err.size),
+                         "psnr_edge": psnr_of_sse(float(err[band].sum()), int(band.sum())),
+                         "sse": bucket_sums(err, coc, band)})
             bar.update()
     bar.close()
     return rows
@@ -293,7 +293,7 @@ def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, reference_width_
 
 def _pooled(rows, method, key) -> float:
     sse = [r["sse"][key] for r in rows if r["method"] == method]
-    return _psnr(sum(s for s, _ in sse), sum(n for _, n in sse))
+    return psnr_of_sse(sum(s for s, _ in sse), sum(n for _, n in sse))
 
 
 def _methods(rows) -> list[str]:
@@ -450,7 +450,7 @@ def tier_curve(rows: list[dict], ref: str = "pcdof-exact", tiers=tuple(TIER_TOLE
                 if not sum(n):
                     continue
                 mean = _pooled([b for _, b in pairs], t, key) - _pooled([a for a, _ in pairs], ref, key)
-                diffs = [_psnr(*b["sse"][key]) - _psnr(*a["sse"][key]) for (a, b), k in zip(pairs, n)
+                diffs = [psnr_of_sse(*b["sse"][key]) - psnr_of_sse(*a["sse"][key]) for (a, b), k in zip(pairs, n)
                          if k >= MIN_BUCKET_PIXELS]
             out.append({"tier": t, "bucket": label, "mean_db": mean,
                         "worst_db": float(min(diffs)) if diffs else float("nan"), "cases": len(diffs)})

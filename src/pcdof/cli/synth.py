@@ -67,7 +67,7 @@ def command(name, output, size, depth_size, seed, focal_length_mm, f_number, foc
     from ..synth import generate_scene, write_scene
     from ..synth.frame import check_seed
     from ..synth.rig import parse_size
-    from .render import check_positive_flags
+    from ._common import check_positive_flags
 
     check_output_folder(output, "output")
     size, depth_size = parse_size(size, "--size"), parse_size(depth_size, "--depth-size")

@@ -56,7 +56,7 @@ PILOT_SAMPLES = 48
 MAX_SAMPLES = 4096
 
 
-def _pixel_directions(intr: Intrinsics) -> np.ndarray:
+def pixel_directions(intr: Intrinsics) -> np.ndarray:
     """(H*W, 3) float64 pinhole directions (u, v, 1) through the pixel centres."""
     if intr.has_distortion:
         raise InputError("the synthetic colour camera must have no distortion; got "
@@ -84,9 +84,9 @@ def render_pinhole(scene, intrinsics: Intrinsics, *, pixel_samples: int = 1) -> 
     depth_m : (H, W) float32 ndarray, metres, z-depth in the camera frame at the pixel centre
         (0 = nothing hit)
     """
-    k = _check_samples(pixel_samples, "pixel_samples")
+    k = check_samples(pixel_samples, "pixel_samples")
     h, w = intrinsics.height, intrinsics.width
-    dirs = _pixel_directions(intrinsics).astype(np.float32)
+    dirs = pixel_directions(intrinsics).astype(np.float32)
     origins = np.zeros_like(dirs)
     rad, t = scene.trace(origins, dirs)
     depth = np.where(np.isfinite(t), t, 0.0).astype(np.float32)  # direction z = 1: t is the z-depth
@@ -223,13 +223,13 @@ def _check_lens(lens) -> ThinLens:
     return lens
 
 
-def _check_samples(samples, name="samples") -> int:
+def check_samples(samples, name="samples") -> int:
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
         raise InputError(f"{name} must be an integer >= 1; got {samples!r}")
     return int(samples)
 
 
-def _check_seed(seed, name="seed") -> int:
+def check_seed(seed, name="seed") -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**57:
         raise InputError(f"{name} must be an integer in [0, 2**57); got {seed!r}")
     return int(seed)
@@ -246,7 +246,7 @@ def _render_pixels(synth_frame, lens: ThinLens, pixels: np.ndarray, samples: int
     n, m = _grid(samples, sub)
     s = n * m * max(1, sub) ** 2
     if focus is None:
-        focus = lens.focus_distance_m * _pixel_directions(intr)
+        focus = lens.focus_distance_m * pixel_directions(intr)
     sub_du, sub_dv = lens.focus_distance_m / intr.fx, lens.focus_distance_m / intr.fy
     out = np.empty((pixels.shape[0], 3), np.float32)
     chunk = max(1, RAYS_PER_CHUNK // s)
@@ -279,7 +279,7 @@ def _render_allocated(synth_frame, lens: ThinLens, counts: np.ndarray, seed: int
     """Render with a per-pixel sample count (H, W) int; pixels are grouped by count."""
     out = np.empty((counts.size, 3), np.float32)
     flat = counts.ravel()
-    focus = lens.focus_distance_m * _pixel_directions(synth_frame.rig.color)
+    focus = lens.focus_distance_m * pixel_directions(synth_frame.rig.color)
     for k in np.unique(flat):
         pixels = np.flatnonzero(flat == k).astype(np.int64)
         out[pixels] = _render_pixels(synth_frame, lens, pixels, int(k), seed, progress, focus)
@@ -355,11 +355,11 @@ def render_thin_lens(synth_frame, lens: ThinLens, *, samples: int | None = None,
     thread count.
     """
     lens = _check_lens(lens)
-    seed = _check_seed(seed)
+    seed = check_seed(seed)
     if samples is None:
         return render_ground_truth(synth_frame, lens, seed=seed, target_psnr_db=target_psnr_db,
                                    progress=progress).image
-    return _render(synth_frame, lens, _check_samples(samples), seed, progress)
+    return _render(synth_frame, lens, check_samples(samples), seed, progress)
 
 
 @dataclass(frozen=True, eq=False)
@@ -418,8 +418,8 @@ def render_ground_truth(synth_frame, lens: ThinLens, *, samples: int | None = No
     from ..color import linear_to_srgb
 
     lens = _check_lens(lens)
-    seed = _check_seed(seed)
-    max_samples = _check_samples(max_samples, "max_samples")
+    seed = check_seed(seed)
+    max_samples = check_samples(max_samples, "max_samples")
     target = float(target_psnr_db)
     if not math.isfinite(target):
         raise InputError(f"target_psnr_db must be finite; got {target_psnr_db!r}")
@@ -445,7 +445,7 @@ def render_ground_truth(synth_frame, lens: ThinLens, *, samples: int | None = No
         return np.full((h, w), math.prod(_grid(n, sub)) * max(1, sub) ** 2, np.int64)
 
     if samples is not None:
-        counts = uniform(max(1, _check_samples(samples) // 2))
+        counts = uniform(max(1, check_samples(samples) // 2))
         a, b, p, _ = halves(counts, 0)
     else:
         n0 = min(max(1, recommended_samples(synth_frame, lens) // 2), max_samples)

@@ -77,15 +77,15 @@ def room(*, floor_y: float, ceiling_y: float, back_z: float, half_width: float, 
     ]
 
 
-def _color(rng, lo=0.05, hi=0.85) -> tuple:
+def random_color(rng, lo=0.05, hi=0.85) -> tuple:
     return tuple(float(v) for v in rng.uniform(lo, hi, 3))
 
 
-def _textured(rng, *, scale=(0.03, 0.1)) -> Material:
+def random_textured(rng, *, scale=(0.03, 0.1)) -> Material:
     """A random high-contrast textured material."""
     kind = str(rng.choice(["checker", "noise", "stripes", "marble"]))
-    a = _color(rng, 0.45, 0.9)
-    b = _color(rng, 0.02, 0.25)
+    a = random_color(rng, 0.45, 0.9)
+    b = random_color(rng, 0.02, 0.25)
     d = rng.normal(size=3)
     return Material(kind, a, b, scale_m=float(rng.uniform(*scale)), direction=tuple(d), contrast=3.0,
                     seed=int(rng.integers(1 << 20)))
@@ -121,7 +121,7 @@ def portrait(rng: np.random.Generator) -> SceneSpec:
         w = rng.uniform(0.03, 0.07)
         hgt = rng.uniform(0.15, 0.24)
         objs.append((box((x, -0.08 - hgt, wall_z - 0.2), (x + w, -0.08, wall_z - 0.02)),
-                     Material("flat", _color(rng, 0.05, 0.8)), False))
+                     Material("flat", random_color(rng, 0.05, 0.8)), False))
         x += w + 0.005
     for i in range(7):  # fairy lights: small, very bright, far behind the focus plane
         xl = -1.2 + 2.4 * i / 6
@@ -133,7 +133,7 @@ def portrait(rng: np.random.Generator) -> SceneSpec:
     skin = Material("noise", (0.78, 0.52, 0.4), (0.55, 0.32, 0.24), scale_m=0.04, contrast=1.5,
                     seed=int(rng.integers(1 << 20)))
     hair = Material("noise", (0.12, 0.07, 0.04), (0.03, 0.02, 0.01), scale_m=0.015, contrast=2.0, seed=3)
-    shirt = Material("stripes", _color(rng, 0.3, 0.9), (0.85, 0.85, 0.85), scale_m=0.05, direction=(0.15, 1, 0.1))
+    shirt = Material("stripes", random_color(rng, 0.3, 0.9), (0.85, 0.85, 0.85), scale_m=0.05, direction=(0.15, 1, 0.1))
     objs.append((sphere((xs, -0.05, zs), 0.105), skin, True))
     objs.append((sphere((xs, -0.08, zs + 0.025), 0.108), hair, True))
     objs.append((cylinder((xs, 0.0, zs), (xs, 0.16, zs), 0.045), skin, False))
@@ -284,7 +284,7 @@ def clutter(rng: np.random.Generator) -> SceneSpec:
         else:
             x, z, base = rng.uniform(-1.8, 1.8), rng.uniform(wall_z - 0.3, wall_z - 0.15), shelf_y
             s = rng.uniform(0.06, 0.14)
-        mat = DARK_GLOSSY if i in (3, 13) else _textured(rng)
+        mat = DARK_GLOSSY if i in (3, 13) else random_textured(rng)
         kind = int(rng.integers(5))
         if kind == 0:
             m, smooth = box((x - s, base - 2 * s, z - s), (x + s, base, z + s), yaw_deg=rng.uniform(0, 90)), False

@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import InputError
 from ..lens import ThinLens
 from .scene import Scene
-from .scenes import SceneSpec, _color, _textured, box, cylinder, quad, room, sphere
+from .scenes import SceneSpec, random_color, random_textured, box, cylinder, quad, room, sphere
 from .shading import Material
 
 #: emitter and glint radiance, multiples of diffuse white (drawn log-uniform)
@@ -68,10 +68,10 @@ def _room(rng, back_z: float, dark: bool) -> list:
     lo, hi = (0.02, 0.2) if dark else (0.2, 0.85)
     half = back_z * rng.uniform(0.7, 1.0)
     return room(floor_y=rng.uniform(0.8, 1.4), ceiling_y=-rng.uniform(1.4, 2.5), back_z=back_z, half_width=half,
-                floor=_textured(rng, scale=(0.1, 0.4)),
-                back=Material("noise", _color(rng, lo, hi), _color(rng, lo * 0.3, lo), scale_m=rng.uniform(0.05, 0.3),
+                floor=random_textured(rng, scale=(0.1, 0.4)),
+                back=Material("noise", random_color(rng, lo, hi), random_color(rng, lo * 0.3, lo), scale_m=rng.uniform(0.05, 0.3),
                               contrast=rng.uniform(1.5, 3.5), seed=int(rng.integers(1 << 20))),
-                sides=_textured(rng, scale=(0.05, 0.3)), ceiling=Material("flat", _color(rng, lo, hi)))
+                sides=random_textured(rng, scale=(0.05, 0.3)), ceiling=Material("flat", random_color(rng, lo, hi)))
 
 
 def _subject(rng, z: float) -> list:
@@ -83,11 +83,11 @@ def _subject(rng, z: float) -> list:
         c = np.array([x + rng.uniform(-0.2, 0.2), rng.uniform(-0.3, 0.4), z + rng.uniform(0, 0.3)])
         kind = int(rng.integers(3))
         if kind == 0:
-            objs.append((sphere(c, s), _textured(rng), True))
+            objs.append((sphere(c, s), random_textured(rng), True))
         elif kind == 1:
-            objs.append((box(c - s, c + s, yaw_deg=rng.uniform(0, 90)), _textured(rng), False))
+            objs.append((box(c - s, c + s, yaw_deg=rng.uniform(0, 90)), random_textured(rng), False))
         else:
-            objs.append((cylinder(c - (0, s * 1.5, 0), c + (0, s * 1.5, 0), s * 0.6), _textured(rng), False))
+            objs.append((cylinder(c - (0, s * 1.5, 0), c + (0, s * 1.5, 0), s * 0.6), random_textured(rng), False))
     return objs
 
 
@@ -96,22 +96,22 @@ def _foreground(rng, z: float) -> list:
     kind = int(rng.integers(3))
     if kind == 0:
         top = rng.uniform(0.12, 0.3) * z * 2
-        return [(box((-2.0, top, z), (2.0, top + 0.05, z + 1.0)), _textured(rng), False)]
+        return [(box((-2.0, top, z), (2.0, top + 0.05, z + 1.0)), random_textured(rng), False)]
     if kind == 1:
         side = rng.choice([-1.0, 1.0])
         x = side * rng.uniform(0.15, 0.4) * z
         w = rng.uniform(0.04, 0.12)
-        return [(box((x - w / 2, -3.0, z), (x + w / 2, 3.0, z + w)), _textured(rng), False)]
+        return [(box((x - w / 2, -3.0, z), (x + w / 2, 3.0, z + w)), random_textured(rng), False)]
     c = np.array([rng.uniform(-0.35, 0.35) * z, rng.uniform(-0.3, 0.3) * z, z])
     s = rng.uniform(0.05, 0.12)
-    return [(box(c - (s, s * 0.6, 0.01), c + (s, s * 0.6, 0.01), yaw_deg=rng.uniform(-40, 40)), _textured(rng),
+    return [(box(c - (s, s * 0.6, 0.01), c + (s, s * 0.6, 0.01), yaw_deg=rng.uniform(-40, 40)), random_textured(rng),
              False)]
 
 
 def _thin(rng, count: int, z_range: tuple) -> list:
     """Thin rods and wires (radius 1.5-8 mm) at random depths and angles across the view."""
     objs = []
-    mat = _textured(rng, scale=(0.005, 0.02))
+    mat = random_textured(rng, scale=(0.005, 0.02))
     for _ in range(count):
         z = rng.uniform(*z_range)
         a = np.array([rng.uniform(-0.6, 0.6) * z, rng.uniform(-0.5, 0.5) * z, z])

@@ -10,7 +10,7 @@ from ..color import encode_from_linear
 from ..errors import ImageWriteError, InputError
 from ..io import write_depth, write_image, write_json
 from ..lens import ThinLens
-from .render import TARGET_PSNR_DB, _check_samples, _check_seed, max_coc_px, render_ground_truth
+from .render import TARGET_PSNR_DB, check_samples, check_seed, max_coc_px, render_ground_truth
 
 #: Every file :func:`write_scene` can write; a run removes those of them it did not write.
 SCENE_FILES = ("color.png", "color_linear.npy", "depth.png", "depth_clean.npy", "depth_color_gt.npy", "calib.json",
@@ -92,9 +92,9 @@ def _check_write_args(synth_frame, lens, gt_samples, gt_seed) -> None:
     if not isinstance(synth_frame, SyntheticFrame):
         raise InputError(f"synth_frame must be a SyntheticFrame; got {type(synth_frame).__name__}")
     if gt_samples is not None:
-        _check_samples(gt_samples, "gt_samples")
+        check_samples(gt_samples, "gt_samples")
     if gt_seed is not None:
-        _check_seed(gt_seed, "gt_seed")
+        check_seed(gt_seed, "gt_seed")
 
 
 def _make_folder(outdir) -> str:

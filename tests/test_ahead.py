@@ -145,7 +145,7 @@ def test_an_edited_kernel_source_is_never_served_old_code(built, numba_after, tm
     before = ahead.fingerprint()
     package = _copy_of_package(tmp_path, monkeypatch)
     assert ahead.fingerprint() == before  # the same sources: the same fingerprint
-    source = package / "renderer.py"
+    source = package / "stages" / "render" / "scatter.py"
     source.write_text(source.read_text() + "\n# edited\n")
     assert ahead.fingerprint() != before
     assert not ahead.available() and not ahead.activate() and not ahead.active()

@@ -40,8 +40,10 @@ from pathlib import Path
 logger = logging.getLogger(__name__)
 
 #: modules whose kernels are compiled ahead of time: every stage's (see :data:`pcdof.kernels.STAGES`)
-MODULES = ("pcdof.register", "pcdof.distortion", "pcdof.fill", "pcdof.renderer", "pcdof.tiles", "pcdof.lens",
-           "pcdof.color")
+MODULES = ("pcdof.register", "pcdof.distortion", "pcdof.fill", "pcdof.stages.render.classify",
+           "pcdof.stages.render.scatter", "pcdof.stages.render.composite", "pcdof.stages.render.extend",
+           "pcdof.stages.render.uniform", "pcdof.stages.render.grids", "pcdof.stages.render.ownership",
+           "pcdof.stages.render.tiles", "pcdof.lens", "pcdof.color")
 
 _PACKAGE = Path(__file__).resolve().parent
 _PREFIX = "pcdof_ahead_"

@@ -52,7 +52,7 @@ class RenderOptions:
 
     def __post_init__(self) -> None:
         from .fill import check_fill_method
-        from .renderer import check_method, check_quality
+        from .stages.render import check_method, check_quality
 
         if not isinstance(self.lens, (ThinLens, PaperLens)):
             raise LensError(f"lens must be a ThinLens or PaperLens; got {type(self.lens).__name__}")

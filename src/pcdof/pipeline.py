@@ -24,7 +24,7 @@ from .errors import InputError
 from .lens import ThinLens, _depth_array, focus_depth_at
 from .options import as_options
 from .plans import threads_for_load
-from .renderer import SHARP_COC_PX, check_method, render_image
+from .stages.render import SHARP_COC_PX, check_method, render_image
 
 
 @dataclass

@@ -3,10 +3,10 @@
 A shape is the lens opening scaled to circumradius 1, centred on the optical axis, in image
 coordinates (x right, y down). Every consumer asks the shape, never a blade count:
 
-- :func:`pcdof.renderer.aperture_table` integrates :meth:`Aperture.span` row by row (or takes
+- :func:`pcdof.stages.render.aperture_table` integrates :meth:`Aperture.span` row by row (or takes
   :meth:`Aperture.cumulative` where the shape has a closed form) and skips the centroid of each
   strip when :attr:`Aperture.symmetric`;
-- :mod:`pcdof.reference.render` lays out :meth:`Aperture.band` (exact strips);
+- :mod:`pcdof.stages.render.reference` lays out :meth:`Aperture.band` (exact strips);
 - :mod:`pcdof.synth.render` casts rays from :meth:`Aperture.sample` (area-uniform points).
 
 Shapes are row-convex: each height v in [-1, 1] crosses the shape in one interval (or none).

@@ -216,7 +216,7 @@ def render_oracle(layers, lens, fx: float, *, quality: str = "exact", max_range_
     from dataclasses import replace
 
     from ..plans import plan_render
-    from ..renderer import render_image
+    from ..stages.render import render_image
 
     layers = list(layers)
     if not layers or not all(isinstance(la, HiddenLayer) for la in layers):

@@ -136,7 +136,7 @@ def test_other_argument_types_go_to_numba(built, numba_after, caplog):
 
 def _copy_of_package(tmp_path, monkeypatch):
     package = tmp_path / "pcdof"
-    shutil.copytree(ROOT / "pcdof", package, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "src" / "pcdof", package, ignore=shutil.ignore_patterns("__pycache__"))
     monkeypatch.setattr(ahead, "_PACKAGE", package)
     return package
 

@@ -1,13 +1,17 @@
 """What the extension behind nearer layers costs, with an earlier renderer and the current one, side by side.
 
-    git show REV:src/pcdof/renderer.py > before_renderer.py
-    python scripts/extension_side_by_side.py before_renderer.py --repeats 21
+    mkdir before_render && git archive REV src/pcdof/stages/render | tar -x --strip-components=4 -C before_render
+    python scripts/extension_side_by_side.py before_render --repeats 21
+
+(a revision before the render stage became a package: ``git show REV:src/pcdof/renderer.py > before_renderer.py``
+and that file instead of the folder).
 
 Both renderers render the benchmark's speed frames (synthetic portrait, 512x424 depth, the scene's
 default lens, depth registered and filled once by the pipeline) in one process, alternated per repeat
 (ABBA, so neither always goes first), and the time spent deciding which hidden pixels each layer
-continues and extending it (``_hidden`` and ``_extend_behind``, and ``_behind_sources`` where the
-renderer has it; nested calls counted once) is summed per render: wall time, and the CPU time of the
+continues and extending it (``continued_pixels``, ``extend_layer_behind`` and ``behind_sources``; in a
+single-file renderer ``_hidden``, ``_extend_behind`` and ``_behind_sources`` where it has it; nested calls
+counted once) is summed per render: wall time, and the CPU time of the
 rendering thread (which a busy machine inflates less). Medians in ms, their ratio, and whether the two
 renders are bit-identical. Set NUMBA_NUM_THREADS=1 for one thread.
 """
@@ -19,12 +23,16 @@ import time
 import numpy as np
 from _before import load_renderer, renderer_arguments, sizes
 
-#: the functions whose time is summed (the decision and the extension), where a renderer has them
+#: the functions whose time is summed (the decision and the extension), where a single-file renderer has them
 TIMED = ("_hidden", "_extend_behind", "_behind_sources")
+#: the same in the render package: (its module, the name that module calls the function by)
+TIMED_PACKAGE = (("physical", "continued_pixels"), ("extend", "extend_layer_behind"), ("extend", "behind_sources"),
+                 ("ownership", "behind_sources"))
 
 
 def _timed(module, acc: dict, depth: list) -> None:
-    """Wrap the functions of TIMED in *module* so that each render's time in them adds to *acc*."""
+    """Wrap the functions of TIMED (TIMED_PACKAGE in a package) in *module* so that each render's time in them
+    adds to *acc*."""
     def wrap(fn):
         @functools.wraps(fn)
         def inner(*a, **k):
@@ -39,9 +47,11 @@ def _timed(module, acc: dict, depth: list) -> None:
                 acc["cpu"] += time.thread_time() - c0
                 depth[0] -= 1
         return inner
-    for name in TIMED:
-        if hasattr(module, name):
-            setattr(module, name, wrap(getattr(module, name)))
+    timed = TIMED_PACKAGE if hasattr(module, "physical") else [(None, name) for name in TIMED]
+    for where, name in timed:
+        owner = getattr(module, where) if where else module
+        if hasattr(owner, name):
+            setattr(owner, name, wrap(getattr(owner, name)))
 
 
 def main(argv=None) -> None:
@@ -50,7 +60,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
 
     import pcdof.pipeline as pipeline
-    from pcdof import renderer
+    import pcdof.stages.render as renderer
     from pcdof.synth import generate_scene
 
     before = load_renderer(args.before)

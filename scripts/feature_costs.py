@@ -32,7 +32,7 @@ def main(argv=None) -> None:
 
     import numpy as np
 
-    from pcdof import renderer
+    from pcdof.stages.render import physical as renderer  # render_physical calls render_layers_linear from there
     from pcdof.bench.speed import paper_on_opencv_depth
     from pcdof.lens import PaperLens
     from pcdof.pipeline import run

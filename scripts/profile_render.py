@@ -5,7 +5,7 @@
 The pipeline renders the speed frame (synthetic portrait, 512x424 depth, the scene's default lens) once to
 warm up, then *repeats* times with the renderer's passes wrapped by timers: per layer (near to far) its
 bounding box, grid scale and the medians (ms) of the passes it ran: ``hidden`` (which hidden pixels the layer
-continues, :func:`pcdof.renderer._hidden`; OpenCV's transforms in it are also counted apart as
+continues, :func:`pcdof.stages.render.ownership.continued_pixels`; OpenCV's transforms in it are also counted apart as
 ``transforms``, summed over the threads that run them), ``extend`` (the extended copy), ``reduce`` (cell
 means), ``plan`` (uniform tiles' cells and kernels), ``scatter``, ``convolve``, ``upsample`` and
 ``composite``. Other processes on the machine inflate every number alike: compare rows of one run, not runs.
@@ -16,10 +16,13 @@ import collections
 import statistics
 import time
 
-#: renderer function -> the pass its time counts in (nested calls count in the outermost)
-PASSES = {"_hidden": "hidden", "_extended": "extend", "_reduce_cells": "reduce", "_convolved_cells": "plan",
-          "_scatter_sources": "scatter", "_convolve_uniform": "convolve", "upsample_cells": "upsample",
-          "_composite_under": "composite", "_composite_sharp": "composite"}
+#: (module of pcdof.stages.render, the name it calls the function by) -> the pass its time counts in (nested calls
+#: count in the outermost)
+PASSES = {("physical", "continued_pixels"): "hidden", ("grids", "extended_layer"): "extend",
+          ("grids", "reduce_cells"): "reduce", ("physical", "convolved_cells"): "plan",
+          ("physical", "scatter_sources"): "scatter", ("physical", "convolve_uniform"): "convolve",
+          ("physical", "upsample_cells"): "upsample", ("composite", "composite_under"): "composite",
+          ("composite", "composite_sharp"): "composite"}
 
 
 class _Timers:
@@ -32,18 +35,20 @@ class _Timers:
         self.times = collections.defaultdict(float)  # (layer, pass) -> seconds
         self.boxes = {}
         self.depth = 0
-        for name, what in PASSES.items():
-            setattr(renderer, name, self._wrap(getattr(renderer, name), what))
+        for (module, name), what in PASSES.items():
+            module = getattr(renderer, module)
+            setattr(module, name, self._wrap(getattr(module, name), what))
         for name in ("_blur_layer", "_sharp_layer"):
-            setattr(renderer, name, self._layer(getattr(renderer, name)))
-        # the renderer reads cv2 through its module: a namespace whose transforms are timed
+            setattr(renderer.physical, name, self._layer(getattr(renderer.physical, name)))
+        # the renderer's modules read cv2 through their globals: a namespace whose transforms are timed
         timed = type("cv2", (), {})()
         for k in dir(cv2):
             if not k.startswith("__"):
                 setattr(timed, k, getattr(cv2, k))
         for k in ("distanceTransform", "distanceTransformWithLabels"):
             setattr(timed, k, self._wrap(getattr(cv2, k), "transforms", nested=True))
-        renderer.cv2 = timed
+        renderer.extend.cv2 = timed
+        renderer.ownership.cv2 = timed
 
     def _wrap(self, fn, what, nested=False):
         def inner(*a, **k):
@@ -76,7 +81,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
 
     import pcdof.pipeline as pipeline
-    from pcdof import renderer
+    import pcdof.stages.render as renderer
     from pcdof.synth import generate_scene
 
     timers = _Timers(renderer)

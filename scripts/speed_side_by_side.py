@@ -1,7 +1,10 @@
 """The full pipeline's speed with an earlier renderer and the current one, side by side.
 
-    git show REV:src/pcdof/renderer.py > before_renderer.py
-    python scripts/speed_side_by_side.py before_renderer.py --before-balanced 4 --repeats 11
+    mkdir before_render && git archive REV src/pcdof/stages/render | tar -x --strip-components=4 -C before_render
+    python scripts/speed_side_by_side.py before_render --before-balanced 4 --repeats 11
+
+(a revision before the render stage became a package: ``git show REV:src/pcdof/renderer.py > before_renderer.py``
+and that file instead of the folder).
 
 Both renderers run in one process on the benchmark's speed frames (synthetic portrait, 512x424 depth,
 the scene's default lens), alternated per repeat with ``exact`` and the paper method, so a burst of load
@@ -22,7 +25,8 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
 
     import pcdof.pipeline as pipeline
-    from pcdof import plans, renderer
+    import pcdof.stages.render as renderer
+    from pcdof import plans
     from pcdof.lens import PaperLens
     from pcdof.synth import generate_scene
 

@@ -10,12 +10,13 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from pcdof import renderer
-from pcdof.apertures import APERTURES, Aperture, Disc, Polygon, aperture_for, as_aperture
+import pcdof.stages.render as renderer
+from pcdof.apertures import APERTURES, Aperture, Disc, Polygon, as_aperture
+from pcdof.lens import aperture_for
 from pcdof.errors import InputError, PcdofError
 from pcdof.lens import ThinLens
-from pcdof.reference import render as ref_render
-from pcdof.tiles import TileMap
+from pcdof.stages.render import reference as ref_render
+from pcdof.stages.render.tiles import TileMap
 
 D = 0.6  # the cat's eye: the unit disc cut by the unit disc centred at (D, 0)
 
@@ -100,7 +101,7 @@ class TestNewShape:
     @pytest.mark.parametrize("r", [1.7, 3.3, 9.6])
     def test_fast_point_source_is_the_reference_footprint(self, cats_eye, r):
         table = renderer.aperture_table(cats_eye)
-        fast = renderer._footprint_kernel(r, cats_eye.symmetric, table)  # one source through the scatter
+        fast = renderer.uniform.footprint_kernel(r, cats_eye.symmetric, table)  # one source through the scatter
         ref = ref_render.footprint(r, cats_eye) / (cats_eye.unit_area * r * r)
         assert fast.shape == ref.shape
         np.testing.assert_allclose(fast, ref, atol=2e-5, rtol=0)
@@ -133,7 +134,6 @@ class TestShapeOnTheLens:
     """A registered shape reaches every renderer through the lens: ThinLens(aperture_shape=...)."""
 
     def test_pipeline_renders_the_lens_shape(self, cats_eye):
-        from pcdof.apertures import aperture_for
         from pcdof.camera import Intrinsics, RGBDFrame, Rig
         from pcdof.errors import LensError
         from pcdof.lens import ThinLens

@@ -340,7 +340,7 @@ def test_paper_on_opencv_depth_is_the_paper_method_on_cv2_registered_depth():
     from pcdof.bench.registration import register_cv2
     from pcdof.bench.speed import paper_on_opencv_depth
     from pcdof.lens import PaperLens
-    from pcdof.renderer import render_paper
+    from pcdof.stages.render import render_paper
     from pcdof.synth import generate_scene
 
     sf = generate_scene("portrait", color_size=(96, 72), depth_size=(64, 53), seed=1)

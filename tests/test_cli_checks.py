@@ -165,7 +165,7 @@ class TestFollowUps:
 
     def test_render_image_method_must_be_a_name(self):
         from pcdof.lens import ThinLens
-        from pcdof.renderer import render_image
+        from pcdof.stages.render import render_image
 
         color = np.zeros((8, 8, 3), np.uint8)
         with pytest.raises(InputError, match="method must be one of"):

@@ -1,7 +1,7 @@
 """The extension behind nearer layers (partial occlusion) against its plain statement.
 
-The renderer finds the hidden pixels a layer continues (:func:`pcdof.renderer._owned`) and each one's
-nearest pixel of the layer (:func:`pcdof.renderer._behind_sources`) with compiled kernels that read
+The renderer finds the hidden pixels a layer continues (:func:`pcdof.stages.render.ownership.owned_mask`) and each one's
+nearest pixel of the layer (:func:`pcdof.stages.render.extend.behind_sources`) with compiled kernels that read
 OpenCV's transforms in place, and composites the in-focus layer straight from the frame. Here each step
 is checked bit for bit against the same rule written plainly with numpy on the same OpenCV transforms:
 whole windows copied, masks and index arrays built in full.
@@ -16,7 +16,7 @@ import hypothesis.strategies as st
 import numpy as np
 from hypothesis import given, settings
 
-from pcdof import renderer
+import pcdof.stages.render as renderer
 
 
 def _extend_plain(lin, radius, member, hidden, reach_px):
@@ -48,13 +48,14 @@ def _extend_plain(lin, radius, member, hidden, reach_px):
 
 
 def _owned_plain(layer, li, box, bbox, hidden, reach_px):
-    """:func:`pcdof.renderer._owned` (one thread, cells of 1 px) with full-window masks and numpy indexing."""
+    """:func:`pcdof.stages.render.ownership.owned_mask` (one thread, cells of 1 px) with full-window masks and numpy
+    indexing."""
     h, w = layer.shape
     (by, ey), (bx, ex) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
     rd = int(math.ceil(reach_px))
     pad = 2 * rd + 2
     whole = (slice(max(0, by - pad), min(h, ey + pad)), slice(max(0, bx - pad), min(w, ex + pad)))
-    span = renderer._span
+    span = renderer.ownership.widened_span
     out = np.zeros_like(hidden)
     reach_box = (span(bbox[0] - by, bbox[1] - by, rd, slice(0, ey - by)),
                  span(bbox[2] - bx, bbox[3] - bx, rd, slice(0, ex - bx)))
@@ -135,13 +136,13 @@ def test_extension_is_the_plain_rule_bit_for_bit(seed):
     lin = rng.random((layer.shape[0], layer.shape[1], nc), dtype=np.float32)[box]  # a view, as the renderer's
     radius = rng.uniform(0.5, 20.0, layer.shape).astype(np.float32)[box]
     before = (lin.copy(), radius.copy(), member.copy(), hidden.copy())
-    got = renderer._extend_behind(lin, radius, member, hidden, reach)
+    got = renderer.extend.extend_layer_behind(lin, radius, member, hidden, reach)
     want = _extend_plain(lin, radius, member, hidden, reach)
     for g, x in zip(got, want):
         np.testing.assert_array_equal(g, x)
     for a, b in zip((lin, radius, member, hidden), before):
         np.testing.assert_array_equal(a, b)
-    found = renderer._behind_sources(member, hidden, reach)
+    found = renderer.extend.behind_sources(member, hidden, reach)
     added = want[2] & ~member
     if found is None:
         assert not added.any()
@@ -161,7 +162,7 @@ def test_ownership_is_the_plain_rule_bit_for_bit(seed):
     if ys.size == 0:
         return
     bbox = (ys.min(), ys.max(), xs.min(), xs.max())
-    np.testing.assert_array_equal(renderer._owned(layer, li, box, bbox, hidden, reach),
+    np.testing.assert_array_equal(renderer.ownership.owned_mask(layer, li, box, bbox, hidden, reach),
                                   _owned_plain(layer, li, box, bbox, hidden, reach))
 
 
@@ -177,10 +178,10 @@ def test_in_focus_layer_composited_in_place_is_the_extended_copy(seed):
     trans = np.where(rng.random((h, w)) < 0.3, 0.0, rng.random((h, w))).astype(np.float32)
     acc = rng.random((h, w, 3), dtype=np.float32)
     acc_a = rng.random((h, w), dtype=np.float32)
-    found = renderer._behind_sources(member, hidden, reach)
-    dst, src = found if found is not None else (renderer._NO_PIXELS, renderer._NO_PIXELS)
+    found = renderer.extend.behind_sources(member, hidden, reach)
+    dst, src = found if found is not None else (renderer.extend.NO_PIXELS, renderer.extend.NO_PIXELS)
     got = (acc.copy(), acc_a.copy(), trans.copy())
-    renderer._composite_sharp(lin, member, box[0].start, box[1].start, dst, src, *got)
+    renderer.composite.composite_sharp(lin, member, box[0].start, box[1].start, dst, src, *got)
     ext, _, m = _extend_plain(lin[box], np.zeros(member.shape, np.float32), member, hidden, reach)
     want = (acc.copy(), acc_a.copy(), trans.copy())
     t = want[2][box]
@@ -207,11 +208,12 @@ def test_ownership_transform_labels_the_pixel_the_extension_copies(seed, threads
     box = (slice(min(box[0].start, bbox[0]), max(box[0].stop, bbox[1] + 1)),
            slice(min(box[1].start, bbox[2]), max(box[1].stop, bbox[3] + 1)))
     hidden = (layer[box] < li) & (rng.random((box[0].stop - box[0].start, box[1].stop - box[1].start)) < 0.9)
-    found = renderer._ownership(layer, li, box, bbox, hidden, reach, 1, threads)
+    found = renderer.ownership.owners_of_hidden(layer, li, box, bbox, hidden, reach, 1, threads)
     if found is None or isinstance(found, np.ndarray):
         return
     dst, src, d = found
-    alone = renderer._behind_sources(layer[box] == li, renderer._owned(layer, li, box, bbox, hidden, reach), reach)
+    owned = renderer.ownership.owned_mask(layer, li, box, bbox, hidden, reach)
+    alone = renderer.extend.behind_sources(layer[box] == li, owned, reach)
     near = d <= reach
     if alone is None:
         assert not near.any()
@@ -242,7 +244,7 @@ def test_cut_window_holds_its_seeds_in_opencv_label_order(seed):
     ky0, kx0 = int(rng.integers(y0, y1)), int(rng.integers(x0, x1))
     keep = (ky0, int(rng.integers(ky0, y1)), kx0, int(rng.integers(kx0, x1)))
     seeds = layer[y0:y1, x0:x1] >= li
-    found = renderer._seeds_cut(seeds, (y0, y1, x0, x1), keep)
+    found = renderer.ownership.cut_to_seeds(seeds, (y0, y1, x0, x1), keep)
     if not seeds.any():
         assert found is None
         return
@@ -274,7 +276,7 @@ def test_transforms_of_the_cut_window_are_the_windows_own(seed):
     found = _bbox(box)
     if found is None:
         return
-    cut = renderer._cut(win, found, (ky0, ky1, kx0, kx1))
+    cut = renderer.ownership.cut_window(win, found, (ky0, ky1, kx0, kx1))
     keep = (slice(ky0, ky1 + 1), slice(kx0, kx1 + 1))
 
     def transforms(y0, y1, x0, x1):

@@ -227,7 +227,7 @@ def _layers(h, w, rng):
 def test_render_matches_reference(blades):
     from pcdof.apertures import aperture_from_blades
     from pcdof.gpu.render import render_layers_linear
-    from pcdof.reference.render import render_layers_linear as reference
+    from pcdof.stages.render.reference import render_layers_linear as reference
 
     rng = np.random.default_rng(blades)
     lin, coc = _layers(12, 16, rng)
@@ -271,7 +271,7 @@ def test_pipeline_on_the_gpu_matches_the_references_chained():
     from pcdof.reference.coc import signed_coc_px
     from pcdof.reference.fill import fill_directional
     from pcdof.stages.register.reference import reproject_depth
-    from pcdof.reference.render import render_physical
+    from pcdof.stages.render.reference import render_physical
 
     frame, lens = _frame()
     result = run(frame, RenderOptions(lens, highlights="off"))
@@ -337,7 +337,7 @@ def test_streamed_frames_match_one_at_a_time():
 
 @sim_only
 def test_highlights_and_paper_paths():
-    from pcdof.apertures import aperture_for
+    from pcdof.lens import aperture_for
     from pcdof.camera import Intrinsics, RGBDFrame, Rig
     from pcdof.color import encode_from_linear
     from pcdof.gpu.api import run
@@ -345,8 +345,8 @@ def test_highlights_and_paper_paths():
     from pcdof.lens import PaperLens, ThinLens
     from pcdof.options import RenderOptions
     from pcdof.reference.coc import signed_coc_px
-    from pcdof.reference.render import render_layers_linear
-    from pcdof.renderer import render_image
+    from pcdof.stages.render.reference import render_layers_linear
+    from pcdof.stages.render import render_image
 
     rig = Rig.registered(Intrinsics(12, 8, 40.0, 40.0, 5.5, 3.5))
     depth = np.full((8, 12), 3.0, np.float32)

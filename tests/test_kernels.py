@@ -66,7 +66,7 @@ class TestReadOnly:
 
     def test_coc_and_tiles_take_read_only_inputs(self):
         from pcdof.lens import ThinLens, _signed_coc
-        from pcdof.tiles import _tile_ranges, classify_tiles
+        from pcdof.stages.render.tiles import classify_tiles, tile_ranges
 
         depth = np.linspace(0.5, 4.0, 64, dtype=np.float32).reshape(8, 8)
         frozen = depth.copy()
@@ -81,7 +81,7 @@ class TestReadOnly:
         coc.flags.writeable = False
         classify_tiles(coc, tile_px=4)
         classify_tiles(np.array(coc), tile_px=4)
-        assert len(_tile_ranges.signatures) == 1 and not _tile_ranges.signatures[0][0].mutable
+        assert len(tile_ranges.signatures) == 1 and not tile_ranges.signatures[0][0].mutable
 
 
 class TestStages:
@@ -265,16 +265,20 @@ class TestWarmupCoversTheFrame:
         assert proc.stdout.splitlines()[-1] == "[]"
 
 
-@pytest.mark.parametrize("module_name, kernel_module", [
-    ("pcdof.renderer", "pcdof.renderer"), ("pcdof.stages.register", "pcdof.stages.register.project"),
-    ("pcdof.stages.register", "pcdof.stages.register.raster"), ("pcdof.fill", "pcdof.fill")])
-def test_stage_warmup_reaches_every_kernel_of_its_module(module_name, kernel_module):
-    """A stage's warm-up takes every path of its module, so a first frame never compiles a kernel silently."""
+RENDER_KERNEL_MODULES = tuple(f"pcdof.stages.render.{m}" for m in
+                              ("classify", "scatter", "composite", "extend", "uniform", "grids", "ownership"))
+
+
+@pytest.mark.parametrize("warm_module,module_names", [
+    ("pcdof.stages.render", RENDER_KERNEL_MODULES),
+    ("pcdof.stages.register", ("pcdof.stages.register.project", "pcdof.stages.register.raster")),
+    ("pcdof.fill", ("pcdof.fill",))])
+def test_stage_warmup_reaches_every_kernel_of_its_module(warm_module, module_names):
+    """A stage's warm-up takes every path of its modules, so a first frame never compiles a kernel silently."""
     import importlib
 
-    module = importlib.import_module(module_name)
-    module.warmup()
-    missed = [d.__name__ for d in kernels._cached_dispatchers(kernel_module) if not d.signatures]
+    importlib.import_module(warm_module).warmup()
+    missed = [d.__name__ for m in module_names for d in kernels._cached_dispatchers(m) if not d.signatures]
     assert missed == []
 
 

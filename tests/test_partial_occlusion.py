@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 
-from pcdof import renderer
-from pcdof.reference import render as ref
-from pcdof.renderer import render_layers_linear
+import pcdof.stages.render as renderer
+from pcdof.stages.render import reference as ref
+from pcdof.stages.render import render_layers_linear
 
 
 def _scene(radiance):
@@ -83,7 +83,7 @@ def test_ownership_on_its_window_renders_as_on_the_whole_box(seed, quality):
     decide it: the render is bit for bit the one of the rule answered everywhere on the widened box."""
     lin, coc = _random_frame(seed)
     out, info = render_layers_linear(lin, coc, quality=quality)
-    with mock.patch.object(renderer, "_ownership", _owned_whole):
+    with mock.patch.object(renderer.ownership, "owners_of_hidden", _owned_whole):
         whole, whole_info = render_layers_linear(lin, coc, quality=quality)
     np.testing.assert_array_equal(out, whole)
     assert info["layers"] == whole_info["layers"]
@@ -97,7 +97,7 @@ def test_ownership_with_no_candidate_near_the_hidden_pixels_owns_nothing():
     hidden = np.zeros_like(layer, bool)
     hidden[95:105, 20:30] = True
     box = (slice(0, 200), slice(0, 200))
-    out = renderer._owned(layer, 1, box, (0, 199, 0, 199), hidden, 8.0)
+    out = renderer.ownership.owned_mask(layer, 1, box, (0, 199, 0, 199), hidden, 8.0)
     assert out.shape == hidden.shape and not out.any()
 
 
@@ -107,7 +107,7 @@ def test_ownership_with_no_farther_layer_owns_every_hidden_pixel_in_reach():
     layer[:, 50:] = 1
     hidden = layer == 0
     box = (slice(0, 60), slice(0, 80))
-    out = renderer._owned(layer, 1, box, (0, 59, 50, 79), hidden, 10.0)
+    out = renderer.ownership.owned_mask(layer, 1, box, (0, 59, 50, 79), hidden, 10.0)
     assert out[:, 40:50].all()  # every hidden pixel within the reach (10 px) of the layer
     assert (out <= hidden).all() and _owned_whole(layer, 1, box, None, hidden, 10.0)[:, 40:50].all()
 
@@ -132,8 +132,8 @@ def test_ownership_on_threads_is_the_serial_answer(seed, cell_px, threads):
     box = (slice(0, h), slice(0, w))
     bbox = (ys.min(), ys.max(), xs.min(), xs.max())
     reach = float(rng.uniform(1, 20))
-    serial = renderer._owned(layer, li, box, bbox, hidden, reach, cell_px)
-    threaded = renderer._owned(layer, li, box, bbox, hidden, reach, cell_px, threads=threads)
+    serial = renderer.ownership.owned_mask(layer, li, box, bbox, hidden, reach, cell_px)
+    threaded = renderer.ownership.owned_mask(layer, li, box, bbox, hidden, reach, cell_px, threads=threads)
     np.testing.assert_array_equal(serial, threaded)
 
 
@@ -148,7 +148,7 @@ def test_ownership_sees_a_farther_layer_beyond_the_hidden_pixels_reach():
     hidden = np.zeros_like(layer, bool)
     hidden[50, 10] = True
     box = (slice(0, 100), slice(0, 100))
-    out = renderer._owned(layer, 1, box, (50, 50, 25, 25), hidden, 20.0)
+    out = renderer.ownership.owned_mask(layer, 1, box, (50, 50, 25, 25), hidden, 20.0)
     assert not out.any() and not _owned_whole(layer, 1, box, None, hidden, 20.0).any()
     layer[50, 36] = 0  # with no farther layer the pixel is owned
-    assert renderer._owned(layer, 1, box, (50, 50, 25, 25), hidden, 20.0)[50, 10]
+    assert renderer.ownership.owned_mask(layer, 1, box, (50, 50, 25, 25), hidden, 20.0)[50, 10]

@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-import pcdof.renderer as render_module
+import pcdof.stages.render.physical as render_module
 from pcdof.camera import Intrinsics, RGBDFrame, Rig
 from pcdof.errors import InputError, LensError
 from pcdof.lens import PaperLens, ThinLens

@@ -7,7 +7,7 @@ import numba
 import numpy as np
 import pytest
 
-from pcdof import renderer
+import pcdof.stages.render as renderer
 from pcdof.errors import InputError
 from pcdof.lens import PaperLens, ThinLens
 from pcdof.plans import QUALITIES, RegisterPlan, RenderPlan, as_dict, plan_register, plan_render

@@ -21,17 +21,17 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pcdof import fill as fast_fill
-from pcdof import renderer
+import pcdof.stages.render as renderer
 from pcdof.camera import Intrinsics, Rig
 from pcdof.color import decode_to_linear
 from pcdof.lens import PaperLens, ThinLens
 from pcdof.plans import plan_render
 from pcdof.reference import coc as ref_coc
 from pcdof.reference import fill as ref_fill
-from pcdof.reference import render as ref_render
 from pcdof.stages.register import reference as ref_register
 from pcdof.stages.register import reproject_depth
-from pcdof.tiles import TileMap, classify_tiles
+from pcdof.stages.render import reference as ref_render
+from pcdof.stages.render.tiles import TileMap, classify_tiles
 
 # ---------------------------------------------------------------------------------------------
 # Tolerances, one per path (README developer section, "Reference implementations").

@@ -591,7 +591,7 @@ class TestPaperBlurKernel:
         assert float(np.abs(limited - far).max()) < 2e-5 * float(img.max() - img.min())
 
     def test_huge_sigma_renders(self):
-        from pcdof.renderer import render_paper
+        from pcdof.stages.render import render_paper
         from pcdof.lens import PaperLens
 
         out, _ = render_paper(color8(0), depth_mm(0) / 1000.0, PaperLens(0.5, blur_sigma_px=1e9))

@@ -11,7 +11,7 @@ from pcdof.color import decode_to_linear, linear_to_srgb, srgb_to_linear
 from pcdof.errors import InputError, LensError
 from pcdof.lens import PaperLens, ThinLens
 from pcdof.plans import plan_render
-from pcdof.renderer import render_image, render_layers_linear
+from pcdof.stages.render import render_image, render_layers_linear
 
 FX = 500.0
 

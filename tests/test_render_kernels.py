@@ -1,6 +1,6 @@
 """The renderer's blur-layer kernels against plain formulations of what they compute.
 
-The scatter (:func:`pcdof.renderer._scatter_packed`) is checked against a direct evaluation of its
+The scatter (:func:`pcdof.stages.render.scatter.scatter_packed`) is checked against a direct evaluation of its
 definition: every source spreads over its aperture scaled to its radius, split into one strip per
 pixel row (area and centre from the aperture's cumulative tables), each strip a box [a, a + area]
 whose overlap with every pixel [x - 1/2, x + 1/2] is its weight there. Nothing of the kernel's
@@ -17,9 +17,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pcdof import renderer
+import pcdof.stages.render as renderer
 from pcdof.apertures import Disc, Polygon
-from pcdof.tiles import classify_tiles
+from pcdof.stages.render.tiles import classify_tiles
 
 #: Apertures of both kinds of strip: centred (the disc) and off-centre (odd polygons, turned).
 APERTURES = {"disc": Disc(), "pentagon": Polygon(blades=5, vertex_angle_rad=0.3),
@@ -28,7 +28,7 @@ APERTURES = {"disc": Disc(), "pentagon": Polygon(blades=5, vertex_angle_rad=0.3)
 
 def _lookup(u: float, g: np.ndarray) -> float:
     """The table's linear interpolation at height u in [-1, 1] (float64)."""
-    return float(np.interp(u, renderer._U, g))
+    return float(np.interp(u, renderer.aperture.TABLE_U, g))
 
 
 def _strips(r: float, dy: int, table: np.ndarray) -> tuple[float, float]:
@@ -62,7 +62,7 @@ def scatter_direct(xs, ys, radius, values, shape, table) -> np.ndarray:
 
 
 def packed(xs, ys, radius, values, h):
-    """Sources (sorted by row, then column) as :func:`pcdof.renderer._pack_sources` gives them."""
+    """Sources (sorted by row, then column) as :func:`pcdof.stages.render.scatter.pack_sources` gives them."""
     order = np.lexsort((xs, ys))
     counts = np.bincount(ys[order], minlength=h)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -88,9 +88,9 @@ def run_scatter(xs, ys, radius, values, shape, aperture, y_lo=None, y_hi=None, t
     out = np.zeros((h, w, 4), np.float32)
     y_lo, y_hi = 0 if y_lo is None else y_lo, h - 1 if y_hi is None else y_hi
     if starts is None:
-        starts = renderer._balanced_runs(offsets, w, math.ceil(float(pr.max()) + 0.5), y_lo, y_hi, tasks)
-    renderer._scatter_packed(pxs, pr, pv, offsets, w, float(pr.max()), y_lo, y_hi, aperture.symmetric, table, out,
-                             np.asarray(starts, np.int64))
+        starts = renderer.scatter.balanced_runs(offsets, w, math.ceil(float(pr.max()) + 0.5), y_lo, y_hi, tasks)
+    renderer.scatter.scatter_packed(pxs, pr, pv, offsets, w, float(pr.max()), y_lo, y_hi, aperture.symmetric, table,
+                                    out, np.asarray(starts, np.int64))
     return out
 
 
@@ -155,7 +155,7 @@ class TestScatterPacked:
         y_hi = y_lo + n_rows - 1
         counts = rng.integers(0, 50, h) * (rng.random(h) < 0.5)
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        starts = renderer._balanced_runs(offsets, width, reach, y_lo, y_hi, runs)
+        starts = renderer.scatter.balanced_runs(offsets, width, reach, y_lo, y_hi, runs)
         n = starts.size - 1
         assert starts[0] == y_lo and starts[-1] == y_hi + 1 and np.all(np.diff(starts) >= 0)
         assert n == max(1, min(runs, n_rows // (2 * reach)))
@@ -163,7 +163,7 @@ class TestScatterPacked:
         # an equal share
         ys = np.arange(y_lo, y_hi + 1)
         near = offsets[np.minimum(h - 1, ys + reach) + 1] - offsets[np.maximum(0, ys - reach)]
-        work = near + renderer._ROW_PASS_STRIPS_PER_PX * width
+        work = near + renderer.scatter.ROW_PASS_STRIPS_PER_PX * width
         cum = np.concatenate([[0.0], np.cumsum(work)])
         shares = cum[starts[1:] - y_lo] - cum[starts[:-1] - y_lo]
         assert np.all(np.abs(shares - cum[-1] / n) <= work.max() + 1e-9 * cum[-1])
@@ -192,7 +192,7 @@ class TestScatterPacked:
             nd = 2 * reach + 1
             area = np.full((nd, 8), np.nan)
             centre = np.full((nd, 8), np.nan)
-            renderer._row_strips(radius, 2, 6, reach, aperture.symmetric, table, area, centre)  # sources 2 .. 7
+            renderer.scatter.row_strips(radius, 2, 6, reach, aperture.symmetric, table, area, centre)  # sources 2 .. 7
             assert np.isnan(area[:, 6:]).all()  # only n sources written
             assert np.isnan(centre).all() == aperture.symmetric  # centres only for off-centre strips
             area = area[:, :6]
@@ -213,14 +213,14 @@ def uniform_plan_direct(fast, radius):
     step = math.log1p(renderer.UNIFORM_BIN)
     with np.errstate(divide="ignore"):
         b_all = np.rint(np.log(np.maximum(radius, renderer.MIN_SOURCE_RADIUS_PX)) / step)
-    bins = np.where(fast, b_all, renderer._NO_BIN).astype(np.int64)
+    bins = np.where(fast, b_all, renderer.uniform.NO_BIN).astype(np.int64)
     groups = []
     for b in np.unique(bins[fast]):
         cells = bins == b
         rows, cols = np.flatnonzero(cells.any(axis=1)), np.flatnonzero(cells.any(axis=0))
         win = (rows[0], rows[-1] + 1, cols[0], cols[-1] + 1)
         if (win[1] - win[0]) * (win[3] - win[2]) > renderer.UNIFORM_MAX_WASTE * cells.sum():
-            bins[cells] = renderer._NO_BIN
+            bins[cells] = renderer.uniform.NO_BIN
         else:
             groups.append((int(b), math.exp(int(b) * step), tuple(int(v) for v in win)))
     return bins, groups
@@ -236,7 +236,7 @@ class TestUniformPlan:
         if rng.random() < 0.3:  # a thin diagonal band of one radius: its bins waste their window and are dropped
             fast = np.eye(h, w, dtype=bool) | (rng.random((h, w)) < 0.02)
         radius = (rng.uniform(0.3, 9.0) * np.exp(rng.uniform(-spread, spread, (h, w)))).astype(np.float32)
-        bins, groups = renderer._uniform_plan(fast, radius)
+        bins, groups = renderer.uniform.uniform_plan(fast, radius)
         ref_bins, ref_groups = uniform_plan_direct(fast, radius)
         np.testing.assert_array_equal(bins, ref_bins)
         assert groups == ref_groups
@@ -257,10 +257,10 @@ class TestConvolveUniform:
         radius = np.full((hs, ws), r, np.float32)
         fast = np.zeros((hs, ws), bool)
         fast[hs // 5:hs - hs // 6, ws // 7:ws - 1] = True  # the cells convolved, some at the border
-        bins, groups = renderer._uniform_plan(fast, radius)
+        bins, groups = renderer.uniform.uniform_plan(fast, radius)
         assert len(groups) == 1 and groups[0][2] == (hs // 5, hs - hs // 6, ws // 7, ws - 1)
         buf = np.zeros((hs, ws, 4), np.float32)
-        renderer._convolve_uniform(lin, share, bins, groups, aperture.symmetric, table, buf)
+        renderer.uniform.convolve_uniform(lin, share, bins, groups, aperture.symmetric, table, buf)
         # the same sources scattered with the group's kernel radius
         ys, xs = np.nonzero(share > 0)
         values = np.concatenate([lin[ys, xs], np.ones((ys.size, 1), np.float32)], axis=1)
@@ -291,7 +291,7 @@ class TestFastCells:
             for cx in range(ws):
                 block = fast[cy * s:(cy + 1) * s, cx * s:(cx + 1) * s]
                 expected[cy, cx] = member[cy, cx] and block.shape == (s, s) and block.all()
-        np.testing.assert_array_equal(renderer._Uniform(uniform, tile_map, box).cells(member, s), expected)
+        np.testing.assert_array_equal(renderer.uniform.UniformTiles(uniform, tile_map, box).cells(member, s), expected)
 
 
 class TestCompositeUnder:
@@ -319,7 +319,7 @@ class TestCompositeUnder:
         want_acc[win] += f[:, :, None] * layer[:, :, :nc]
         want_a[win] += np.where(on, t * alpha, 0.0)
         want_t[win] = np.where(on, t * (1.0 - alpha), t)
-        renderer._composite_under(layer, 3, 2, acc, acc_a, trans)
+        renderer.composite.composite_under(layer, 3, 2, acc, acc_a, trans)
         np.testing.assert_allclose(acc, want_acc, rtol=1e-6, atol=1e-7)
         np.testing.assert_allclose(acc_a, want_a, rtol=1e-6, atol=1e-7)
         np.testing.assert_allclose(trans, want_t, rtol=1e-6, atol=1e-7)

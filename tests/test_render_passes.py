@@ -15,7 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pcdof import renderer, tiles
+import pcdof.stages.render as renderer
+from pcdof.stages.render import tiles
 from pcdof.lens import MAX_COC_PX
 
 
@@ -59,7 +60,7 @@ class TestClassifyLayers:
     def test_matches_the_definition(self, kind, shape):
         rng = np.random.default_rng(zlib.crc32(repr((kind, shape)).encode()))  # the same frames every run
         raw = _coc_map(rng, *shape, kind)
-        got = renderer._classify_layers(raw, MAX_COC_PX, renderer.LAYER_EDGES_PX)
+        got = renderer.classify.classify_layers(raw, MAX_COC_PX, renderer.LAYER_EDGES_PX)
         for name, g, e in zip(("coc", "radius", "layer", "keys", "count", "r_max", "box"), got,
                               _classify_plainly(raw)):
             assert g.dtype == e.dtype, name
@@ -70,7 +71,7 @@ class TestClassifyLayers:
            kind=st.sampled_from(["noise", "runs", "levels"]))
     def test_property_any_map(self, seed, h, w, kind):
         raw = _coc_map(np.random.default_rng(seed), h, w, kind)
-        got = renderer._classify_layers(raw, MAX_COC_PX, renderer.LAYER_EDGES_PX)
+        got = renderer.classify.classify_layers(raw, MAX_COC_PX, renderer.LAYER_EDGES_PX)
         for g, e in zip(got, _classify_plainly(raw)):
             np.testing.assert_array_equal(g, e)
 
@@ -111,7 +112,7 @@ class TestReduceCells:
         radius = rng.random((h, w)).astype(np.float32) * 10
         member = rng.random((h, w)) < 0.6
         member[:s, :s] = False  # an empty cell
-        for g, e in zip(renderer._reduce_cells(lin, radius, member, s), _reduce_plainly(lin, radius, member, s)):
+        for g, e in zip(renderer.grids.reduce_cells(lin, radius, member, s), _reduce_plainly(lin, radius, member, s)):
             assert g.dtype == e.dtype
             np.testing.assert_array_equal(g, e)
 
@@ -135,7 +136,7 @@ class TestWindowRange:
         hi = lo + rng.random((th, tw)).astype(np.float32)
         lo[rng.random((th, tw)) < 0.05] = -np.inf
         hi[rng.random((th, tw)) < 0.05] = np.inf
-        for g, e in zip(tiles._window_range(lo, hi, k), _window_plainly(lo, hi, k)):
+        for g, e in zip(tiles.window_range(lo, hi, k), _window_plainly(lo, hi, k)):
             assert g.dtype == e.dtype
             np.testing.assert_array_equal(g, e)
 
@@ -145,12 +146,12 @@ class TestSerialIf:
         import numba
 
         before = numba.get_num_threads()
-        with renderer._serial_if(True):
+        with renderer.serial.serial_if(True):
             assert numba.get_num_threads() == 1
         assert numba.get_num_threads() == before
-        with renderer._serial_if(False):
+        with renderer.serial.serial_if(False):
             assert numba.get_num_threads() == before
-        with pytest.raises(ValueError), renderer._serial_if(True):
+        with pytest.raises(ValueError), renderer.serial.serial_if(True):
             raise ValueError("restored all the same")
         assert numba.get_num_threads() == before
 
@@ -161,8 +162,8 @@ class TestSerialIf:
         coc = np.repeat(np.linspace(-14, 20, 128, dtype=np.float32)[None], 96, axis=0)
         coc[:, 60:70] = 0.2
         serial, _ = renderer.render_layers_linear(lin, coc)
-        monkeypatch.setattr(renderer, "SERIAL_BELOW_PX", 0)
-        monkeypatch.setattr(renderer, "SERIAL_BELOW_STRIPS", 0)
+        monkeypatch.setattr(renderer.serial, "SERIAL_BELOW_PX", 0)
+        monkeypatch.setattr(renderer.serial, "SERIAL_BELOW_STRIPS", 0)
         parallel, _ = renderer.render_layers_linear(lin, coc)
         np.testing.assert_array_equal(serial, parallel)
 
@@ -177,14 +178,14 @@ class TestConvolveRuns:
         radius = np.full((hs, ws), 3.0, np.float32)
         fast = np.ones((hs, ws), bool)
         fast[:, :10] = False
-        bins, groups = renderer._uniform_plan(fast, radius)
+        bins, groups = renderer.uniform.uniform_plan(fast, radius)
         (b, r, (ya, yb, xa, xb)), = groups
         table = renderer.aperture_table(0)
-        taps, weights = renderer._footprint_taps(renderer._footprint_kernel(r, True, table))
+        taps, weights = renderer.uniform.footprint_taps(renderer.uniform.footprint_kernel(r, True, table))
         outs = []
         for tasks in range(1, 8):
             buf = np.zeros((hs, ws, 4), np.float32)
-            renderer._convolve_rows(lin, share, bins, b, ya, yb, xa, xb, taps, weights, tasks, buf)
+            renderer.uniform.convolve_rows(lin, share, bins, b, ya, yb, xa, xb, taps, weights, tasks, buf)
             outs.append(buf)
         assert outs[0][ya:yb, xa:xb].any()
         for buf in outs[1:]:

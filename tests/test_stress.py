@@ -29,7 +29,7 @@ from pcdof.lens import MAX_COC_PX, PaperLens, ThinLens
 from pcdof.pipeline import render_from_depth, run
 from pcdof.stages.register import register_depth
 from pcdof.plans import plan_render
-from pcdof.renderer import LAYER_EDGES_PX, QUALITIES, render_image, render_layers_linear
+from pcdof.stages.render import LAYER_EDGES_PX, QUALITIES, render_image, render_layers_linear
 
 
 def _load_stress_script():

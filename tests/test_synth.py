@@ -278,7 +278,7 @@ class TestAperture:
 
 
     def test_polygon_vertex_points_up_at_rotation_zero(self):
-        # the convention of pcdof.renderer: at rotation 0 a vertex points up (-y, image rows grow down)
+        # the convention of pcdof.stages.render: at rotation 0 a vertex points up (-y, image rows grow down)
         rng = np.random.default_rng(2)
         lens = ThinLens(50.0, 2.0, 1.0, aperture_blades=3)
         p = aperture_points(rng.random((100_000, 2)), lens) / (lens.aperture_m / 2)

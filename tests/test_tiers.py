@@ -6,7 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from pcdof import renderer
+import pcdof.stages.render as renderer
+from pcdof.apertures import aperture_from_blades
 from pcdof.bench import tiers
 from pcdof.errors import InputError
 from pcdof.plans import QUALITIES, plan_render
@@ -50,10 +51,11 @@ class TestUpsampleCells:
 
 def _spread(r: float, s: int, y: int, x: int, n: int = 96) -> np.ndarray:
     """Coverage (n, n) float64 of one source of radius r px at (y, x), its layer computed at 1/s."""
-    ap = renderer._Aperture(True, renderer._aperture(renderer.aperture_from_blades(0, 0.0)))
+    ap = renderer.aperture.RenderAperture(True, renderer.aperture.cached_aperture_table(aperture_from_blades(0, 0.0)))
     member = np.zeros((n, n), bool)
     member[y, x] = True
-    buf, *_ = renderer._scatter_layer(np.ones((n, n, 1), np.float32), np.full((n, n), r, np.float32), member, s, ap)
+    buf, *_ = renderer.physical.scatter_layer(np.ones((n, n, 1), np.float32), np.full((n, n), r, np.float32), member, s,
+                                              ap)
     return buf[:, :, -1].astype(np.float64)
 
 

@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-import pcdof.renderer as renderer
+import pcdof.stages.render as renderer
 from pcdof.errors import InputError
 from pcdof.plans import RenderPlan, plan_render
-from pcdof.tiles import TILE_PX, TileMap, classify_tiles
+from pcdof.stages.render.tiles import TILE_PX, TileMap, classify_tiles
 
 from test_render import disc_kernel, psnr, texture
 

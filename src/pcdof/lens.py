@@ -412,3 +412,15 @@ def focus_depth_at(depth_m, x: float, y: float, *, radius_px: int = 7) -> float:
         searched = r
         r = min(max(2 * r, 1), max(h, w))
     raise InputError(f"no known depth within {searched} px of focus pixel ({x:g}, {y:g})")
+
+
+def aperture_for(lens: "ThinLens"):
+    """The aperture shape (:class:`pcdof.apertures.Aperture`) of a :class:`ThinLens`: its ``aperture_shape`` when it
+    has one, else the disc or polygon of its ``aperture_blades`` and ``aperture_rotation_deg``."""
+    from .apertures import aperture_from_blades
+
+    if not isinstance(lens, ThinLens):
+        raise InputError(f"lens must be a ThinLens; got {type(lens).__name__}")
+    if lens.aperture_shape is not None:
+        return lens.aperture_shape
+    return aperture_from_blades(lens.aperture_blades, lens.aperture_rotation_deg)

@@ -29,8 +29,8 @@ class RenderOptions:
     Parameters
     ----------
     lens : ThinLens (physical or paper method) or PaperLens (paper method only)
-    method : a key of :data:`pcdof.renderer.METHODS` ("physical", "paper")
-    quality : physical method's speed/accuracy tier, a key of :data:`pcdof.renderer.QUALITIES`
+    method : a key of :data:`pcdof.stages.render.METHODS` ("physical", "paper")
+    quality : physical method's speed/accuracy tier, a key of :data:`pcdof.stages.render.QUALITIES`
     fill_method : depth hole filling, a key of :data:`pcdof.fill.FILL_METHODS`
     linear : colour holds linear light (float, may exceed 1) instead of sRGB
     focus_at : None (the lens's focus distance), an (x, y) colour pixel or "center" (the image centre): the
@@ -55,7 +55,7 @@ class RenderOptions:
 
     def __post_init__(self) -> None:
         from .fill import check_fill_method
-        from .renderer import check_method, check_quality
+        from .stages.render import check_method, check_quality
 
         if not isinstance(self.lens, (ThinLens, PaperLens)):
             raise LensError(f"lens must be a ThinLens or PaperLens; got {type(self.lens).__name__}")

@@ -1,6 +1,6 @@
 """How the registration and render stages run: one plan per stage, chosen from the input and the options.
 
-The stage modules (:mod:`pcdof.stages.register`, :mod:`pcdof.renderer`) say *what* is computed; a plan
+The stage modules (:mod:`pcdof.stages.register`, :mod:`pcdof.stages.render`) say *what* is computed; a plan
 says *how*: thread count, work split, tiles, reduced-resolution layers, which kernel. Each public
 stage function takes ``plan=None`` (the planner's choice) or a plan made here (or changed with
 ``dataclasses.replace``), and reports the plan it ran with, so the pipeline trace records it and
@@ -121,7 +121,7 @@ def check_register_plan(plan) -> RegisterPlan:
 # ----------------------------------------------------------------------------- render
 @dataclass(frozen=True)
 class RenderPlan:
-    """How :func:`pcdof.renderer.render_layers_linear` runs.
+    """How :func:`pcdof.stages.render.render_layers_linear` runs.
 
     Attributes
     ----------

@@ -3,14 +3,15 @@
 A shape is the lens opening scaled to circumradius 1, centred on the optical axis, in image
 coordinates (x right, y down). Every consumer asks the shape, never a blade count:
 
-- :func:`pcdof.renderer.aperture_table` integrates :meth:`Aperture.span` row by row (or takes
+- :func:`pcdof.stages.render.aperture_table` integrates :meth:`Aperture.span` row by row (or takes
   :meth:`Aperture.cumulative` where the shape has a closed form) and skips the centroid of each
   strip when :attr:`Aperture.symmetric`;
-- :mod:`pcdof.reference.render` lays out :meth:`Aperture.band` (exact strips);
+- :mod:`pcdof.stages.render.reference` lays out :meth:`Aperture.band` (exact strips);
 - :mod:`pcdof.synth.render` casts rays from :meth:`Aperture.sample` (area-uniform points).
 
 Shapes are row-convex: each height v in [-1, 1] crosses the shape in one interval (or none).
-A lens selects its shape with :func:`aperture_for` (``aperture_blades`` 0: disc, N >= 3: polygon).
+A lens selects its shape with :func:`pcdof.lens.aperture_for` (``aperture_blades`` 0: disc, N >= 3: polygon); the
+lens imports this package, never the other way.
 """
 
 from __future__ import annotations
@@ -115,18 +116,6 @@ def aperture_from_blades(blades: int, rotation_deg: float = 0.0) -> Aperture:
     return APERTURES["polygon"](blades=int(blades), vertex_angle_rad=vertex_angle_rad(rotation_deg))
 
 
-def aperture_for(lens) -> Aperture:
-    """The aperture shape of a :class:`pcdof.lens.ThinLens`: its ``aperture_shape`` when it has one, else the
-    disc or polygon of its ``aperture_blades`` and ``aperture_rotation_deg``."""
-    from ..lens import ThinLens
-
-    if not isinstance(lens, ThinLens):
-        raise InputError(f"lens must be a ThinLens; got {type(lens).__name__}")
-    if lens.aperture_shape is not None:
-        return lens.aperture_shape
-    return aperture_from_blades(lens.aperture_blades, lens.aperture_rotation_deg)
-
-
 def as_aperture(aperture, vertex_angle: float = 0.0) -> Aperture:
     """*aperture* itself if it is an :class:`Aperture`; a blade count (0 or N >= 3) with the first
     vertex at *vertex_angle* radians from +x becomes its disc or polygon."""
@@ -139,5 +128,5 @@ def as_aperture(aperture, vertex_angle: float = 0.0) -> Aperture:
     return APERTURES["polygon"](blades=int(aperture), vertex_angle_rad=float(vertex_angle))
 
 
-__all__ = ["Aperture", "APERTURES", "Disc", "Polygon", "aperture_for", "aperture_from_blades", "as_aperture",
+__all__ = ["Aperture", "APERTURES", "Disc", "Polygon", "aperture_from_blades", "as_aperture",
            "vertex_angle_rad"]

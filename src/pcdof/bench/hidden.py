@@ -2,7 +2,7 @@
 
 A single RGB-D view never sees what a blurred foreground hides, yet a real lens sees part of it
 around the foreground's soft edge. pcdof continues a hidden pixel from the visible layer beside it
-(``pcdof.reference.render.owned``). This part of the wide benchmark measures what that guess costs
+(``pcdof.stages.render.reference.owned``). This part of the wide benchmark measures what that guess costs
 by giving the renderer what it cannot know: the true hidden layers.
 
 Method. The scene's objects are cut into depth groups, front to back (:func:`depth_groups`). For
@@ -216,7 +216,7 @@ def render_oracle(layers, lens, fx: float, *, quality: str = "exact", max_range_
     from dataclasses import replace
 
     from ..plans import plan_render
-    from ..renderer import render_image
+    from ..stages.render import render_image
 
     layers = list(layers)
     if not layers or not all(isinstance(la, HiddenLayer) for la in layers):

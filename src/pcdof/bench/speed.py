@@ -36,7 +36,7 @@ def _median_ms(fn, repeats):
 def paper_on_opencv_depth(frame, lens):
     """The seed paper's method as the speed target names it: ``cv2.registerDepth`` (point splat, holes left
     as they are: no fill), one normalised Gaussian blur, eq. 2 weight, blend. Returns the (H, W, 3) image."""
-    from ..renderer import render_image
+    from ..stages.render import render_image
     from .registration import register_cv2
 
     depth = register_cv2(frame.depth_m, frame.rig)

@@ -41,7 +41,7 @@ def _psnr(sse: float, n: int) -> float:
 def _layer_scale(coc_abs: np.ndarray, m: float) -> np.ndarray:
     """Resolution divisor of each pixel's layer (1 in focus and at full resolution) under threshold *m*."""
     from ..plans import RenderPlan
-    from ..renderer import LAYER_EDGES_PX
+    from ..stages.render import LAYER_EDGES_PX
 
     plan = RenderPlan(threads=1, reduce_min_coc_px=m)
     k = np.searchsorted(LAYER_EDGES_PX, coc_abs, side="right")  # layer k: edges[k-1] <= c < edges[k]
@@ -69,7 +69,7 @@ def _renders(sf, lens, ladder):
     from ..camera import RGBDFrame
     from ..pipeline import run
     from ..plans import plan_render
-    from ..renderer import render_image
+    from ..stages.render import render_image
 
     depth = run(RGBDFrame(sf.color, sf.depth_m, sf.rig), lens, quality="exact").depth_filled_m
     fx, exact = sf.rig.color.fx, plan_render(quality="exact")

@@ -257,7 +257,7 @@ def _parse_xy(ctx, param, value):
 
 def _render_option_decorators() -> list:
     from ..fill import FILL_METHODS
-    from ..renderer import METHODS, QUALITIES
+    from ..stages.render import METHODS, QUALITIES
 
     return [
         click.option("--focal-length", "focal_length_mm", type=float, default=50.0, show_default=True,

@@ -1,8 +1,8 @@
 """The physical thin-lens render on the GPU: layers, partial occlusion and front-to-back compositing.
 
-The rules are those of :mod:`pcdof.reference.render` (every source scattered at full resolution over its own
+The rules are those of :mod:`pcdof.stages.render.reference` (every source scattered at full resolution over its own
 footprint; no tiles, no reduced resolution, no convolution), with the aperture's strips read from the table of
-:func:`pcdof.renderer.aperture_table` as the CPU renderer reads them. Per layer, near to far:
+:func:`pcdof.stages.render.aperture_table` as the CPU renderer reads them. Per layer, near to far:
 
 1. one thread per pixel decides whether it is a source of the layer: a member, or a hidden pixel the layer
    continues (rule 4: its nearest pixel of this or a farther layer, found by a search in growing square rings,
@@ -25,7 +25,7 @@ from numba import cuda
 from ..apertures import Aperture
 from ..errors import InputError
 from ..lens import MAX_COC_PX
-from ..renderer import LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, aperture_table
+from ..stages.render import LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, aperture_table
 from .launch import grid_1d, grid_2d, on_device, to_device, zeros
 
 _N_EDGES = len(LAYER_EDGES_PX)
@@ -239,7 +239,7 @@ def _normalise(acc, acc_a, lin, out):
 
 
 class ApertureOnDevice:
-    """An aperture's strip table (:func:`pcdof.renderer.aperture_table`) on the device, and its unit area."""
+    """An aperture's strip table (:func:`pcdof.stages.render.aperture_table`) on the device, and its unit area."""
 
     def __init__(self, aperture: Aperture, stream=0):
         if not isinstance(aperture, Aperture):
@@ -262,7 +262,7 @@ def aperture_on_device(aperture: Aperture, stream=0) -> ApertureOnDevice:
 
 def classify_layers(signed_coc, stream=0):
     """(radius (H, W) float32, bin (H, W) int32 device arrays, counts (N_BINS,) int64, r_max (N_BINS,) float32 host
-    arrays) of a signed CoC map; bin - ``N_BINS // 2`` is the layer key of :func:`pcdof.reference.render.layer_keys`.
+    arrays) of a signed CoC map; bin - ``N_BINS // 2`` is the layer key of :func:`pcdof.stages.render.reference.layer_keys`.
     The per-bin counts come back to the host (a few hundred bytes) to plan the layers."""
     coc = to_device(signed_coc if on_device(signed_coc) else np.asarray(signed_coc, np.float32), stream)
     if len(coc.shape) != 2:
@@ -277,7 +277,7 @@ def classify_layers(signed_coc, stream=0):
 
 
 def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: bool = True, stream=0):
-    """Physical depth of field in linear light on the device (the rules of :mod:`pcdof.reference.render`).
+    """Physical depth of field in linear light on the device (the rules of :mod:`pcdof.stages.render.reference`).
 
     Parameters
     ----------

@@ -17,12 +17,11 @@ import time
 
 import numpy as np
 
-from ..apertures import aperture_for
 from ..camera import RGBDFrame
 from ..errors import InputError
 from ..focus import resolve_lens
-from ..lens import ThinLens
-from ..renderer import SHARP_COC_PX
+from ..lens import ThinLens, aperture_for
+from ..stages.render import SHARP_COC_PX
 from .coc import coc_maps
 from .color import decode, encode
 from .fill import count_holes, fill_depth
@@ -193,7 +192,7 @@ def run_stages(frame: RGBDFrame, opts, *, stream=None, sync: bool = True) -> dic
 
 def _render_paper_on_host(frame, opts, lens, filled_host, trace) -> None:
     """The paper method's render on the CPU (its image parked in the record's detail until the download)."""
-    from ..renderer import render_image
+    from ..stages.render import render_image
 
     t0 = time.perf_counter()
     image, info = render_image(frame.color, filled_host, lens, fx=frame.rig.color.fx, method="paper",

@@ -25,7 +25,10 @@ STAGES = {
     "register": (("pcdof.stages.register",), ("pcdof.stages.register.project", "pcdof.stages.register.raster",
                                              "pcdof.distortion")),
     "fill": (("pcdof.fill",), ("pcdof.fill",)),
-    "render": (("pcdof.renderer", "pcdof.tiles"), ("pcdof.renderer", "pcdof.tiles", "pcdof.lens", "pcdof.color")),
+    "render": (("pcdof.stages.render", "pcdof.stages.render.tiles"),
+               ("pcdof.stages.render.classify", "pcdof.stages.render.scatter", "pcdof.stages.render.composite",
+                "pcdof.stages.render.extend", "pcdof.stages.render.uniform", "pcdof.stages.render.grids",
+                "pcdof.stages.render.ownership", "pcdof.stages.render.tiles", "pcdof.lens", "pcdof.color")),
 }
 
 #: CPU seconds each stage's ``warmup()`` takes to compile with an empty cache, measured on the

@@ -42,10 +42,9 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from ..apertures import aperture_for
 from ..camera import Intrinsics
 from ..errors import InputError
-from ..lens import ThinLens
+from ..lens import ThinLens, aperture_for
 
 #: rays cast per chunk (bounds memory: about 100 bytes per ray)
 RAYS_PER_CHUNK = 1 << 20

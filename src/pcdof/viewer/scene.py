@@ -308,7 +308,7 @@ def render_preview(color, depth_m, lens: ThinLens, fx: float, *, method: str = "
     depth_m : (h, w) float32 ndarray, metres, registered and hole-free
     lens : ThinLens
     fx : float, focal length of *color* in pixels
-    method : a key of :data:`pcdof.renderer.METHODS` (used when *options* is None)
+    method : a key of :data:`pcdof.stages.render.METHODS` (used when *options* is None)
     options : optional RenderOptions: its method, quality, linear and highlights (its lens and focus
         are ignored: *lens* is the viewer's current one)
 

@@ -349,7 +349,7 @@ def build_scene(color, depth_filled_m, intrinsics: Intrinsics, lens: ThinLens, *
     window_size : (width, height) pixels, each side in [64, 16384] and at most 8192 x 8192 pixels in
         all (:func:`pcdof.viewer.check_window_size`)
     preview_max_side : int, largest side of the downscaled preview, pixels
-    preview_method : a key of :data:`pcdof.renderer.METHODS` for the preview
+    preview_method : a key of :data:`pcdof.stages.render.METHODS` for the preview
     preview_options : optional RenderOptions whose method, quality, linear and highlights the preview
         uses (instead of *preview_method*)
     widgets : bool, add the sliders, the checkbox, the key binding and point picking

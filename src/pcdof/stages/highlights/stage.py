@@ -57,7 +57,7 @@ class HighlightsStage(Stage):
 
     def skip(self, state: FrameState, options) -> str | None:
         from . import parse_highlights
-        from ...renderer import SHARP_COC_PX
+        from ..render import SHARP_COC_PX
 
         how, _ = parse_highlights(options.highlights)
         reason = skip_reason(how, options.method, state.color, options.linear)

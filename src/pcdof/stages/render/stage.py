@@ -1,4 +1,4 @@
-"""The render stage: the depth of field itself (:func:`pcdof.renderer.render_image`), physical or the paper's."""
+"""The render stage: the depth of field itself (:func:`pcdof.stages.render.render_image`), physical or the paper's."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ class RenderStage(Stage):
     name = "render"
 
     def run(self, state: FrameState, plan, options) -> StageOutput:
-        from ...renderer import render_image
+        from . import render_image
 
         image, info = render_image(state.source, state.filled_m, state.lens, fx=state.fx_px,
                                    method=options.method, max_range_m=state.max_range_m,

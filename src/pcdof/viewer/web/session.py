@@ -34,7 +34,7 @@ class ViewSession:
     intrinsics : Intrinsics, of the colour camera
     lens : ThinLens, the starting lens
     coc_limit_px : float, acceptable circle of confusion, pixels
-    method : a key of :data:`pcdof.renderer.METHODS`
+    method : a key of :data:`pcdof.stages.render.METHODS`
     draft_max_side : int, largest side of the draft preview, pixels
     options : optional RenderOptions whose method, quality, linear and highlights the renders use
         (instead of *method*; its lens is replaced by the session's current one)

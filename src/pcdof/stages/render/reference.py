@@ -1,6 +1,6 @@
 """Reference renderers: the physical thin-lens renderer as an exact per-source scatter, and the paper method.
 
-Physical renderer, the rules stated here (those of :func:`pcdof.renderer.render_layers_linear`):
+Physical renderer, the rules stated here (those of :func:`pcdof.stages.render.render_layers_linear`):
 
 1. The signed CoC is cleaned (NaN -> 0, clipped to +-``MAX_COC_PX``); a source's footprint radius is
    max(|c| / 2, ``MIN_SOURCE_RADIUS_PX``).
@@ -38,11 +38,11 @@ import math
 
 import numpy as np
 
-from ..apertures import Aperture, aperture_for, aperture_from_blades, as_aperture
-from ..color import decode_to_linear, encode_from_linear, to_float
-from ..renderer import LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, SHARP_COC_PX
-from ..lens import MAX_COC_PX
-from .coc import paper_alpha, signed_coc_px
+from ...apertures import Aperture, aperture_from_blades, as_aperture
+from ...color import decode_to_linear, encode_from_linear, to_float
+from ...lens import MAX_COC_PX, aperture_for
+from ...reference.coc import paper_alpha, signed_coc_px
+from .classify import LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, SHARP_COC_PX
 
 
 # ----------------------------------------------------------------------------- aperture footprint

@@ -10,7 +10,7 @@ ranges alone (one pass over the map, then work on a grid 256 times smaller) the 
 * **uniform** tiles: the tile and every pixel whose blur can reach it lie in one blur layer with
   nearly the same CoC (spread at most :data:`UNIFORM_SPREAD` of its size). There the layered
   scatter is a convolution with one fixed aperture kernel, which the renderer computes as such
-  (:func:`pcdof.renderer.render_layers_linear`).
+  (:func:`pcdof.stages.render.render_layers_linear`).
 * all other tiles are **mixed**: the exact per-pixel scatter runs there.
 
 This is the tile classification of real-time depth-of-field renderers (min/max CoC per tile,
@@ -28,15 +28,15 @@ import cv2
 import numpy as np
 from numba import njit
 
-from .errors import InputError
-from .runtime.kernels import read_only
-from .plans import TILE_PX  # noqa: F401  (the default tile side, pixels; re-exported)
+from ...errors import InputError
+from ...plans import TILE_PX  # noqa: F401  (the default tile side, pixels; re-exported)
+from ...runtime.kernels import read_only
 #: Largest relative CoC spread (max - min over mean) of a uniform tile and everything that reaches it.
 UNIFORM_SPREAD = 0.1
 
 
 @njit(cache=True, fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-def _tile_ranges(coc, tile, sharp):
+def tile_ranges(coc, tile, sharp):
     """Per tile: min and max signed CoC, largest blur radius of its front pixels (c <= -sharp; else 0).
 
     NaN counts as 0 (in focus). Each tile's row segments are reduced into local accumulators.
@@ -85,7 +85,7 @@ def _reached_from_front(front_r, tile):
     return reached
 
 
-def _window_range(lo, hi, k):
+def window_range(lo, hi, k):
     """Min of *lo* and max of *hi* (th, tw) over the (2k+1)^2 tile window around each tile (cut at the border):
     OpenCV's erosion and dilation by a (2k+1)^2 square (exact; the border replicated, which adds no value
     the cut window does not hold)."""
@@ -124,7 +124,7 @@ class TileMap:
         them is at most :data:`UNIFORM_SPREAD` of its mean magnitude. Returns (th, tw) bool.
         """
         k = int(math.ceil(reach_px / self.tile_px))
-        wlo, whi = _window_range(self.coc_min, self.coc_max, k)
+        wlo, whi = window_range(self.coc_min, self.coc_max, k)
         if side > 0:
             a_lo, a_hi = wlo, whi
         else:
@@ -168,7 +168,7 @@ def classify_tiles(signed_coc, *, tile_px: int = TILE_PX, sharp_px: float = 1.0)
     if not (isinstance(sharp_px, (int, float)) and math.isfinite(sharp_px) and sharp_px > 0):
         raise InputError(f"sharp_px must be a finite number > 0; got {sharp_px!r}")
     coc = read_only(np.ascontiguousarray(coc, np.float32))  # one kernel type whatever the caller's flags
-    lo, hi, front_r = _tile_ranges(coc, int(tile_px), float(sharp_px))
+    lo, hi, front_r = tile_ranges(coc, int(tile_px), float(sharp_px))
     sharp = (lo > -sharp_px) & (hi < sharp_px)
     copy = sharp & ~_reached_from_front(front_r, int(tile_px))
     return TileMap(coc.shape, int(tile_px), lo, hi, copy)

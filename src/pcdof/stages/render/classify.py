@@ -1,0 +1,129 @@
+"""Layer classification: the signed circle of confusion cut into depth layers at :data:`LAYER_EDGES_PX`,
+in one pass with each layer's pixel count, largest radius and bounding box."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+#: |CoC| layer edges in pixels; |c| < 1 is the in-focus layer, copied without blur.
+LAYER_EDGES_PX = np.array([1, 1.5, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 91, 128, 181, 256, np.inf])
+
+#: Below this largest CoC (pixels) the renderer returns the input unchanged: every pixel would fall
+#: in the in-focus layer (|c| < LAYER_EDGES_PX[0]), which is copied without blur anyway.
+SHARP_COC_PX = 1.0
+
+#: Smallest footprint radius (pixels) a scattered source is given: a blur layer's sources have
+#: |c| >= 1 px (radius >= 0.5), and a disc smaller than a pixel lands in one pixel anyway. Keeps
+#: 1 / (pi r^2) finite for the pixels around a layer whose circle of confusion is tiny.
+MIN_SOURCE_RADIUS_PX = 0.5
+
+
+@njit(cache=True, inline="always")
+def _note_run(count, r_max, box, k, y, x0, x1, r):
+    """Add the run of pixels x0..x1 of row y with key *k* and largest radius *r* to the key's count, largest
+    radius and box (row0, row1, col0, col1)."""
+    count[k] += x1 - x0 + 1
+    r_max[k] = max(r_max[k], r)
+    box[k, 0] = min(box[k, 0], y)
+    box[k, 1] = max(box[k, 1], y)
+    box[k, 2] = min(box[k, 2], x0)
+    box[k, 3] = max(box[k, 3], x1)
+
+
+@njit(parallel=True, cache=True)
+def classify_layers(raw, max_coc, edges):
+    """One pass over a signed CoC map (H, W): cleaned CoC, footprint radius, layer ids and per-layer statistics.
+
+    The CoC is cleaned as NaN -> 0 and clipped to +-max_coc; the footprint radius is |c| / 2. The
+    signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k]
+    (negative in front of focus); layers number the keys present from near to far. Bands of rows
+    run in parallel and note, per key, the pixel count, largest radius and bounding box (once per run of
+    equal keys along a row, not per pixel); the bands are merged exactly (counts, maxima and bounds do not
+    depend on the order), then the keys are replaced by layer ids in a second parallel pass.
+
+    Returns (coc, radius) float32 (H, W), layer (H, W) int32, keys (L,) int64 ascending, and per
+    layer: count (L,) int64, largest radius (L,) float32, box (L, 4) int64 (row0, row1, col0, col1; inclusive).
+    """
+    h, w = raw.shape
+    n = edges.size
+    n_keys = 2 * n + 1
+    # every finite edge is a multiple of 1/2 px: the layer is constant on [i/2, (i+1)/2)
+    n_half = int(2 * edges[n - 2]) + 1
+    by_half = np.empty(n_half, np.int32)
+    for i in range(n_half):
+        j = 0
+        while j < n and 0.5 * i >= edges[j]:
+            j += 1
+        by_half[i] = j
+    coc = np.empty((h, w), np.float32)
+    radius = np.empty((h, w), np.float32)
+    layer = np.empty((h, w), np.int32)
+    n_bands = min(h, 64)
+    count = np.zeros((n_bands, n_keys), np.int64)
+    r_max = np.zeros((n_bands, n_keys), np.float32)
+    box = np.empty((n_bands, n_keys, 4), np.int64)
+    lim = np.float32(max_coc)
+    for b in prange(n_bands):
+        for k in range(n_keys):
+            box[b, k, 0] = h
+            box[b, k, 1] = -1
+            box[b, k, 2] = w
+            box[b, k, 3] = -1
+        for y in range(b * h // n_bands, (b + 1) * h // n_bands):
+            # the statistics per run of equal keys along the row (runs are long: a key is a range of depth)
+            run_k, run_x, run_r = -1, 0, np.float32(0.0)
+            for x in range(w):
+                c = raw[y, x]
+                c = np.float32(0.0) if c != c else min(max(c, -lim), lim)
+                a = abs(c)
+                r = a * np.float32(0.5)
+                coc[y, x] = c
+                radius[y, x] = r
+                i = int(2.0 * a) if a < 0.5 * (n_half - 1) else n_half - 1
+                j = by_half[i]
+                k = n + (-j if c < 0 else j)
+                layer[y, x] = k
+                if k == run_k:
+                    run_r = max(run_r, r)
+                    continue
+                if run_k >= 0:
+                    _note_run(count[b], r_max[b], box[b], run_k, y, run_x, x - 1, run_r)
+                run_k, run_x, run_r = k, x, r
+            if run_k >= 0:
+                _note_run(count[b], r_max[b], box[b], run_k, y, run_x, w - 1, run_r)
+    # plain loops, not count.sum(axis=0): numba's axis reductions cost seconds of compiling
+    present = np.zeros(n_keys, np.bool_)
+    n_layers = 0
+    for k in range(n_keys):
+        for b in range(n_bands):
+            if count[b, k] > 0:
+                present[k] = True
+        n_layers += int(present[k])
+    lookup = np.full(n_keys, -1, np.int32)
+    keys = np.empty(n_layers, np.int64)
+    total = np.zeros(n_layers, np.int64)
+    r_all = np.zeros(n_layers, np.float32)
+    box_all = np.empty((n_layers, 4), np.int64)
+    i = 0
+    for k in range(n_keys):  # ascending signed CoC = near to far (c is monotone in z)
+        if not present[k]:
+            continue
+        lookup[k] = i
+        keys[i] = k - n
+        box_all[i, 0] = h
+        box_all[i, 1] = -1
+        box_all[i, 2] = w
+        box_all[i, 3] = -1
+        for b in range(n_bands):
+            total[i] += count[b, k]
+            r_all[i] = max(r_all[i], r_max[b, k])
+            box_all[i, 0] = min(box_all[i, 0], box[b, k, 0])
+            box_all[i, 1] = max(box_all[i, 1], box[b, k, 1])
+            box_all[i, 2] = min(box_all[i, 2], box[b, k, 2])
+            box_all[i, 3] = max(box_all[i, 3], box[b, k, 3])
+        i += 1
+    for y in prange(h):
+        for x in range(w):
+            layer[y, x] = lookup[layer[y, x]]
+    return coc, radius, layer, keys, total, r_all, box_all

@@ -1,0 +1,103 @@
+"""Composite kernels: layers composited front to back ("over"), in-focus pixels as opaque copies, copy tiles
+taken from the input, and the final normalisation by the accumulated opacity."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from .tiles import TileMap
+
+
+@njit(parallel=True, cache=True)
+def composite_under(layer_buf, y0, x0, acc, acc_a, trans):
+    """Composite a scattered layer (placed at row y0, column x0) behind what is already there.
+
+    Front-to-back "over": the layer's coverage is its opacity, clipped to 1; its colour is
+    normalised by its coverage, so overlapping sources within a layer average.
+    """
+    hb, wb, nc1 = layer_buf.shape
+    nc = nc1 - 1
+    for yy in prange(hb):
+        y = y0 + yy
+        for xx in range(wb):
+            x = x0 + xx
+            t = trans[y, x]
+            if not t > 0.0:
+                continue  # opaque already: the layer's pixel is not even read
+            cover = layer_buf[yy, xx, nc]
+            if cover > 1e-6:
+                alpha = 1.0 if cover >= 1.0 - 1e-4 else cover
+                f = t * alpha / cover
+                for c in range(nc):
+                    acc[y, x, c] += f * layer_buf[yy, xx, c]
+                acc_a[y, x] += t * alpha
+                trans[y, x] = t * (1.0 - alpha)
+
+
+@njit(cache=True)
+def composite_sharp(lin, member, y0, x0, dst, src, acc, acc_a, trans):
+    """Composite in-focus pixels as opaque copies behind what is already there.
+
+    *lin* is the whole frame (H, W, C); *member* (hb, wb) bool marks the layer's pixels in the box placed at
+    row y0, column x0; *dst* and *src* (N,) int64 are flat indices into that box of the pixels the layer is
+    extended into and of the pixels they copy (:func:`behind_sources`; none of *dst* is a member).
+    """
+    hb, wb = member.shape
+    nc = lin.shape[2]
+    for yy in range(hb):
+        y = y0 + yy
+        for xx in range(wb):
+            x = x0 + xx
+            t = trans[y, x]
+            if member[yy, xx] and t > 0.0:
+                for c in range(nc):
+                    acc[y, x, c] += t * lin[y, x, c]
+                acc_a[y, x] += t
+                trans[y, x] = 0.0
+    for i in range(dst.size):
+        y, x = y0 + dst[i] // wb, x0 + dst[i] % wb
+        sy, sx = y0 + src[i] // wb, x0 + src[i] % wb
+        t = trans[y, x]
+        if t > 0.0:
+            for c in range(nc):
+                acc[y, x, c] += t * lin[sy, sx, c]
+            acc_a[y, x] += t
+            trans[y, x] = 0.0
+
+
+@njit(cache=True)
+def _copy_tiles(src, copy, tile, out):
+    """out[tile] = src[tile] for every tile set in *copy* ((th, tw) bool); src and out are (H, W, C)."""
+    h, w = src.shape[0], src.shape[1]
+    for ty in range(copy.shape[0]):
+        for tx in range(copy.shape[1]):
+            if copy[ty, tx]:
+                for y in range(ty * tile, min(h, (ty + 1) * tile)):
+                    for x in range(tx * tile, min(w, (tx + 1) * tile)):
+                        for c in range(src.shape[2]):  # not out[y, x] = src[y, x]: slice assignment compiles slowly
+                            out[y, x, c] = src[y, x, c]
+
+
+def copy_tiles(src: np.ndarray, tiles: TileMap, out: np.ndarray) -> None:
+    """Copy the copy tiles of *tiles* from *src* into *out* (same shape, (H, W) or (H, W, C))."""
+    if tiles.copy.any():
+        # copied as bytes: bit-exact for every dtype (float16 included), one compiled kernel for all
+        _copy_tiles(np.ascontiguousarray(src).view(np.uint8).reshape(src.shape[0], src.shape[1], -1), tiles.copy,
+                    tiles.tile_px, out.view(np.uint8).reshape(out.shape[0], out.shape[1], -1))
+
+
+@njit(parallel=True, cache=True)
+def normalise(acc, acc_a, lin, out):
+    """out = acc / acc_a where some light arrived (acc_a > 1e-6), else the input pixel."""
+    h, w, nc = acc.shape
+    for y in prange(h):
+        for x in range(w):
+            a = acc_a[y, x]
+            if a > 1e-6:
+                inv = 1.0 / a
+                for c in range(nc):
+                    out[y, x, c] = acc[y, x, c] * inv
+            else:
+                for c in range(nc):
+                    out[y, x, c] = lin[y, x, c]

@@ -1,0 +1,133 @@
+"""Reduced-resolution grids: a blur layer's sources at full resolution or as s x s cell means, and the
+upsampling of a layer computed on the 1/s grid back to full resolution."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numba import njit, prange
+
+from ...errors import InputError
+from . import serial
+from .extend import extended_layer
+
+
+@njit(parallel=True, cache=True)
+def reduce_cells(lin, radius, member, s):
+    """Block means over s x s cells (zero-padded): member-weighted colour and radius, and member share.
+    Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s) as float32.
+
+    Rows of cells run in parallel; each cell is summed in scalar accumulators, its pixels in raster order."""
+    h, w, nc = lin.shape
+    hs, ws = (h + s - 1) // s, (w + s - 1) // s
+    lin_s = np.zeros((hs, ws, nc), np.float32)
+    r_s = np.zeros((hs, ws), np.float32)
+    m_s = np.zeros((hs, ws), np.float32)
+    inv_area = 1.0 / (s * s)
+    for cy in prange(hs):
+        y0, y1 = cy * s, min(h, (cy + 1) * s)
+        for cx in range(ws):
+            x0, x1 = cx * s, min(w, (cx + 1) * s)
+            m = np.float32(0.0)
+            r = np.float32(0.0)
+            # the channels in scalars, not a small array: they stay in registers (the same sums, in the same order)
+            a0 = a1 = a2 = np.float32(0.0)
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    if member[y, x]:
+                        m += np.float32(1.0)
+                        r += radius[y, x]
+                        a0 += lin[y, x, 0]
+                        if nc > 1:
+                            a1 += lin[y, x, 1]
+                        if nc > 2:
+                            a2 += lin[y, x, 2]
+            if m > 0:
+                inv = 1.0 / m
+                r_s[cy, cx] = r * inv
+                lin_s[cy, cx, 0] = a0 * inv
+                if nc > 1:
+                    lin_s[cy, cx, 1] = a1 * inv
+                if nc > 2:
+                    lin_s[cy, cx, 2] = a2 * inv
+            m_s[cy, cx] = m * inv_area
+    return lin_s, r_s, m_s
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A blur layer's sources on its own grid (full resolution, or 1/s): colour (hs, ws, C), footprint
+    radius (hs, ws) in grid pixels, member cells (hs, ws) bool, each cell's share of the layer (hs, ws)
+    float32, and whether the layer was extended behind nearer layers."""
+
+    lin: np.ndarray
+    radius: np.ndarray
+    member: np.ndarray
+    share: np.ndarray
+    extended: bool
+
+
+def full_grid(lin, radius, member, hidden, reach_px) -> Grid:
+    """The layer's sources at full resolution, extended behind *hidden* (or None) up to *reach_px*."""
+    lin, radius, member, extended = extended_layer(lin, radius, member, hidden, reach_px)
+    return Grid(np.ascontiguousarray(lin, np.float32), np.ascontiguousarray(radius, np.float32),
+                np.ascontiguousarray(member), member.astype(np.float32), extended)
+
+
+def reduced_grid(lin, radius, member, hidden, reach_px, s) -> Grid:
+    """The layer's sources as s x s cell means (s^2 times less work to scatter), extended behind *hidden*
+    (or None) first, at full resolution, with the footprint radius narrowed for the spread of the reduction.
+
+    The extension is decided pixel by pixel, as at full resolution: continued cell by cell, a hidden cell took
+    the mean of the layer's pixels in its nearest cell, which lost the layer's light behind a small bright
+    source next to it (a lamp beside a wall, behind a blurred foreground; 0.17 dB against exact on such a
+    wide-benchmark case, 0.03 dB extended per pixel)."""
+    lin, radius, member, extended = extended_layer(lin, radius, member, hidden, reach_px)
+    with serial.serial_if(member.size < serial.SERIAL_BELOW_PX):
+        lin_s, r, m_s = reduce_cells(np.ascontiguousarray(lin, np.float32),
+                                     np.ascontiguousarray(radius, np.float32), np.ascontiguousarray(member), s)
+    # the block mean and the upsampling widen the blur by resample_variance_px2(s) per axis; a disc of
+    # radius r has r^2 / 4: take it off the radius (at most down to half of it)
+    r_s = (np.sqrt(np.maximum(r * r - 4 * resample_variance_px2(s), 0.25 * r * r)) / s).astype(np.float32)
+    return Grid(np.ascontiguousarray(lin_s, np.float32), r_s, np.ascontiguousarray(m_s > 0),
+                np.ascontiguousarray(m_s, np.float32), extended)
+
+
+def resample_variance_px2(s: int) -> float:
+    """Variance per axis (px^2) that computing a layer on the 1/s grid adds to its blur: five boxes of s
+    pixels, (s^2 - 1) / 12 each. One is the s x s block mean of :func:`reduce_cells`, one the scatter's
+    anti-aliasing integrating each footprint over cells of s pixels instead of over pixels, three are
+    :func:`upsample_cells`."""
+    return 5.0 * (s * s - 1) / 12.0
+
+
+def upsample_cells(buf: np.ndarray, s: int, h: int, w: int) -> np.ndarray:
+    """A layer computed on the 1/s grid, (hs, ws, C) float32, at full resolution: (h, w, C) float32, h <= hs s.
+
+    The discrete quadratic B-spline of one cell: each cell spread over its s x s pixels, then two boxes of
+    s pixels (3 s - 2 taps per axis, positive, summing to 1, centred on the cell). For s a power of two this
+    is bilinear doubling repeated log2(s) times: doubling with the half-pixel kernel [1, 3, 3, 1] / 4 is
+    three boxes of two pixels, and boxes of 2 and of 2 upsampled make a box of 4 (Chaikin's subdivision),
+    so OpenCV's fast resize does it. Edges repeat the border (at each doubling). Bilinear interpolation
+    by s in one step is continuous only: the creases it leaves at every cell centre made a reduced layer
+    sharper (by the Laplacian) the larger s was, so that opening the aperture sharpened the render where
+    a layer moved to the next coarser grid. At s = 2 the two are the same filter.
+
+    References
+    ----------
+    M. Unser, "Splines: a perfect fit for signal and image processing", IEEE Signal Processing Magazine
+    16(6), 1999 (the B-spline of degree n as n + 1 boxes convolved); G. Chaikin, "An algorithm for high
+    speed curve generation", Computer Graphics and Image Processing 3, 1974.
+    """
+    hs, ws, nc = buf.shape
+    if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 1 or s & (s - 1) \
+            or not (0 < h <= hs * s and 0 < w <= ws * s):
+        raise InputError(f"upsample_cells needs s a power of two and 0 < (h, w) <= (hs s, ws s) = "
+                         f"{(hs * s, ws * s)}; got s={s!r}, (h, w)={(h, w)}")
+    out = np.ascontiguousarray(buf, np.float32)
+    while out.shape[0] < hs * s:
+        out = cv2.resize(out, (2 * out.shape[1], 2 * out.shape[0]), interpolation=cv2.INTER_LINEAR)
+        out = out.reshape(out.shape[0], out.shape[1], nc)  # OpenCV drops a channel axis of length 1
+    return np.ascontiguousarray(out[:h, :w])

@@ -1,0 +1,279 @@
+"""Ownership of hidden pixels: which layer continues each pixel that nearer blurred layers hide (the one
+seen next to it), found with OpenCV's chamfer distance transforms on windows cut to what they decide."""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import cv2
+import numpy as np
+from numba import njit
+
+from ...runtime.kernels import read_only
+from .extend import Behind, behind_sources
+from .frame import Canvas, RenderFrame
+
+
+def widened_span(lo: int, hi: int, margin: int, bound: slice) -> slice:
+    """Rows (or columns) lo..hi (inclusive) widened by *margin*, within *bound*."""
+    return slice(max(bound.start, lo - margin), min(bound.stop, hi + margin + 1))
+
+
+def owned_mask(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: float, cell_px: int = 1,
+               threads: int = 1):
+    """The *hidden* pixels of *box* that layer *li* continues (:func:`owners_of_hidden`) as a mask: (H_box, W_box) bool,
+    a subset of *hidden*."""
+    found = owners_of_hidden(layer, li, box, bbox, hidden, reach_px, cell_px, threads)
+    if isinstance(found, np.ndarray):
+        return found
+    out = np.zeros(hidden.shape, bool)
+    if found is not None:
+        out.ravel()[found[0]] = True
+    return out
+
+
+def owners_of_hidden(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: float, cell_px: int = 1,
+                     threads: int = 1):
+    """The *hidden* pixels of *box* that layer *li* continues: those whose nearest pixel of layer *li* or
+    a farther layer (OpenCV's 5x5 chamfer distance, ties in its scan order) is one of layer *li*'s, no
+    farther from it than the distance from that pixel to the nearest pixel of a farther layer (at
+    least 1 px). Returns (dst, src, dist): those pixels and each one's nearest candidate, the pixel of
+    layer *li* the extension copies ((N,) int64 flat indices into the box; *src* inside the box when it
+    holds the layer's bounding box, as the renderer's does), and their distance ((N,) float32); None when
+    there is none; or, when no farther layer is near, the hidden pixels layer *li* is the only candidate
+    for: (H_box, W_box) bool, their nearest pixels still to be found (:func:`behind_sources`).
+
+    A hidden pixel is continued by one layer only, the one seen next to it: a small layer (a lamp, a
+    glint, a thin rod) is not copied across the whole width a blurred foreground hides, on top of the
+    background that is seen all around it.
+
+    The answer is computed where the extension can use it (:func:`extend_layer_behind` reaches *reach_px*,
+    on the grid of *cell_px* x *cell_px* cells): for the hidden pixels within ``near`` (max-norm) of
+    the layer's bounding box *bbox* (row0, row1, col0, col1, inclusive) and at most ``rd`` (chamfer)
+    from their nearest candidate (the chamfer distance is at least the max-norm).
+    Each transform runs on the window that decides those pixels: their candidates within ``rd``, then
+    the farther layers within the largest distance tested of the candidates that are tested, inside
+    the box widened by twice the reach, each cut to the bounding box of its seeds and the pixels it decides
+    (:func:`cut_window`: rows and columns of no seed beyond those pixels are work for nothing). There every answer
+    the extension uses is the one the transforms give on the whole widened box; the others are not decided
+    (the render does not read them).
+    *threads*: the hidden pixels' box is cut into up to that many strips along its longer side, each
+    decided on its own windows on its own thread (OpenCV releases the GIL): the same answer.
+
+    One transform serves ownership and the extension: where a pixel's nearest candidate q is layer *li*'s,
+    the transform of layer *li*'s pixels alone on the extension's window (:func:`behind_sources`) labels q
+    too, ties included. Both run OpenCV's two passes in the same scan order; leaving out seeds (the farther
+    layers) or cutting the window away only raises what the other neighbours offer, and a shortest chamfer
+    path from the pixel to q lies in the rectangle they span, inside both windows, so every comparison
+    along it picks as before (tests/test_extend_behind.py checks it on random layers).
+    """
+    layer, hidden = np.ascontiguousarray(layer, np.int32), np.ascontiguousarray(hidden, bool)
+    h, w = layer.shape
+    (by, ey), (bx, ex) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
+    reach_cells = int(math.ceil(reach_px / cell_px))
+    near = (reach_cells + 1) * cell_px - 1
+    # the chamfer distance is homogeneous and at most 1.4 times the max-norm: a cell within reach_cells
+    # of the layer's cell holds pixels within reach_cells * cell_px + 1.4 (cell_px - 1) of its pixel
+    rd = int(math.ceil(reach_cells * cell_px + 1.41 * (cell_px - 1)))
+    pad = 2 * int(math.ceil(reach_px)) + 2
+    whole = (slice(max(0, by - pad), min(h, ey + pad)), slice(max(0, bx - pad), min(w, ex + pad)))
+    reach_box = (widened_span(bbox[0] - by, bbox[1] - by, near, slice(0, ey - by)),
+                 widened_span(bbox[2] - bx, bbox[3] - bx, near, slice(0, ex - bx)))
+    sub = hidden[reach_box]
+    rows, cols = np.flatnonzero(sub.any(axis=1)), np.flatnonzero(sub.any(axis=0))
+    if rows.size == 0:
+        return None
+    # the hidden pixels' bounding box: (y0, y1, x0, x1) inclusive in the frame, *tight* in the box
+    y0, y1 = (int(v) + reach_box[0].start + by for v in (rows[0], rows[-1]))
+    x0, x1 = (int(v) + reach_box[1].start + bx for v in (cols[0], cols[-1]))
+    tight = (slice(y0 - by, y1 + 1 - by), slice(x0 - bx, x1 + 1 - bx))
+    # no farther layer within twice the distance tested: layer li is every hidden pixel's only candidate
+    if not (layer[widened_span(y0, y1, 2 * rd + 3, whole[0]), widened_span(x0, x1, 2 * rd + 3, whole[1])] > li).any():
+        out = np.zeros_like(hidden)
+        out[tight] = hidden[tight]
+        return out
+    # strips along the longer side, one per thread: each pixel's answer depends only on its own window
+    along = 1 if x1 - x0 >= y1 - y0 else 0
+    lo, hi = (x0, x1) if along else (y0, y1)
+    cuts = np.linspace(lo, hi + 1, max(1, min(threads, (hi + 1 - lo) // (4 * rd + 12))) + 1).astype(int)
+    strips = [(y0, y1, int(a), int(b) - 1) if along else (int(a), int(b) - 1, x0, x1) for a, b in zip(cuts, cuts[1:])]
+
+    def strip(sy0, sy1, sx0, sx1):
+        win = (widened_span(sy0, sy1, rd, whole[0]), widened_span(sx0, sx1, rd, whole[1]))
+        return _owned_in(layer, li, win, hidden, (by, bx), (sy0, sy1, sx0, sx1), rd, whole)
+
+    others = [_in_thread(lambda box=box: strip(*box)) for box in strips[1:]]
+    parts = [strip(*strips[0])] + [done() for done in others]
+    py, px, qy, qx, d = (np.concatenate(v) for v in zip(*parts))
+    if py.size == 0:
+        return None
+    wb = ex - bx
+    return (py - by) * wb + px - bx, (qy - by) * wb + qx - bx, d
+
+
+def cut_window(win, seeds, keep):
+    """The window *win* (y0, y1, x0, x1: rows y0:y1, columns x0:x1 of the frame) cut to the bounding box of its
+    *seeds* (r0, r1, c0, c1 inclusive, in the window; at least one) and of the pixels *keep* (y0, y1, x0, x1
+    inclusive, frame, inside the window): (y0, y1, x0, x1) as *win*.
+
+    A chamfer transform of the cut window gives every pixel of *keep* the distance and label that the window's
+    own gives it (where its nearest seed is within the window's reach): every seed of the window is in the cut
+    one, and so is the rectangle spanned by the pixel and its nearest seed, where a shortest chamfer path
+    between them lies; a path that leaves it costs more (see :func:`owners_of_hidden`). Rows or columns of the window
+    beyond its seeds and *keep* are transform work for nothing."""
+    (wy0, wy1, wx0, wx1), (r0, r1, c0, c1), (ky0, ky1, kx0, kx1) = win, seeds, keep
+    return (max(wy0, min(wy0 + r0, ky0)), min(wy1, max(wy0 + r1, ky1) + 1),
+            max(wx0, min(wx0 + c0, kx0)), min(wx1, max(wx0 + c1, kx1) + 1))
+
+
+def cut_to_seeds(seeds, win, keep):
+    """The window *win* (y0, y1, x0, x1: rows y0:y1, columns x0:x1 of the frame) cut (:func:`cut_window`) to its
+    *seeds* ((y1 - y0, x1 - x0) bool) and the pixels *keep*: (the cut window, its seeds), or None when the
+    window holds no seed."""
+    rows = np.flatnonzero(seeds.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(seeds.any(axis=0))
+    cut = cut_window(win, (int(rows[0]), int(rows[-1]), int(cols[0]), int(cols[-1])), keep)
+    return cut, seeds[cut[0] - win[0]:cut[1] - win[0], cut[2] - win[2]:cut[3] - win[2]]
+
+
+@njit(cache=True, nogil=True)
+def _nearest_candidates(layer, li, pos, wy0, wx0, dist, labels, hidden, by, bx, part, rd):
+    """The hidden pixels of *part* (y0, y1, x0, x1 inclusive, frame coordinates) within *rd* of their nearest
+    candidate (a pixel of layer *li* or farther) when that candidate is of layer *li* (*layer* (H, W) int32:
+    the frame's layer ids).
+
+    *hidden* (hb, wb) bool is the box at (by, bx); *dist* and *labels* OpenCV's transform of the window at
+    (wy0, wx0) (their shape), whose labels number its candidates in raster order: label k is the candidate at
+    flat index pos[k - 1] of the window. Returns (py, px, qy, qx, d): the pixels, their candidates (frame
+    coordinates, int64) and their distance (float32).
+    """
+    ww = dist.shape[1]
+    y0, y1, x0, x1 = part
+    n = (y1 + 1 - y0) * (x1 + 1 - x0)
+    py, px = np.empty(n, np.int64), np.empty(n, np.int64)
+    qy, qx = np.empty(n, np.int64), np.empty(n, np.int64)
+    d = np.empty(n, np.float32)
+    i = 0
+    for y in range(y0, y1 + 1):
+        for x in range(x0, x1 + 1):
+            if hidden[y - by, x - bx]:
+                dd = dist[y - wy0, x - wx0]
+                if dd <= rd:
+                    q = pos[labels[y - wy0, x - wx0] - 1]
+                    sy, sx = wy0 + q // ww, wx0 + q % ww
+                    if layer[sy, sx] == li:
+                        py[i], px[i], qy[i], qx[i], d[i] = y, x, sy, sx, dd
+                        i += 1
+    return py[:i], px[:i], qy[:i], qx[:i], d[:i]
+
+
+@njit(cache=True, nogil=True)
+def _tested_box(qy, qx, d):
+    """The candidates (qy, qx) (N,) int64 of the pixels farther than 1 px from them (d (N,) float32): their
+    bounding box (y0, y1, x0, x1 inclusive) and the largest of those distances; y0 > y1 when there is none."""
+    y0, y1, x0, x1 = 2 ** 62, -1, 2 ** 62, -1
+    d_max = np.float32(0.0)
+    for i in range(d.size):
+        if d[i] > 1.0:
+            y0, y1 = min(y0, qy[i]), max(y1, qy[i])
+            x0, x1 = min(x0, qx[i]), max(x1, qx[i])
+            d_max = max(d_max, d[i])
+    return y0, y1, x0, x1, d_max
+
+
+@njit(cache=True, nogil=True)
+def _keep_owned(py, px, qy, qx, d, width, wy0, wx0):
+    """The pixels (py, px) (N,) int64 no farther from their candidate (qy, qx) (N,) int64 than *d* (N,) float32
+    allows: d <= 1, or d at most the candidate's distance to a farther layer (*width*: the transform of the
+    window at (wy0, wx0), at least 1). Returns the kept (py, px, qy, qx, d), in order."""
+    keep = np.empty(d.size, np.bool_)
+    n = 0
+    for i in range(d.size):
+        keep[i] = d[i] <= 1.0 or d[i] <= max(width[qy[i] - wy0, qx[i] - wx0], np.float32(1.0))
+        n += keep[i]
+    out_py, out_px = np.empty(n, np.int64), np.empty(n, np.int64)
+    out_qy, out_qx = np.empty(n, np.int64), np.empty(n, np.int64)
+    out_d = np.empty(n, np.float32)
+    k = 0
+    for i in range(d.size):
+        if keep[i]:
+            out_py[k], out_px[k], out_qy[k], out_qx[k], out_d[k] = py[i], px[i], qy[i], qx[i], d[i]
+            k += 1
+    return out_py, out_px, out_qy, out_qx, out_d
+
+
+def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part, rd: int, bound):
+    """:func:`owners_of_hidden` on the window *win* of *layer*: the hidden pixels (*hidden*: the box at *origin*
+    (row, column)) of *part* (y0, y1, x0, x1 inclusive, frame coordinates) that layer *li* continues, deciding
+    those within *rd* of their nearest candidate, those candidates ((py, px, qy, qx) int64 frame
+    coordinates) and their distance (d, float32). The farther layers' transform looks beyond *win*, within
+    *bound*. Each transform runs on its window cut to its seeds and the pixels it decides (:func:`cut_window`)."""
+    layer = read_only(layer)
+    box = tuple(int(v) for s in win for v in (s.start, s.stop))
+    found = cut_to_seeds(layer[win] >= li, box, part)
+    if found is None:  # no candidate within reach of any hidden pixel: nothing to continue
+        return (np.zeros(0, np.int64),) * 4 + (np.zeros(0, np.float32),)
+    (y0, _, x0, _), cand = found
+    dist, labels = cv2.distanceTransformWithLabels(np.logical_not(cand).view(np.uint8), cv2.DIST_L2, 5,
+                                                   labelType=cv2.DIST_LABEL_PIXEL)
+    found = _nearest_candidates(layer, int(li), read_only(np.flatnonzero(cand)), y0, x0, read_only(dist),
+                                read_only(labels), read_only(hidden), int(origin[0]), int(origin[1]),
+                                tuple(int(v) for v in part), int(rd))
+    tested = _tested_box(*(read_only(v) for v in found[2:]))
+    if tested[0] > tested[1]:  # within 1 px a candidate of layer li always reaches
+        return found
+    # the farther layers' transform, exact up to the largest distance tested
+    far = int(math.ceil(float(tested[4])))
+    win = (widened_span(tested[0], tested[1], far, bound[0]), widened_span(tested[2], tested[3], far, bound[1]))
+    farther = cut_to_seeds(layer[win] > li, tuple(int(v) for s in win for v in (s.start, s.stop)), tested[:4])
+    if farther is None:  # no farther layer there: each candidate's width is unbounded, every pixel kept
+        return found
+    (y0, _, x0, _), seeds = farther
+    width = cv2.distanceTransform(np.logical_not(seeds).view(np.uint8), cv2.DIST_L2, 5)
+    return _keep_owned(*(read_only(v) for v in found), read_only(width), y0, x0)
+
+
+def _in_thread(fn):
+    """Run fn() on a new thread (OpenCV releases the GIL); returns a function that waits for its result."""
+    done = []
+
+    def target():
+        try:
+            done.append((fn(), None))
+        except BaseException as exc:  # re-raised in the caller's thread
+            done.append((None, exc))
+
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+
+    def result():
+        thread.join()
+        value, exc = done[0]
+        if exc is not None:
+            raise exc
+        return value
+    return result
+
+
+def continued_pixels(frame: RenderFrame, canvas: Canvas, li: int, box, bbox, reach_px: float, cell_px: int = 1):
+    """The pixels of nearer layers that are not yet opaque and that this layer continues, and the pixel of the
+    layer each one copies (:func:`owners_of_hidden`): a :class:`Behind` with flat indices into *box*, or None."""
+    hidden = (frame.layer[box] < li) & (canvas.trans[box] > 0)
+    if not hidden.any():
+        return None
+    # a second thread pays for itself from about 0.2 Mpx
+    threads = frame.plan.threads if hidden.size >= 200_000 else 1
+    found = owners_of_hidden(frame.layer, li, box, bbox, hidden, reach_px, cell_px, threads)
+    if isinstance(found, np.ndarray):  # their nearest pixels of the layer still to be found
+        found = behind_sources(frame.layer[box] == li, found, reach_px)
+        return None if found is None else Behind(*found)
+    if found is None:
+        return None
+    # the nearest candidate is the nearest pixel of the layer, the one the extension copies (the same
+    # transform with the farther layers' pixels left out labels it alike: see owners_of_hidden)
+    dst, src, d = found
+    near = d <= reach_px
+    return Behind(dst[near], src[near]) if near.any() else None

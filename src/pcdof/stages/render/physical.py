@@ -1,0 +1,233 @@
+"""The physical thin-lens renderer (the default method).
+
+Every pixel is a small disc (or aperture polygon) of diameter c(z) = A*fx*|1/d_f - 1/z| pixels
+in linear light. Pixels are grouped into depth layers by their signed circle of confusion (layer
+edges at |c| = 1, 1.5, 2, 3, 4, 6, 8, 11, ... px, so only the blur sizes present are computed).
+Each layer is scattered exactly -- every source spreads its radiance over its own disc with
+area-exact, anti-aliased coverage, normalised to carry exactly its energy -- and layers are
+composited front to back with the "over" operator, the layer's coverage being its opacity. So a
+blurred foreground spreads softly over what lies behind it, and an in-focus subject (opaque)
+receives nothing from behind. The result is divided by the accumulated opacity, so every output
+pixel is a convex combination of input pixels: a uniform image stays uniform.
+
+The scatter is written as a gather over output rows (each source row's span on that output row),
+so rows run in parallel with no write conflicts and no per-layer image buffers are needed.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+from ...apertures import Aperture, aperture_from_blades
+from ...color import decode_to_linear, encode_from_linear, from_float, to_float
+from ...errors import InputError, LensError
+from ...runtime.kernels import read_only
+from ...lens import MAX_COC_PX, ThinLens, aperture_for
+from ...plans import RenderPlan, as_dict, check_quality, check_render_plan, plan_render
+from ...runtime.threads import threads_for
+from . import classify, composite, serial
+from .aperture import RenderAperture, cached_aperture_table
+from .classify import LAYER_EDGES_PX, SHARP_COC_PX
+from .composite import copy_tiles
+from .extend import NO_PIXELS
+from .frame import Canvas, RenderFrame, as_channels
+from .grids import full_grid, reduced_grid, upsample_cells
+from .ownership import continued_pixels
+from .scatter import scatter_sources
+from .tiles import TileMap, classify_tiles
+from .uniform import UniformTiles, convolve_uniform, convolved_cells
+
+
+def _layer_window(frame: RenderFrame, li: int, r_max: float, r_front: float, bbox):
+    """The window a layer's work needs (its box with the reach of its blur and of its extension),
+    its member mask there, the hidden pixels it may extend into (or None) and the extension's reach."""
+    h, w = frame.layer.shape
+    extend = frame.extend_behind and li > 0 and r_front > 0
+    ext_reach = int(math.ceil(r_front + r_max + 1)) if extend else 0
+    margin = ext_reach + int(math.ceil(r_max + 0.5)) + 1
+    y0, y1, x0, x1 = (int(v) for v in bbox)
+    box = (slice(max(0, y0 - margin), min(h, y1 + margin + 1)), slice(max(0, x0 - margin), min(w, x1 + margin + 1)))
+    return box, frame.layer[box] == li, ext_reach, extend
+
+
+def scatter_layer(lin, radius, member, s, aperture: RenderAperture, hidden=None, reach_px=0, fast=None):
+    """Scatter the pixels of *member* at 1/s resolution.
+
+    Returns their (H, W, C+1) buffer at full size (premultiplied colour, coverage), whether the
+    layer was extended, the number of uniform-blur kernels used and the number of sources scattered
+    (cells of the 1/s grid).
+
+    With *hidden* (pixels of nearer, not yet opaque layers) the layer is first extended behind them
+    up to *reach_px* (:func:`extend_layer_behind`). *fast* (a :class:`UniformTiles` or None) holds the
+    uniform tiles (:meth:`pcdof.stages.render.tiles.TileMap.uniform`): there the layer is computed as a convolution
+    (:func:`convolve_uniform`), and only the sources whose footprint reaches another pixel are scattered.
+    """
+    h, w, nc = lin.shape
+    grid = (full_grid(lin, radius, member, hidden, reach_px) if s == 1
+            else reduced_grid(lin, radius, member, hidden, reach_px, s))
+    hs, ws = grid.member.shape
+    buf = np.zeros((hs, ws, 4), np.float32)
+    bins, groups, scattered = convolved_cells(grid, fast, s)
+    n_scattered = scatter_sources(grid, scattered, aperture, buf)
+    if groups:
+        convolve_uniform(grid.lin, grid.share, bins, groups, aperture.symmetric, aperture.table, buf)
+    if nc < 3:
+        buf = np.ascontiguousarray(buf[:, :, list(range(nc)) + [3]])
+    if s > 1:
+        buf = upsample_cells(buf, s, h, w)
+    return buf, grid.extended, len(groups), n_scattered
+
+
+def _sharp_layer(frame: RenderFrame, canvas: Canvas, li: int, n_members: int, r_max: float, r_front: float,
+                 bbox) -> dict:
+    """Composite the in-focus layer: an opaque copy, no blur (extended behind nearer layers), read in place
+    from the frame (nothing is copied)."""
+    box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
+    found = continued_pixels(frame, canvas, li, box, bbox, ext_reach) if extend else None
+    dst, src = (found.dst, found.src) if found is not None else (NO_PIXELS, NO_PIXELS)
+    composite.composite_sharp(read_only(frame.lin), m, box[0].start, box[1].start, dst, src, canvas.acc, canvas.acc_a,
+                              canvas.trans)
+    return {"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1}
+
+
+def _blur_layer(frame: RenderFrame, canvas: Canvas, li: int, key: int, n_members: int, r_max: float, r_front: float,
+                bbox) -> dict:
+    """Scatter one blur layer (at the plan's resolution, uniform tiles convolved) and composite it behind."""
+    box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
+    lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
+    plan = frame.plan
+    s = plan.scale(lo)
+    hidden = continued_pixels(frame, canvas, li, box, bbox, ext_reach) if extend else None
+    # uniform tiles: everything within the layer's reach (plus the reduced grid's spread) in this layer
+    uniform = np.zeros_like(frame.tiles.copy)
+    if plan.convolve_uniform and lo / (2 * s) >= plan.uniform_min_radius_px:
+        uniform = frame.tiles.uniform(lo, hi, 1 if key > 0 else -1, r_max + 2 * s + 2)
+    fast = UniformTiles(uniform, frame.tiles, box) if uniform.any() else None
+    buf, extended, n_kernels, n_scattered = scatter_layer(frame.lin[box], frame.radius[box], m, s, frame.aperture,
+                                                          hidden, ext_reach, fast)
+    with serial.serial_if(buf.shape[0] * buf.shape[1] < serial.SERIAL_BELOW_PX):
+        composite.composite_under(buf, box[0].start, box[1].start, canvas.acc, canvas.acc_a, canvas.trans)
+    return {"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
+            "side": "front" if key < 0 else "back", "scale": s, "extended": extended,
+            "uniform_tiles": int(uniform.sum()), "kernels": n_kernels, "sources_scattered": n_scattered}
+
+
+def _composite_layers(frame: RenderFrame, canvas: Canvas, keys, counts, r_maxes, boxes) -> list:
+    """Render and composite every layer, near to far (per layer: pixel count, largest radius, bounding box);
+    returns one record per layer."""
+    r_front = 0.0  # largest blur radius of the layers composited so far
+    layers_run = []
+    for li, key in enumerate(keys):
+        n_members, r_max = int(counts[li]), float(r_maxes[li])
+        if key == 0:
+            layers_run.append(_sharp_layer(frame, canvas, li, n_members, r_max, r_front, boxes[li]))
+        else:
+            layers_run.append(_blur_layer(frame, canvas, li, int(key), n_members, r_max, r_front, boxes[li]))
+            r_front = max(r_front, r_max)
+    return layers_run
+
+
+def _tiles_for(coc, tiles, plan: RenderPlan) -> TileMap:
+    """*tiles* checked against the CoC map, or the plan's tile classification of it."""
+    if tiles is None:
+        return classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
+    if not isinstance(tiles, TileMap) or tiles.shape != coc.shape:
+        raise InputError(f"tiles must be a TileMap of shape {coc.shape}; got {tiles!r:.80}")
+    return tiles
+
+
+def _shape_of(aperture, blades, rotation_deg) -> Aperture:
+    """The render's aperture shape: *aperture*, or the disc / polygon of *blades* and *rotation_deg*."""
+    if aperture is None:
+        return aperture_from_blades(blades, rotation_deg)
+    if not isinstance(aperture, Aperture):
+        raise InputError(f"aperture must be a pcdof.apertures.Aperture; got {type(aperture).__name__}")
+    if blades != 0:
+        raise InputError(f"give aperture or blades, not both; got blades={blades!r} and aperture={aperture!r:.80}")
+    return aperture
+
+
+def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
+                         rotation_deg: float = 0.0, aperture: Aperture | None = None, quality: str = "balanced",
+                         extend_behind: bool = True, tiles: TileMap | None = None,
+                         plan: RenderPlan | None = None) -> tuple[np.ndarray, dict]:
+    """Physical depth of field in linear light.
+
+    Parameters
+    ----------
+    lin : (H, W, C) float32, linear radiance, C = 1..3
+    signed_coc : (H, W) float32, signed circle-of-confusion diameter in pixels (< 0 in front of focus);
+        NaN is unknown and, like unknown depth in :meth:`pcdof.lens.ThinLens.signed_coc_px`, in focus (0)
+    blades, rotation_deg : aperture polygon (0 = disc), as :class:`pcdof.lens.ThinLens` has them
+    aperture : a :class:`pcdof.apertures.Aperture` instead of *blades* and *rotation_deg* (any shape)
+    quality : a key of :data:`QUALITIES`; sets the plan when *plan* is None
+    extend_behind : continue each layer behind the soft edges of nearer blurred layers (partial occlusion)
+    tiles : :func:`pcdof.stages.render.tiles.classify_tiles` of *signed_coc*, if the caller has it (else computed here);
+        its copy tiles are left out of every layer and come out as the input, exactly
+    plan : :class:`pcdof.plans.RenderPlan` or None (:func:`pcdof.plans.plan_render` of *quality*):
+        threads, tiles, reduced-resolution layers, convolution of uniform tiles
+
+    Returns
+    -------
+    (H, W, C) float32 image and an info dict (layers run, pixels blurred, tiles, the plan).
+    """
+    check_quality(quality)
+    if lin.ndim != 3 or not 1 <= lin.shape[2] <= 3:
+        raise InputError(f"lin must be (H, W, C) with 1 to 3 channels; got shape {lin.shape}")
+    shape = _shape_of(aperture, blades, rotation_deg)
+    plan = plan_render(quality=quality) if plan is None else check_render_plan(plan)
+    h, w, _ = lin.shape
+    lin = np.ascontiguousarray(lin, np.float32)
+    with threads_for(plan):
+        coc, radius, layer, keys, counts, r_maxes, boxes = classify.classify_layers(
+            np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX, LAYER_EDGES_PX)
+        tiles = _tiles_for(coc, tiles, plan)
+        render_aperture = RenderAperture(shape.symmetric, cached_aperture_table(shape))
+        frame = RenderFrame(lin, radius, layer, tiles, plan, render_aperture, extend_behind)
+        canvas = Canvas.start(lin.shape, tiles, plan.copy_tiles)
+        layers_run = _composite_layers(frame, canvas, keys, counts, r_maxes, boxes)
+        out = np.empty_like(lin)
+        composite.normalise(canvas.acc, canvas.acc_a, lin, out)
+    in_focus = sum(l["pixels"] for l in layers_run if not l["blurred"])
+    info = {"layers": layers_run, "foreground_pass": bool((keys < 0).any()), "blurred_pixels": h * w - in_focus,
+            "quality": quality, "tiles": tiles.summary(), "plan": as_dict(plan)}
+    return out, info
+
+
+def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False, quality="balanced",
+                    signed_coc=None, plan=None):
+    """Thin-lens depth of field (see the module docstring). Returns (image, info).
+
+    *signed_coc* (H, W) float32 pixels, if given, is ``lens.signed_coc_px(depth_m, fx)`` already
+    computed by the caller (the pipeline's CoC stage), so it is not computed twice. *plan*: a
+    :class:`pcdof.plans.RenderPlan`, or None for :func:`pcdof.plans.plan_render` of *quality*.
+    """
+    plan = plan_render(quality=quality) if plan is None else check_render_plan(plan)
+    if not isinstance(lens, ThinLens):
+        raise LensError(f"the physical method needs a ThinLens; got {type(lens).__name__}")
+    coc = lens.signed_coc_px(depth_m, fx) if signed_coc is None else signed_coc
+    cmax = float(np.abs(coc).max()) if coc.size else 0.0
+    if cmax < SHARP_COC_PX:
+        return color.copy(), {"skipped": True, "reason": f"largest circle of confusion {cmax:.3f} px < "
+                                                         f"{SHARP_COC_PX} px: nothing to blur",
+                              "max_coc_px": cmax, "layers": []}
+    if cmax > MAX_COC_PX:
+        warnings.warn(f"circle of confusion up to {cmax:.0f} px clamped to {MAX_COC_PX:.0f} px", stacklevel=3)
+    src = as_channels(color)
+    lin = to_float(src) if linear else decode_to_linear(src)  # read only: the render never writes its input
+    tiles = classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
+    out_lin, info = render_layers_linear(np.ascontiguousarray(lin, np.float32), coc,
+                                         aperture=aperture_for(lens),
+                                         quality=quality, tiles=tiles, plan=plan)
+    if linear:
+        out = out_lin if color.dtype.kind == "f" else from_float(out_lin, color.dtype)
+        out = out.astype(color.dtype, copy=False)
+    else:
+        out = encode_from_linear(out_lin, color.dtype)
+    if plan.copy_tiles:
+        copy_tiles(src, tiles, out)  # exactly the input there, whatever the dtype's round trip
+    info.update(skipped=False, max_coc_px=cmax)
+    return out.reshape(color.shape), info

@@ -16,11 +16,11 @@ import signal
 import sys
 import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
 
 from ..runtime.process import tune_process, tuning
-from ..runtime.threads import set_process_threads, threads_restored
+from ..runtime.threads import process_pool, set_process_threads, threads_restored
 from .signals import signals_held, starting_processes
 from .tasks import BatchJob, FrameTask, failed_record
 
@@ -103,7 +103,7 @@ def _render_in_worker(task: FrameTask) -> dict:
     return _WORKER["render"](_WORKER["job"], task)
 
 
-def _interrupt_workers(pool: ProcessPoolExecutor) -> None:
+def _interrupt_workers(pool) -> None:
     """Send SIGTERM to the pool's worker processes: each removes its temporary files and exits at once."""
     for proc in list((getattr(pool, "_processes", None) or {}).values()):  # no public API before Python 3.14
         with contextlib.suppress(OSError):
@@ -166,8 +166,7 @@ def _drain(pool, queue: list[FrameTask], workers: int, collect) -> tuple[bool, i
 def _run_pool(ctx, job: BatchJob, queue: list[FrameTask], workers: int, collect, render):
     """One pool over *queue* (see :func:`_drain`); Ctrl-C or SIGTERM stops its workers with SIGTERM."""
     with starting_processes():
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx,
-                                   initializer=_init_worker, initargs=(job, render, bool(tuning())))
+        pool = process_pool(min(workers, len(queue)), ctx, _init_worker, (job, render, bool(tuning())))
     try:
         return _drain(pool, queue, workers, collect)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the workers ignore SIGINT; stop them with SIGTERM

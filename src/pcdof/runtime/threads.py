@@ -88,6 +88,16 @@ def set_process_threads(threads: int) -> None:
     cv2.setNumThreads(max(1, int(threads)))
 
 
+def process_pool(workers: int, context, initializer=None, initargs=()):
+    """A :class:`~concurrent.futures.ProcessPoolExecutor` of *workers* processes started with the multiprocessing
+    *context* (the batch's local workers), each running ``initializer(*initargs)`` first."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InputError(f"workers must be an integer >= 1; got {workers!r}")
+    return ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=initializer, initargs=initargs)
+
+
 _pools_lock = threading.Lock()
 _pools: dict = {}  # name -> (ThreadPoolExecutor, pid of the process it belongs to)
 

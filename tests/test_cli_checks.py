@@ -6,9 +6,9 @@ import os
 import click
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-import pcdof
+from conftest import invoke
+
 from pcdof.batch.focus import check_xy
 from pcdof.cli import main
 from pcdof.errors import EXIT_CODES, ImageWriteError, InputError, LensError
@@ -17,10 +17,6 @@ from pcdof.io import load_frame
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SAMPLE = os.path.join(ROOT, "data", "sample")
 FRAME = [f"{SAMPLE}/color.png", f"{SAMPLE}/depth.png", "--calib", f"{SAMPLE}/calib.json"]
-
-
-def invoke(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def assert_one_line_error(result, error_class, *words):

@@ -8,17 +8,15 @@ import click
 import pytest
 from click.testing import CliRunner
 
-from pcdof.cli import SUBCOMMANDS, main
+from conftest import invoke
+
+from pcdof.cli import SUBCOMMANDS
 from pcdof.cli._report import format_decision, report_decision
 from pcdof.errors import InputError
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 S = os.path.join(ROOT, "data", "sample")
 FRAME = [f"{S}/color.png", f"{S}/depth.png", "--calib", f"{S}/calib.json"]
-
-
-def invoke(args):
-    return CliRunner().invoke(main, [str(a) for a in args], prog_name="pcdof")
 
 
 def assert_one_line_usage_error(result, *needles):

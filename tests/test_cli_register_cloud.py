@@ -12,11 +12,11 @@ import sys
 import cv2
 import numpy as np
 import pytest
-from click.testing import CliRunner
 from PIL import Image
 
+from conftest import invoke
+
 from pcdof.camera import Intrinsics
-from pcdof.cli import main
 from pcdof.cloud import colored_points, write_ply
 from pcdof.errors import EXIT_CODES, CalibrationError, ImageReadError, InputError, LensError
 from pcdof.io import exr_available, read_calibration, read_depth
@@ -28,10 +28,6 @@ NYU = os.path.join(ROOT, "data", "real", "nyu_v2_raw_open3d")
 
 def frame_args(folder):
     return [f"{folder}/color.png", f"{folder}/depth.png", "--calib", f"{folder}/calib.json"]
-
-
-def invoke(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def assert_clean_failure(result, error_class, out_dir):

@@ -13,20 +13,16 @@ import shutil
 import cv2
 import numpy as np
 import pytest
-from click.testing import CliRunner
+
+from conftest import invoke
 
 from pcdof import io
-from pcdof.cli import main
 from pcdof.errors import InputError, exit_code_for
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BAG = os.path.join(ROOT, "data", "real", "realsense_d435_bag", "single_depth_color_640x480.bag")
 S = os.path.join(ROOT, "data", "sample")
 PAIR = [f"{S}/color.png", f"{S}/depth.png", "--calib", f"{S}/calib.json"]
-
-
-def invoke(*args):
-    return CliRunner().invoke(main, [str(a) for a in args], prog_name="pcdof")
 
 
 def ok(result):

@@ -18,7 +18,6 @@ import json
 import os
 import struct
 import subprocess
-import sys
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -29,6 +28,8 @@ import cv2
 import numpy as np
 import pytest
 
+from conftest import run_pcdof
+
 from pcdof.camera import Intrinsics, Rig
 from pcdof.errors import EXIT_CODES, CalibrationError, ImageReadError, ImageWriteError, InputError, LensError
 
@@ -36,13 +37,6 @@ READ, CALIB, LENS, INPUT, WRITE = (EXIT_CODES[k] for k in (ImageReadError, Calib
                                                            ImageWriteError))
 W, H = 8, 6
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
-def pcdof_command() -> list[str]:
-    exe = Path(sys.executable).with_name("pcdof")
-    if exe.exists():
-        return [str(exe)]
-    return [sys.executable, "-c", "import sys; from pcdof.cli import main; sys.exit(main())"]
 
 
 # ----------------------------------------------------------------------------------------- hostile files
@@ -155,11 +149,6 @@ def inputs(tmp_path_factory) -> Path:
                                      "<rows>3</rows><cols>3")
     (d / "not_a_folder").write_bytes(b"a file where a folder is expected")
     return d
-
-
-def run_cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONWARNINGS": "", "COLUMNS": "200"}
-    return subprocess.run(pcdof_command() + args, cwd=cwd, capture_output=True, text=True, timeout=300, env=env)
 
 
 # ----------------------------------------------------------------------------------------- the cases
@@ -310,7 +299,7 @@ def results(inputs, tmp_path_factory) -> dict:
             else:
                 (case_dir / "out" / name).write_bytes(content)
         argv = [a.replace("{inputs}", str(inputs)) for a in case.argv(inputs, case_dir)]
-        return case.id, (run_cli(argv, case_dir), case_dir)
+        return case.id, (run_pcdof(argv, case_dir), case_dir)
 
     with ThreadPoolExecutor(max_workers=4) as pool:
         return dict(pool.map(one, enumerate(CASES)))

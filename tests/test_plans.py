@@ -12,7 +12,7 @@ from pcdof.errors import InputError
 from pcdof.lens import PaperLens, ThinLens
 from pcdof.plans import QUALITIES, RegisterPlan, RenderPlan, as_dict, plan_register, plan_render
 
-from test_render import texture
+from conftest import texture
 
 
 def scene(h=72, w=120):

@@ -20,6 +20,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from pcdof.metrics import psnr
 from pcdof import fill as fast_fill
 import pcdof.stages.render as renderer
 from pcdof.camera import Intrinsics, Rig
@@ -58,11 +59,6 @@ RENDER_EXTEND_ATOL = 0.02
 RENDER_MIN_PSNR_DB = {"exact": 60.0, "high": 50.0, "balanced": 44.0, "fast": 36.0}
 #: paper method: absolute error of the float32 result (values in [0, 1])
 PAPER_ATOL = 1e-5
-
-
-def psnr(a, b) -> float:
-    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
-    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
 
 
 # ---------------------------------------------------------------------------------------------

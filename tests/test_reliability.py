@@ -37,6 +37,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import pcdof_command, run_pcdof
+
 from pcdof.camera import Intrinsics, Rig
 from pcdof.errors import (EXIT_CODES, CalibrationError, ImageReadError, ImageWriteError, InputError, LensError,
                           OutputInUseError, PcdofError, is_out_of_memory, one_line)
@@ -48,19 +50,6 @@ CALIB = EXIT_CODES[CalibrationError]
 READ = EXIT_CODES[ImageReadError]
 HYPO = settings(max_examples=25, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.function_scoped_fixture])
-
-
-def pcdof_command() -> list[str]:
-    exe = Path(sys.executable).with_name("pcdof")
-    if exe.exists():
-        return [str(exe)]
-    return [sys.executable, "-c", "import sys; from pcdof.cli import main; sys.exit(main())"]
-
-
-def run_cli(args, cwd=None, timeout=300) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONWARNINGS": "", "COLUMNS": "200"}
-    return subprocess.run(pcdof_command() + [os.fsdecode(a) for a in args], cwd=cwd, capture_output=True,
-                          text=True, timeout=timeout, env=env, errors="backslashreplace")
 
 
 def one_error_line(proc, code: int, word: str = "") -> str:
@@ -151,17 +140,17 @@ class TestOutputsNeverReplaceInputs:
     def test_command_line_refuses_before_work(self, frame, tmp_path, command, how, target):
         before = {p.name: p.read_bytes() for p in frame.iterdir()}
         out = spell(frame / target, how, tmp_path)
-        proc = run_cli([command, frame / "color.png", frame / "depth.png", "--calib", frame / "calib.json", "-o", out])
+        proc = run_pcdof([command, frame / "color.png", frame / "depth.png", "--calib", frame / "calib.json", "-o", out])
         one_error_line(proc, INPUT, "refusing to overwrite")
         assert {p.name: p.read_bytes() for p in frame.iterdir()} == before
 
     def test_save_maps_naming_the_output_leaves_nothing(self, frame, tmp_path):
         x = tmp_path / "X.png"
-        proc = run_cli(["render", frame / "color.png", frame / "depth.png", "--calib", frame / "calib.json", "-o", x,
+        proc = run_pcdof(["render", frame / "color.png", frame / "depth.png", "--calib", frame / "calib.json", "-o", x,
                         "--save-maps", x])
         one_error_line(proc, INPUT, "same path")
         assert not x.exists()
-        proc = run_cli(["render", frame / "color.png", frame / "depth.png", "--calib", frame / "calib.json",
+        proc = run_pcdof(["render", frame / "color.png", frame / "depth.png", "--calib", frame / "calib.json",
                         "-o", tmp_path / "m" / "coc_px.png", "--save-maps", tmp_path / "m"])
         one_error_line(proc, INPUT, "same path")
         assert not (tmp_path / "m").exists()
@@ -171,7 +160,7 @@ class TestOutputsNeverReplaceInputs:
         out = tmp_path / "out"
         out.mkdir()
         os.link(seq / "depth" / "0001.png", out / "frame_000001.png")
-        proc = run_cli(["batch", seq, "-o", out, "--workers", "1", "--no-progress", "--focus-distance", "1"])
+        proc = run_pcdof(["batch", seq, "-o", out, "--workers", "1", "--no-progress", "--focus-distance", "1"])
         one_error_line(proc, INPUT, "refusing to overwrite")
 
 
@@ -189,7 +178,7 @@ class TestOneBatchPerFolder:
         out = tmp_path / "out"
         out.mkdir()
         with folder_lock(str(out)):
-            proc = run_cli(batch_args(seq, out, 2.0))
+            proc = run_pcdof(batch_args(seq, out, 2.0))
             line = one_error_line(proc, WRITE, "in use by another pcdof batch")
             assert f"pid {os.getpid()}" in line and socket.gethostname() in line
             assert sorted(os.listdir(out)) == [LOCK_NAME]
@@ -220,7 +209,7 @@ class TestOneBatchPerFolder:
         refs = {}
         for n in (1.4, 8.0):  # each setting's frames, rendered alone
             ref = tmp_path / f"ref{n}"
-            assert run_cli(batch_args(seq, ref, n)).returncode == 0
+            assert run_pcdof(batch_args(seq, ref, n)).returncode == 0
             refs[n] = [(ref / f"frame_{i:06d}.png").read_bytes() for i in range(6)]
         assert refs[1.4] != refs[8.0]
         out = tmp_path / "out"
@@ -244,7 +233,7 @@ class TestResumeKeysOnContent:
     def test_a_changed_frame_alone_is_rendered_again(self, tmp_path):
         seq = write_sequence(tmp_path / "seq", 4)
         out = tmp_path / "out"
-        assert run_cli(batch_args(seq, out, 2.0)).returncode == 0
+        assert run_pcdof(batch_args(seq, out, 2.0)).returncode == 0
         before = {i: (out / f"frame_{i:06d}.png").read_bytes() for i in range(4)}
         stale = out / ".frame_000003.png.k1ll3d.tmp"  # what a kill -9 during a write leaves
         stale.write_bytes(b"")
@@ -252,13 +241,13 @@ class TestResumeKeysOnContent:
         changed[:, : W // 2] += 700  # same size, same path, new content
         time.sleep(0.01)
         cv2.imwrite(str(seq / "depth" / "0002.png"), changed)
-        proc = run_cli(batch_args(seq, out, 2.0, "--resume"))
+        proc = run_pcdof(batch_args(seq, out, 2.0, "--resume"))
         assert proc.returncode == 0, proc.stderr
         report = json.loads((out / "report.json").read_text())
         assert [r["status"] for r in report["frames"]] == ["skipped", "skipped", "ok", "skipped"]
         assert not stale.exists()
         fresh = tmp_path / "fresh"
-        assert run_cli(batch_args(seq, fresh, 2.0)).returncode == 0
+        assert run_pcdof(batch_args(seq, fresh, 2.0)).returncode == 0
         assert (out / "frame_000002.png").read_bytes() == (fresh / "frame_000002.png").read_bytes()
         assert (out / "frame_000002.png").read_bytes() != before[2]
         for i in (0, 1, 3):
@@ -322,7 +311,7 @@ class TestOnlyRegularFiles:
 
     def test_a_fifo_colour_file_does_not_hang_render(self, frame):
         os.mkfifo(frame / "fifo.png")
-        proc = run_cli(["render", frame / "fifo.png", frame / "depth.png", "--calib", frame / "calib.json",
+        proc = run_pcdof(["render", frame / "fifo.png", frame / "depth.png", "--calib", frame / "calib.json",
                         "-o", frame / "out.png"], timeout=120)
         one_error_line(proc, READ, "FIFO")
 
@@ -341,7 +330,7 @@ class TestGuardedCalibration:
         (seq / "rgb.txt").write_text("1.0 rgb/1.png\n")
         (seq / "depth.txt").write_text("1.0 depth/1.png\n")
         (seq / "calib.yml").write_text(text)
-        proc = run_cli(["batch", seq, "--calib", seq / "calib.yml", "-o", tmp_path / "out", "--no-progress"])
+        proc = run_pcdof(["batch", seq, "--calib", seq / "calib.yml", "-o", tmp_path / "out", "--no-progress"])
         one_error_line(proc, CALIB, word)
 
     def test_load_rig_reads_the_file_once_through_read_calibration(self, tmp_path, monkeypatch):
@@ -386,14 +375,14 @@ class TestNamesAndBytes:
             os.rename(os.path.join(os.fsencode(seq), sub.encode(), b"0001.png"),
                       os.path.join(os.fsencode(seq), sub.encode(), b"0001\xff.png"))
         out = tmp_path / "out"
-        proc = run_cli(batch_args(seq, out, 2.0))
+        proc = run_pcdof(batch_args(seq, out, 2.0))
         assert proc.returncode == 0, proc.stderr
         report = json.loads((out / "report.json").read_text(encoding="utf-8"))
         assert report["frames"][1]["color"] == os.path.join("color", os.fsdecode(b"0001\xff.png"))
 
     @pytest.mark.parametrize("name", ["new\nline.png", "tab\there.png", "bad\udcffname.png"])
     def test_odd_path_characters_keep_the_error_on_one_line(self, frame, name):
-        proc = run_cli(["render", os.fsencode(str(frame)) + b"/" + os.fsencode(name), frame / "depth.png",
+        proc = run_pcdof(["render", os.fsencode(str(frame)) + b"/" + os.fsencode(name), frame / "depth.png",
                         "--calib", frame / "calib.json", "-o", frame / "out.png"])
         one_error_line(proc, READ, "not found")
 
@@ -451,7 +440,7 @@ class TestLensValues:
         assert tiny.focus_distance_m[2] == 1e-30  # exactly the keyframe's value at its frame
 
     def test_view_style_refusal_on_the_command_line(self, frame):
-        proc = run_cli(["render", frame / "color.png", frame / "depth.png", "--calib", frame / "calib.json", "-o",
+        proc = run_pcdof(["render", frame / "color.png", frame / "depth.png", "--calib", frame / "calib.json", "-o",
                         frame / "out.png", "--focus-distance", "1e300"])
         one_error_line(proc, EXIT_CODES[LensError], "focus")
 
@@ -508,7 +497,7 @@ class TestOutOfRangeNumbers:
                                             ("--focus-beta", "1e308"), ("--fps", "1e-300")])
     def test_smoothing_flags_out_of_range(self, tmp_path, flag, value):
         seq = write_sequence(tmp_path / "seq", 2)
-        proc = run_cli(["batch", seq, "-o", tmp_path / "out", "--no-progress", flag, value])
+        proc = run_pcdof(["batch", seq, "-o", tmp_path / "out", "--no-progress", flag, value])
         one_error_line(proc, INPUT, flag)
 
     def test_focus_window_is_bounded_by_the_sequence(self):

@@ -7,37 +7,16 @@ import cv2
 import numpy as np
 import pytest
 
+from conftest import disc_kernel, texture
+
 from pcdof.color import decode_to_linear, linear_to_srgb, srgb_to_linear
 from pcdof.errors import InputError, LensError
 from pcdof.lens import PaperLens, ThinLens
+from pcdof.metrics import psnr
 from pcdof.plans import plan_render
 from pcdof.stages.render import render_image, render_layers_linear
 
 FX = 500.0
-
-
-def disc_kernel(diameter: float, supersample: int = 16) -> np.ndarray:
-    """Anti-aliased uniform disc of the given diameter (pixels), sum 1, by supersampling."""
-    r = diameter / 2
-    n = int(math.ceil(r + 0.5))
-    size = 2 * n + 1
-    s = supersample
-    offs = (np.arange(size * s) + 0.5) / s - (n + 0.5)
-    yy, xx = np.meshgrid(offs, offs, indexing="ij")
-    inside = (xx**2 + yy**2 <= r * r).astype(np.float64)
-    k = inside.reshape(size, s, size, s).mean(axis=(1, 3))
-    return (k / k.sum()).astype(np.float32)
-
-
-def psnr(a, b, peak=1.0):
-    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
-    return math.inf if mse == 0 else 10 * math.log10(peak**2 / mse)
-
-
-def texture(h, w, seed=0):
-    rng = np.random.default_rng(seed)
-    noise = rng.random((h // 4 + 1, w // 4 + 1, 3)).astype(np.float32)
-    return cv2.resize(noise, (w, h), interpolation=cv2.INTER_NEAREST)[:h, :w]
 
 
 class TestPhysical:

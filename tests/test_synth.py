@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from pcdof.metrics import psnr
 from pcdof.color import linear_to_srgb
 from pcdof.errors import InputError
 from pcdof.lens import ThinLens
@@ -34,11 +35,6 @@ from pcdof.synth import (
 from pcdof.synth.scenes import quad
 
 TINY = dict(color_size=(64, 48), depth_size=(64, 53))
-
-
-def psnr(a, b, peak=1.0):
-    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
-    return math.inf if mse == 0 else 10 * math.log10(peak**2 / mse)
 
 
 def shown(linear):

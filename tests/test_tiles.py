@@ -8,10 +8,12 @@ import pytest
 
 import pcdof.stages.render as renderer
 from pcdof.errors import InputError
-from pcdof.plans import RenderPlan, plan_render
+from pcdof.plans import plan_render
 from pcdof.stages.render.tiles import TILE_PX, TileMap, classify_tiles
 
-from test_render import disc_kernel, psnr, texture
+from conftest import disc_kernel, texture
+
+from pcdof.metrics import psnr
 
 #: the exact quality's plan with the convolution of uniform tiles switched off
 SCATTER_ONLY = dataclasses.replace(plan_render(quality="exact"), convolve_uniform=False)

@@ -8,7 +8,8 @@ import subprocess
 import cv2
 import numpy as np
 import pytest
-from click.testing import CliRunner
+
+from conftest import invoke
 
 from pcdof.camera import Intrinsics, Rig
 from pcdof.errors import InputError, LensError
@@ -438,16 +439,10 @@ def frame_files(tmp_path):
     return [str(tmp_path / "color.png"), str(tmp_path / "depth.png"), "--calib", str(tmp_path / "calib.json")]
 
 
-def run_cli(args):
-    from pcdof.cli import main
-
-    return CliRunner().invoke(main, args, catch_exceptions=False)
-
-
 class TestCli:
     def test_screenshot(self, frame_files, tmp_path):
         out = tmp_path / "view.png"
-        result = run_cli(["view", *frame_files, "--focus-distance", "1.0", "--f-number", "1.4",
+        result = invoke(["view", *frame_files, "--focus-distance", "1.0", "--f-number", "1.4",
                           "--focal-length", "100", "--screenshot", str(out), "--window-size", "640x320"])
         assert result.exit_code == 0, result.output
         image = cv2.imread(str(out))[:, :, ::-1]
@@ -457,7 +452,7 @@ class TestCli:
 
     def test_html_written(self, frame_files, tmp_path):
         out = tmp_path / "view.html"
-        result = run_cli(["view", *frame_files, "--html", str(out), "--color-by", "coc"])
+        result = invoke(["view", *frame_files, "--html", str(out), "--color-by", "coc"])
         assert result.exit_code == 0, result.output
         text = out.read_text(encoding="utf-8")
         assert text.lstrip().lower().startswith("<!doctype html") and len(text) > 10_000
@@ -471,7 +466,7 @@ class TestCli:
     def test_html_renders_in_headless_chromium(self, frame_files, tmp_path):
         page = tmp_path / "view.html"
         shot = tmp_path / "page.png"
-        assert run_cli(["view", *frame_files, "--html", str(page)]).exit_code == 0
+        assert invoke(["view", *frame_files, "--html", str(page)]).exit_code == 0
         cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
                "--disable-quic", "--no-first-run", "--disable-background-networking", "--disable-component-update",
                "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={shot}",
@@ -488,27 +483,27 @@ class TestCli:
         monkeypatch.delenv("DISPLAY", raising=False)
         monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
         monkeypatch.setattr("sys.platform", "linux")
-        result = run_cli(["view", *frame_files])
+        result = invoke(["view", *frame_files])
         assert result.exit_code == 6
         assert "--screenshot" in result.output
 
     def test_bad_output_suffix(self, frame_files, tmp_path):
-        result = run_cli(["view", *frame_files, "--html", str(tmp_path / "x.png")])
+        result = invoke(["view", *frame_files, "--html", str(tmp_path / "x.png")])
         assert result.exit_code == 6 and "--html" in result.output
-        result = run_cli(["view", *frame_files, "--screenshot", str(tmp_path / "x.html")])
+        result = invoke(["view", *frame_files, "--screenshot", str(tmp_path / "x.html")])
         assert result.exit_code == 6 and "--screenshot" in result.output
 
     @pytest.mark.parametrize("size", ["16400x800", "20000x20000", "0x0"])
     def test_window_size_flag_is_checked_first(self, frame_files, tmp_path, size):
         out = tmp_path / "o.png"
-        result = run_cli(["view", *frame_files, "--window-size", size, "--screenshot", str(out)])
+        result = invoke(["view", *frame_files, "--window-size", size, "--screenshot", str(out)])
         assert result.exit_code == 6, result.output
         assert "--window-size" in result.output and "Traceback" not in result.output
         assert not out.exists()
 
     def test_fill_method_is_checked(self, frame_files, tmp_path):
         out = tmp_path / "o.png"
-        result = run_cli(["view", *frame_files, "--fill-method", "bogus", "--screenshot", str(out)])
+        result = invoke(["view", *frame_files, "--fill-method", "bogus", "--screenshot", str(out)])
         assert result.exit_code == 2 and "--fill-method" in result.output
         assert not out.exists()
 
@@ -525,6 +520,6 @@ class TestCli:
 
         monkeypatch.setattr(viewer_module, "build_scene", spy)
         out = tmp_path / "v.png"
-        result = run_cli(["view", *frame_files, "--focus-at", f"{W - 10},{H // 2}", "--screenshot", str(out)])
+        result = invoke(["view", *frame_files, "--focus-at", f"{W - 10},{H // 2}", "--screenshot", str(out)])
         assert result.exit_code == 0, result.output
         assert seen["focus"] == pytest.approx(3.0)  # the right half of the frame is at 3 m

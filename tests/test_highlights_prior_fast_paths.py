@@ -17,12 +17,14 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import highlight_frame
+
 from pcdof.color import decode_to_linear
 from pcdof.stages import highlights
 from pcdof.stages.highlights import CLIP_LEVEL, MAX_KERNEL_PX, PRIOR_MAX, footprints, loss, prior
+from pcdof.stages.highlights.reference import plain_channel_bound, plain_edge, plain_footprint, plain_prior
 from pcdof.stages.highlights.clipped import find_blobs
 
-from test_highlights_batched import _frame, _plain_channel_bound, _plain_edge, _plain_footprint, plain_prior
 
 
 def _plain_display(v):
@@ -109,7 +111,7 @@ def test_interior_of_every_channel_is_each_mask_less_its_edge(seed, h, w):
     assert interior.shape == (h, w, 3) and interior.dtype == bool
     for c in range(3):
         m = clipped_ch[..., c]
-        np.testing.assert_array_equal(interior[..., c], m & ~_plain_edge(m))
+        np.testing.assert_array_equal(interior[..., c], m & ~plain_edge(m))
 
 
 @settings(max_examples=60, deadline=None)
@@ -125,7 +127,7 @@ def test_channel_layers_from_the_interior_are_the_plain_blurs(seed, h, w, d):
     cover = {}
     for c in range(2):
         got = footprints.channel_layers(block[..., c], m, inner, d, cover, "mask")
-        want = footprints.footprint_layers(block[..., c], m, _plain_edge(m), d)
+        want = footprints.footprint_layers(block[..., c], m, plain_edge(m), d)
         assert got[3] == want[3]
         for a, b in zip(got[:3], want[:3]):
             np.testing.assert_array_equal(a, b)
@@ -148,7 +150,7 @@ def _blob_windows(img, found):
 def test_tops_are_each_blobs_channel_bounds(seed, n, ratio, prior_max):
     """Coloured blobs (some channels measured), values that clip in one channel only: every blob channel's prior
     top, min(prior max, its channel bound), as :func:`channel_bound` gives it blob by blob."""
-    img, _ = _frame(seed, 50, 70, n, 3.0)
+    img, _ = highlight_frame(seed, 50, 70, n, 3.0)
     rng = np.random.default_rng(seed)
     img[rng.random(img.shape[:2]) < 0.05, rng.integers(3)] = 1.0
     found = find_blobs(img, CLIP_LEVEL)
@@ -159,7 +161,7 @@ def test_tops_are_each_blobs_channel_bounds(seed, n, ratio, prior_max):
             if not clipped_ch[..., c].any():
                 assert tops[i, c] == -math.inf
                 continue
-            assert tops[i, c] == min(prior_max, _plain_channel_bound(img[win], clipped_ch, c, ratio))
+            assert tops[i, c] == min(prior_max, plain_channel_bound(img[win], clipped_ch, c, ratio))
 
 
 @settings(max_examples=60, deadline=None)
@@ -167,7 +169,7 @@ def test_tops_are_each_blobs_channel_bounds(seed, n, ratio, prior_max):
 def test_found_blobs_are_the_plain_ones(seed, h, w, n):
     """The blobs of numpy's nonzero pixels, whether their channels are clipped alike, and each value's slot
     (blob * 3 + channel) and index in the frame, against OpenCV's labelling of the whole frame."""
-    img, _ = _frame(seed, h, w, n, 3.0)
+    img, _ = highlight_frame(seed, h, w, n, 3.0)
     found = find_blobs(img, CLIP_LEVEL)
     clipped = (img >= CLIP_LEVEL).any(axis=2)
     count, labels = cv2.connectedComponents(clipped.astype(np.uint8), connectivity=8)
@@ -201,10 +203,10 @@ def test_samples_of_channels_clipped_alike_are_each_ones(seed, d):
         masks = [m, m, m.copy() if rng.random() < 0.5 else np.roll(m, 1, axis=1)]
         cover = {}
         for c, mc in enumerate(masks):
-            edge, keep = _plain_edge(mc), float(rng.uniform(0.9, 1.0))
+            edge, keep = plain_edge(mc), float(rng.uniform(0.9, 1.0))
             layers.append(footprints.footprint_layers(block[..., c], mc, edge, d, cover))
             keeps.append(keep)
-            alone.append(_plain_footprint(block[..., c], mc, edge, keep, d))
+            alone.append(plain_footprint(block[..., c], mc, edge, keep, d))
     assert any(a[1] is b[1] for a, b in zip(layers, layers[1:]))  # (some share their blurs)
     base, k, weight, counts = footprints.footprint_samples(layers, keeps)
     assert counts.tolist() == [a[0].size for a in alone]
@@ -218,7 +220,7 @@ def test_levels_written_at_once_are_each_footprints(seed, n, layout):
     """Random levels for random blob channels: written in one go as footprint by footprint in its window (the
     interior to L, the edge to (L + keep) / 2, none below its value), into the input, a copy or a Fortran-ordered
     copy."""
-    img, _ = _frame(seed, 40, 60, n, 3.0)
+    img, _ = highlight_frame(seed, 40, 60, n, 3.0)
     found = find_blobs(img, CLIP_LEVEL)
     rng = np.random.default_rng(seed)
     feet, chosen, interior, want = [], [], np.zeros(found.flags.shape, bool), img.copy()
@@ -232,7 +234,7 @@ def test_levels_written_at_once_are_each_footprints(seed, n, layout):
             keep, level = found.keeps[i][c], float(rng.choice([found.keeps[i][c], rng.uniform(0.5, 20.0)]))
             feet.append((i, c, keep))
             chosen.append(level)
-            m, edge = clipped_ch[..., c], _plain_edge(clipped_ch[..., c])
+            m, edge = clipped_ch[..., c], plain_edge(clipped_ch[..., c])
             block = want[win]
             block[..., c][m] = np.maximum(block[..., c][m], np.where(edge[m], (level + keep) / 2, level))
     if not feet:
@@ -247,7 +249,7 @@ def test_levels_written_at_once_are_each_footprints(seed, n, layout):
 def test_prepared_codes_are_raised_as_blob_by_blob(seed, n, coc_max):
     """The stage as the pipeline runs it (8-bit codes prepared, then raised in place) against the method written
     blob by blob and channel by channel on the decoded colour."""
-    img, coc = _frame(seed, 70, 90, n, coc_max)
+    img, coc = highlight_frame(seed, 70, 90, n, coc_max)
     codes = np.clip(np.rint(img ** (1 / 2.2) * 255), 0, 255).astype(np.uint8)
     prepared = highlights.prepare_highlights(codes)
     if prepared is None:

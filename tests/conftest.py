@@ -87,3 +87,12 @@ def highlight_frame(seed, h, w, n_blobs, coc_max):
             img[..., c][inside] = rng.choice([1.0, clip_level, 0.999])
         coc[inside] = rng.uniform(0, coc_max) * rng.uniform(0.8, 1.2, np.count_nonzero(inside))
     return img, np.where(rng.random((h, w)) < 0.1, -coc, coc)  # (the sign is ignored)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests that use the served page in headless Chromium (``served``) carry the ``browser`` mark."""
+    import pytest
+
+    for item in items:
+        if "served" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.browser)

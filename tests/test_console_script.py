@@ -11,6 +11,8 @@ import pytest
 
 import pcdof.cli as cli
 
+pytestmark = pytest.mark.subprocess  # most tests here run pcdof in a child process
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -33,6 +33,8 @@ from conftest import run_pcdof
 from pcdof.camera import Intrinsics, Rig
 from pcdof.errors import EXIT_CODES, CalibrationError, ImageReadError, ImageWriteError, InputError, LensError
 
+pytestmark = pytest.mark.subprocess  # most tests here run pcdof in a child process
+
 READ, CALIB, LENS, INPUT, WRITE = (EXIT_CODES[k] for k in (ImageReadError, CalibrationError, LensError, InputError,
                                                            ImageWriteError))
 W, H = 8, 6

@@ -462,6 +462,8 @@ class TestCli:
         assert ".content { position: fixed; inset: 0; }" in text
         assert not [p for p in os.listdir(tmp_path) if p.startswith(".view.html")]  # no temporary left
 
+    @pytest.mark.browser
+
     @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install -y chromium)")
     def test_html_renders_in_headless_chromium(self, frame_files, tmp_path):
         page = tmp_path / "view.html"

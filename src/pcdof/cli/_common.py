@@ -37,8 +37,11 @@ def handle_errors(func):
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
+        from .. import interrupts
+
         try:
-            return func(*args, **kwargs)
+            with interrupts.raising():  # Ctrl-C in the body unwinds it: its finally blocks clean up
+                return func(*args, **kwargs)
         except (click.exceptions.Exit, click.ClickException, click.Abort):
             raise
         except PcdofError as err:
@@ -47,8 +50,11 @@ def handle_errors(func):
             click.echo(f"pcdof: error: {one_line(err)}", err=True)
             sys.exit(exit_code_for(err))
         except KeyboardInterrupt:
-            click.echo("pcdof: interrupted", err=True)
-            sys.exit(130)
+            if interrupts.installed():  # the console script: the line once, however the exit goes on
+                interrupts.say_interrupted()
+            else:
+                click.echo("pcdof: interrupted", err=True)
+            sys.exit(interrupts.EXIT_INTERRUPTED)
         except Exception as err:  # noqa: BLE001 - the CLI promises no tracebacks
             if is_out_of_memory(err):  # MemoryError, or OpenCV's "Insufficient memory"
                 click.echo("pcdof: error: out of memory (try a smaller image)", err=True)

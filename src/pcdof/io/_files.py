@@ -22,6 +22,7 @@ import numpy as np  # noqa: E402
 
 from ..camera import MAX_IMAGE_SIDE  # noqa: E402
 from ..errors import ImageReadError, ImageWriteError, InputError  # noqa: E402
+from ..interrupts import on_interrupt  # noqa: E402
 from ._capture import captured_stderr, pass_on  # noqa: E402
 from ._jpeg import decode_jpeg  # noqa: E402
 
@@ -591,3 +592,6 @@ def remove_pending_temp_files() -> None:
     for tmp in list(_PENDING):
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+
+
+on_interrupt(remove_pending_temp_files)  # Ctrl-C that ends the process at once leaves no temporary file

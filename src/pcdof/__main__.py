@@ -1,0 +1,5 @@
+"""``python -m pcdof``: the ``pcdof`` command."""
+
+from pcdof.interrupts import console
+
+console()

@@ -98,6 +98,10 @@ def open_regular(path: str, what: str) -> tuple[int, int]:
     except IsADirectoryError:
         raise ImageReadError(f"{what} path is a folder, expected a file: {path!r}") from None
     except OSError as err:
+        with contextlib.suppress(OSError, ValueError):
+            mode = os.stat(path).st_mode
+            if not stat.S_ISREG(mode):  # a socket (ENXIO), a device without a driver, ...
+                raise ImageReadError(f"{what} path {path!r} is {_kind_of(mode)}, not a regular file") from None
         raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
     try:
         info = os.fstat(fd)
@@ -116,19 +120,59 @@ def open_regular(path: str, what: str) -> tuple[int, int]:
     return fd, info.st_size
 
 
+def read_open(fd: int, size: int, path: str, what: str) -> bytes:
+    """The content of the open file *fd* (closed here), *size* bytes as :func:`open_regular` found it.
+
+    Memory is reserved for the file's size, not for :data:`MAX_FILE_BYTES` (under an address-space
+    limit a 4 GiB reservation fails for a file of a few kilobytes); a file that grows while it is read
+    is read on in 1 MiB steps, up to the limit.
+    """
+    try:
+        with os.fdopen(fd, "rb") as f:
+            data = f.read(size + 1)
+            if len(data) > size:  # it grew while being read (or its size is not known, as in /proc)
+                parts, total = [data], len(data)
+                while total <= MAX_FILE_BYTES:
+                    more = f.read(1 << 20)
+                    if not more:
+                        break
+                    parts.append(more)
+                    total += len(more)
+                data = b"".join(parts)
+    except OSError as err:
+        raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
+    if len(data) > MAX_FILE_BYTES:
+        raise ImageReadError(f"{what} file {path!r} is larger than {MAX_FILE_BYTES / 2**30:.0f} GiB")
+    return data
+
+
 def read_bytes(path: str, what: str) -> bytes:
     """The whole content of *path*; ImageReadError when it is missing, not a regular file, unreadable or empty."""
     fd, size = open_regular(path, what)
-    try:
-        with os.fdopen(fd, "rb") as f:
-            data = f.read(MAX_FILE_BYTES + 1)
-    except OSError as err:
-        raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
+    data = read_open(fd, size, path, what)
     if not data:
         raise ImageReadError(f"{what} file is empty: {path!r}")
-    if len(data) > MAX_FILE_BYTES:  # it grew while being read
-        raise ImageReadError(f"{what} file {path!r} is larger than {MAX_FILE_BYTES / 2**30:.0f} GiB")
     return data
+
+
+def read_head(path: str, count: int) -> bytes:
+    """The first *count* bytes of *path* when it is a regular file; ``b""`` otherwise (missing, a FIFO, a device...).
+
+    For format detection: a file that is not a regular file is never opened (a FIFO would block, a
+    device could be read forever), and nothing here raises.
+    """
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return b""
+        fd, _ = open_regular(path, "input")
+    except (OSError, ValueError, ImageReadError):
+        return b""
+    try:
+        return os.read(fd, count)
+    except OSError:
+        return b""
+    finally:
+        os.close(fd)
 
 
 def read_text(path: str, what: str) -> str:
@@ -136,13 +180,10 @@ def read_text(path: str, what: str) -> str:
 
     An empty file is an empty string. A NUL byte is refused (no path or number holds one).
     """
-    fd, _ = open_regular(path, what)
+    fd, size = open_regular(path, what)
+    data = read_open(fd, size, path, what)
     try:
-        with os.fdopen(fd, "rb") as f:
-            data = f.read(MAX_FILE_BYTES + 1)
         text = data.decode("utf-8-sig")
-    except OSError as err:
-        raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
     except UnicodeDecodeError as err:
         raise ImageReadError(f"cannot read {what} file {path!r}: not UTF-8 text ({err.reason} at byte "
                              f"{err.start})") from None

@@ -14,6 +14,7 @@ depth image files with a calibration file: a pair, a folder, a TUM folder, a lis
 from __future__ import annotations
 
 import abc
+import contextlib
 import dataclasses
 import math
 import os
@@ -21,7 +22,7 @@ import os
 import numpy as np
 
 from ..camera import Rig, RGBDFrame
-from ..errors import CalibrationError, ImageReadError, InputError, PcdofError
+from ..errors import CalibrationError, ImageReadError, InputError, PcdofError, is_out_of_memory, one_line
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -184,7 +185,8 @@ class FrameSource(abc.ABC):
         """Read frame *index*; the reader's error class, its message prefixed with the source and the frame."""
         i = self.check_index(index)
         try:
-            frame = self._read(i)
+            with library_errors("cannot be read"):
+                frame = self._read(i)
         except PcdofError as err:
             raise type(err)(f"{self._where(i)}{err}") from None
         shapes = ((frame.color.shape[:2], frame.rig.color.shape, "colour"),
@@ -215,24 +217,66 @@ class FrameSource(abc.ABC):
                 "calibration": self.rig.to_dict()}
 
 
+@contextlib.contextmanager
+def library_errors(what: str):
+    """Any error of a third-party reader (rosbags, PyAV, ...) within the block as one ImageReadError.
+
+    The message is *what*, then the library's error class and message on one line. pcdof's own errors,
+    Ctrl-C and running out of memory pass unchanged.
+    """
+    try:
+        yield
+    except PcdofError:
+        raise
+    except Exception as err:  # noqa: BLE001 - a library's own error classes, whatever they are
+        if is_out_of_memory(err):
+            raise
+        raise ImageReadError(f"{what} ({type(err).__name__}: {one_line(err)})") from None
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordedStreams:
+    """What a recording says about its streams without its calibration: image shapes and depth units.
+
+    Attributes
+    ----------
+    color_shape, depth_shape : (height, width) of the colour and depth images, or None when unknown
+    depth_scale : float, metres per unit of the recording's integer depth
+    """
+
+    color_shape: tuple[int, int] | None
+    depth_shape: tuple[int, int] | None
+    depth_scale: float
+
+    @classmethod
+    def of(cls, rig: Rig) -> "RecordedStreams":
+        """The streams a recording's own calibration describes."""
+        return cls(rig.color.shape, rig.depth.shape, rig.depth_scale)
+
+
 class RecordingSource(FrameSource):
     """A recording file with a colour and a depth stream, paired by timestamp (``.mkv``, ``.bag``).
 
     Subclasses pair their streams once, in the constructor, and call ``super().__init__`` with the
     rig, the streams' timestamps and the pairs; they implement the reading of one colour or depth
-    image by its stream index (:meth:`_read_color`, :meth:`_read_depth`) and :meth:`_streams`.
+    image by its stream index (:meth:`_read_color`, :meth:`_read_depth`) and :meth:`_streams`. When a
+    calibration replaces the recording's (*override*), a subclass reads none of its own: it passes
+    ``rig=None`` and the :class:`RecordedStreams` that the override is checked against.
     """
 
-    def __init__(self, path: str, rig: Rig, color_times, depth_times, pairs, *, max_difference_s: float,
-                 override: Rig | None = None, override_path: str | None = None) -> None:
+    def __init__(self, path: str, rig: Rig | None, color_times, depth_times, pairs, *, max_difference_s: float,
+                 override: Rig | None = None, override_path: str | None = None,
+                 streams: RecordedStreams | None = None) -> None:
         self.color_times = np.asarray(color_times, dtype=np.float64)
         self.depth_times = np.asarray(depth_times, dtype=np.float64)
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.max_difference_s = max_difference_s
         calibration_from = "recording"
         if override is not None:
-            rig = _override(rig, override, override_path, path)
+            rig = _override(streams or RecordedStreams.of(rig), override, override_path, path)
             calibration_from = override_path or "caller"
+        elif rig is None:
+            raise CalibrationError(f"{path}: the recording's calibration was not read and none replaces it")
         super().__init__(path, rig, calibration_from=calibration_from)
         if len(self.pairs) == 0:
             raise ImageReadError(f"{path}: no colour frame has a depth frame within {max_difference_s:.4g} s "
@@ -241,7 +285,12 @@ class RecordingSource(FrameSource):
     @classmethod
     def open(cls, path: str, *, calib=None, depth_scale: float | None = None,
              max_difference_s: float | None = None) -> "RecordingSource":
-        """Open the recording *path*; *calib* (a calibration file) replaces the recording's calibration."""
+        """Open the recording *path*; *calib* (a calibration file) replaces the recording's calibration.
+
+        The calibration file is read first, and the recording's own calibration is then not needed
+        (a recording that lacks it opens with *calib*). Any error of the library that reads the file
+        is an :class:`~pcdof.errors.ImageReadError` naming *path*.
+        """
         if depth_scale is not None:
             raise InputError(f"depth_scale applies to integer depth files; the recording {path} carries its own "
                              f"depth units (got depth_scale={depth_scale!r})")
@@ -252,7 +301,8 @@ class RecordingSource(FrameSource):
 
             calib_path = fspath(calib, name="calib")
             rig = read_calibration(calib_path, depth_scale=1.0)  # the scale is the recording's; see _override
-        return cls(path, rig=rig, calib_path=calib_path, max_difference_s=max_difference_s)
+        with library_errors(f"cannot read recording {path}"):
+            return cls(path, rig=rig, calib_path=calib_path, max_difference_s=max_difference_s)
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -287,14 +337,14 @@ class RecordingSource(FrameSource):
         """name -> plain dict (encoding, size, frames, fps, ...) of the source's streams."""
 
 
-def _override(recorded: Rig, rig: Rig, override_path: str | None, path: str) -> Rig:
+def _override(recorded: RecordedStreams, rig: Rig, override_path: str | None, path: str) -> Rig:
     """*rig* in place of the recording's calibration: same image sizes required; depth units stay the recording's."""
     where = override_path or "calib"
-    for name in ("color", "depth"):
-        a, b = getattr(rig, name), getattr(recorded, name)
-        if a.shape != b.shape:
+    for name, shape in (("color", recorded.color_shape), ("depth", recorded.depth_shape)):
+        a = getattr(rig, name)
+        if shape is not None and a.shape != tuple(shape):
             raise CalibrationError(f"{where}: its {name} camera is {a.width}x{a.height} but the {name} stream of "
-                                   f"{path} is {b.width}x{b.height}")
+                                   f"{path} is {shape[1]}x{shape[0]}")
     # the recording's integers are converted with the recording's own units; a calibration file's
     # depth_scale describes integer depth *files*, which a recording is not
     return dataclasses.replace(rig, depth_scale=recorded.depth_scale)

@@ -36,7 +36,12 @@ class OutputInUseError(ImageWriteError):
     """An output folder is owned by another running batch (see :mod:`pcdof.batch.lock`)."""
 
 
-# CLI exit codes, one per failure kind (0 = success; click uses 2 for usage errors).
+class ServeError(PcdofError, OSError):
+    """The browser viewer cannot listen where it was asked to (the port is taken or needs privileges)."""
+
+
+# CLI exit codes, one per failure kind (0 = success; click uses 2 for usage errors; 9 out of memory; 10 and
+# 11 some or all frames of a batch or export failed; 130 interrupted by Ctrl-C, 143 by SIGTERM).
 EXIT_CODES: dict[type, int] = {
     ImageReadError: 3,
     CalibrationError: 4,
@@ -44,6 +49,7 @@ EXIT_CODES: dict[type, int] = {
     InputError: 6,
     ImageWriteError: 7,
     PcdofError: 8,
+    ServeError: 12,
 }
 
 

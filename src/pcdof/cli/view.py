@@ -78,6 +78,10 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
         raise InputError("--serve cannot be combined with --screenshot or --html")
     if output_dir and not serve:
         raise InputError("--output-dir is for --serve (the download button's folder)")
+    if serve:  # a bad address or a taken port is found before the frame is loaded
+        from ..web.listen import check_listen_address
+
+        check_listen_address(host, port)
     if screenshot:
         check_output_file(screenshot, "--screenshot")
     if html_path:

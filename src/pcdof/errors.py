@@ -7,6 +7,8 @@ The CLI maps each class to its own exit code (see :data:`EXIT_CODES`).
 
 from __future__ import annotations
 
+import contextlib
+
 
 class PcdofError(Exception):
     """Base class of all pcdof errors."""
@@ -82,3 +84,20 @@ def exit_code_for(error: BaseException) -> int:
         if klass in EXIT_CODES:
             return EXIT_CODES[klass]
     return 1
+
+
+@contextlib.contextmanager
+def library_errors(what: str):
+    """Any error of a third-party reader (rosbags, PyAV, OpenCV, Pillow, ...) within the block as one ImageReadError.
+
+    The message is *what*, then the library's error class and message on one line. pcdof's own errors,
+    Ctrl-C and running out of memory pass unchanged.
+    """
+    try:
+        yield
+    except PcdofError:
+        raise
+    except Exception as err:  # noqa: BLE001 - a library's own error classes, whatever they are
+        if is_out_of_memory(err):
+            raise
+        raise ImageReadError(f"{what} ({type(err).__name__}: {one_line(err)})") from None

@@ -14,7 +14,6 @@ depth image files with a calibration file: a pair, a folder, a TUM folder, a lis
 from __future__ import annotations
 
 import abc
-import contextlib
 import dataclasses
 import math
 import os
@@ -22,7 +21,7 @@ import os
 import numpy as np
 
 from ..camera import Rig, RGBDFrame
-from ..errors import CalibrationError, ImageReadError, InputError, PcdofError, is_out_of_memory, one_line
+from ..errors import CalibrationError, ImageReadError, InputError, PcdofError, library_errors
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -215,23 +214,6 @@ class FrameSource(abc.ABC):
         return {"path": self.path, "format": self.format, "frames": len(self), **self._info(),
                 "calibration_from": self.calibration_from, "baseline_mm": self.rig.baseline_m * 1000.0,
                 "calibration": self.rig.to_dict()}
-
-
-@contextlib.contextmanager
-def library_errors(what: str):
-    """Any error of a third-party reader (rosbags, PyAV, ...) within the block as one ImageReadError.
-
-    The message is *what*, then the library's error class and message on one line. pcdof's own errors,
-    Ctrl-C and running out of memory pass unchanged.
-    """
-    try:
-        yield
-    except PcdofError:
-        raise
-    except Exception as err:  # noqa: BLE001 - a library's own error classes, whatever they are
-        if is_out_of_memory(err):
-            raise
-        raise ImageReadError(f"{what} ({type(err).__name__}: {one_line(err)})") from None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -150,23 +150,27 @@ import sys, threading
 import pcdof_console  # noqa: F401 - what the console script imports first
 from pcdof import interrupts
 interrupts.install()
+code = int(sys.argv[2])
 lock = threading.Lock()
 lock.acquire()
 threading.Thread(target=lock.acquire, name="stuck-worker").start()  # not a daemon: would hold the exit forever
 with interrupts.raising():
     try:
-        raise KeyboardInterrupt
-    except KeyboardInterrupt:
-        interrupts.say_interrupted()
-        interrupts.exit_soon(grace_s=float(sys.argv[1]))
-        sys.exit(130)
+        raise KeyboardInterrupt if code == interrupts.EXIT_INTERRUPTED else OSError("disk full")
+    except (KeyboardInterrupt, OSError):
+        if code == interrupts.EXIT_INTERRUPTED:
+            interrupts.say_interrupted()
+        interrupts.exit_soon(code, grace_s=float(sys.argv[1]))
+        sys.exit(code)
 """
 
 
-def test_a_stuck_worker_thread_cannot_hold_the_exit():
+@pytest.mark.parametrize("code,stderr", [(130, "pcdof: interrupted\n"), (7, "")])
+def test_a_stuck_worker_thread_cannot_hold_the_exit(code, stderr):
     t0 = time.monotonic()
-    proc = subprocess.run([sys.executable, "-c", STUCK_WORKER, "1.0"], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 130 and proc.stderr == "pcdof: interrupted\n", proc.stderr
+    proc = subprocess.run([sys.executable, "-c", STUCK_WORKER, "1.0", str(code)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == code and proc.stderr == stderr, proc.stderr
     assert time.monotonic() - t0 < 60
 
 

@@ -51,8 +51,10 @@ def say_interrupted() -> None:
 
 
 def exit_now(code: int = EXIT_INTERRUPTED) -> None:
-    """Say ``pcdof: interrupted``, run the registered cleanups and end the process with *code* at once."""
-    say_interrupted()
+    """Run the registered cleanups and end the process with *code* at once (saying ``pcdof: interrupted``
+    first when *code* is :data:`EXIT_INTERRUPTED`)."""
+    if code == EXIT_INTERRUPTED:
+        say_interrupted()
     for cleanup in list(_CLEANUPS):
         try:
             cleanup()
@@ -94,7 +96,10 @@ EXIT_GRACE_S = 3.0
 
 def exit_soon(code: int = EXIT_INTERRUPTED, grace_s: float = EXIT_GRACE_S) -> None:
     """Let the interpreter exit normally (its exit handlers release semaphores, temporary folders), but at
-    most *grace_s* seconds: a thread still running (a worker stuck on a lock) cannot hold the process."""
+    most *grace_s* seconds: a thread still running (a worker stuck on a lock) cannot hold the process.
+
+    Call it as the process is about to exit with status *code* (non-zero: a failed or interrupted command).
+    """
     import threading
 
     def watchdog() -> None:

@@ -160,8 +160,8 @@ def console_main() -> None:
 
     Ctrl-C is pcdof's from the start (:mod:`pcdof.interrupts`: the console script,
     :func:`pcdof.interrupts.console`, installs the handler before this module is imported): one ``pcdof: interrupted`` line and exit status 130 at any moment,
-    and an interrupted command's exit is given :data:`pcdof.interrupts.EXIT_GRACE_S` seconds, so that no
-    thread left running can hold the process.
+    and the exit of an interrupted or failed command is given :data:`pcdof.interrupts.EXIT_GRACE_S` seconds,
+    so that no thread left running can hold the process.
 
     What a command imports lives until the process ends, so the garbage collector is told to leave it out of
     its passes (``gc.freeze``) once the command's module is imported, and again as the process ends: the
@@ -177,8 +177,8 @@ def console_main() -> None:
     try:
         main()
     except SystemExit as done:
-        if done.code == interrupts.EXIT_INTERRUPTED and interrupts.installed():
-            interrupts.exit_soon()  # the exit handlers run, but no thread left running can hold the process
+        if done.code and isinstance(done.code, int) and interrupts.installed():
+            interrupts.exit_soon(done.code)  # a failed or interrupted command: no thread left can hold the exit
         raise
     except KeyboardInterrupt:  # outside a command's body (click's own "Aborted!" would say exit 1)
         interrupts.exit_now()

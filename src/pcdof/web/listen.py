@@ -31,8 +31,14 @@ def _addresses(host: str, port: int) -> list:
 
 
 def _bind(info) -> None:
+    """Bind a socket to one resolved address as the server will (an address family this machine lacks,
+    such as IPv6 in some containers, is skipped, as asyncio skips it)."""
     family, kind, proto, _, address = info
-    with socket.socket(family, kind, proto) as sock:
+    try:
+        sock = socket.socket(family, kind, proto)
+    except OSError:
+        return
+    with sock:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server does
         sock.bind(address)
 

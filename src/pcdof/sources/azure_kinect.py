@@ -218,7 +218,10 @@ class AzureKinectSource(RecordingSource):
                                  "depth is 'b16g' (16-bit big-endian millimetres)")
         sizes = {name: (s.codec_context.height, s.codec_context.width)
                  for name, s in (("COLOR", self._color), ("DEPTH", self._depth))}
-        rig, self._modes = None, {"COLOR": None, "DEPTH": None}
+        rig = None
+        self._modes = {name: s.metadata.get(tag) or c.metadata.get(tag)  # as recorded, when the tags are there
+                       for name, s, tag in (("COLOR", self._color, "K4A_COLOR_MODE"),
+                                            ("DEPTH", self._depth, "K4A_DEPTH_MODE"))}
         if override is None:  # the recording's own calibration: needed only when none replaces it
             rig = self._recorded_rig(path, av)
             for name, intr in (("COLOR", rig.color), ("DEPTH", rig.depth)):

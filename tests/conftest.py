@@ -5,6 +5,7 @@ process) and ``browser`` (drives headless Chromium; skipped where it is absent).
 everything but ``slow``.
 """
 
+import json
 import math
 import os
 import subprocess
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 # The pcdof command sets numba's threading-layer order (pcdof.runtime.process.tune_process); a test session
 # imports pcdof as a library, which tunes nothing: give numba the same order here, so Open3D's older bundled TBB
@@ -39,7 +41,7 @@ def pcdof_command() -> list[str]:
     exe = Path(sys.executable).with_name("pcdof")
     if exe.exists():
         return [str(exe)]
-    return [sys.executable, "-c", "import sys; from pcdof.cli import console_main; sys.exit(console_main())"]
+    return [sys.executable, "-c", "import pcdof_console; pcdof_console.main()"]
 
 
 def run_pcdof(args, cwd=None, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -89,10 +91,67 @@ def highlight_frame(seed, h, w, n_blobs, coc_max):
     return img, np.where(rng.random((h, w)) < 0.1, -coc, coc)  # (the sign is ignored)
 
 
+# --------------------------------------------------------------------------- shared fixtures of the hostile-use tests
+
+#: the RealSense D435 sample recording bundled with the repository
+SAMPLE_BAG = Path(__file__).resolve().parents[1] / "data" / "real" / "realsense_d435_bag" / \
+    "single_depth_color_640x480.bag"
+#: size of the small frame fixtures (pixels)
+SMALL_W, SMALL_H = 64, 48
+
+
+@pytest.fixture(scope="session")
+def console_script() -> list:
+    """The ``pcdof`` console script as a command line: its own entry point (Ctrl-C handled from its first line)."""
+    return [sys.executable, "-c", "import pcdof_console; pcdof_console.main()"]
+
+
+def _write_small_frame(folder: Path, seed: int = 0) -> dict:
+    import numpy as np
+
+    from pcdof import io
+    from pcdof.camera import Intrinsics, Rig
+
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:SMALL_H, 0:SMALL_W]
+    io.write_image(folder / "color.png", rng.integers(0, 256, (SMALL_H, SMALL_W, 3), dtype=np.uint8))
+    io.write_depth(folder / "depth.png", (1.0 + 0.5 * (xx > SMALL_W // 2) + 0.01 * yy).astype(np.float32))
+    rig = Rig.registered(Intrinsics(SMALL_W, SMALL_H, 60.0, 60.0, (SMALL_W - 1) / 2, (SMALL_H - 1) / 2))
+    (folder / "calib.json").write_text(json.dumps(rig.to_dict()))
+    return {"color": folder / "color.png", "depth": folder / "depth.png", "calib": folder / "calib.json"}
+
+
+@pytest.fixture()
+def small_frame(tmp_path) -> dict:
+    """A 64x48 colour PNG, 16-bit depth PNG (two planes, 1 and 1.5 m) and calib.json: {"color", "depth", "calib"}."""
+    return _write_small_frame(tmp_path / "frame")
+
+
+@pytest.fixture()
+def small_sequence(tmp_path) -> Path:
+    """A folder of six 64x48 frames (color/, depth/, calib.json) that ``pcdof batch`` reads."""
+    import shutil
+
+    root = tmp_path / "seq"
+    files = _write_small_frame(tmp_path / "one")
+    for sub in ("color", "depth"):
+        (root / sub).mkdir(parents=True)
+        for i in range(6):
+            shutil.copy(files[sub], root / sub / f"{i:04d}.png")
+    shutil.copy(files["calib"], root / "calib.json")
+    return root
+
+
+@pytest.fixture(scope="session")
+def sample_bag() -> Path:
+    """The bundled RealSense recording (skipped without rosbags)."""
+    pytest.importorskip("rosbags")
+    return SAMPLE_BAG
+
+
 def pytest_collection_modifyitems(config, items):
     """Tests that use the served page in headless Chromium (``served``) carry the ``browser`` mark."""
-    import pytest
-
     for item in items:
         if "served" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.browser)

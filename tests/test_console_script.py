@@ -16,9 +16,17 @@ pytestmark = pytest.mark.subprocess  # most tests here run pcdof in a child proc
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_the_console_script_is_console_main():
+def test_the_console_script_installs_the_interrupt_handler_then_runs_console_main():
     scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
-    assert scripts["pcdof"] == "pcdof.cli:console_main"
+    assert scripts["pcdof"] == "pcdof_console:main"
+    # the console script's module loads nothing but the standard library: the handler goes in before the
+    # pcdof package, click or NumPy load; pcdof.interrupts alone (with the package's light __init__) adds nothing heavy
+    code = ("import sys, signal; import pcdof_console; heavy = {'click', 'numpy', 'cv2', 'numba', 'pcdof'}; "
+            "assert not heavy & set(sys.modules), heavy & set(sys.modules); "
+            "import pcdof.interrupts as i; i.install(); assert i.installed(); "
+            "assert signal.getsignal(signal.SIGINT) is not signal.default_int_handler; "
+            "assert not {'click', 'numpy', 'cv2', 'numba', 'pcdof.cli'} & set(sys.modules)")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
 
 
 @pytest.fixture

@@ -817,5 +817,5 @@ class TestWriters:
 
     def test_folder_as_target(self, tmp_path):
         (tmp_path / "sub.png").mkdir()
-        with pytest.raises(InputError, match="folder"):
+        with pytest.raises(ImageWriteError, match="folder"):
             write_depth(tmp_path / "sub.png", np.ones((2, 2)))

@@ -1,7 +1,7 @@
 """Image-file inputs as frame sources: a pair, the folder layouts, TUM RGB-D, list files; a toy source.
 
 Every frame read through a source is compared with what :func:`pcdof.io.load_frame` and the batch
-reader (:func:`pcdof.batch.inputs.discover`, :func:`~pcdof.batch.inputs.load_rig`,
+reader (:func:`pcdof.sources.discovery.discover`, :func:`~pcdof.sources.discovery.load_rig`,
 :func:`pcdof.batch.runner.read_frame`) give for the same files: bit-identical arrays, the same rig.
 The layouts are built in a temporary folder from the bundled frames (``data/sample``, ``data/real``),
 each frame shifted differently so that a frame read at the wrong index is caught.
@@ -19,7 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 from pcdof import io
-from pcdof.batch.inputs import discover, load_rig
+from pcdof.sources.discovery import discover, load_rig
 from pcdof.batch.runner import read_frame
 from pcdof.camera import Intrinsics, Rig
 from pcdof.cli.info import command as info_command

@@ -7,6 +7,8 @@ The CLI maps each class to its own exit code (see :data:`EXIT_CODES`).
 
 from __future__ import annotations
 
+import contextlib
+
 
 class PcdofError(Exception):
     """Base class of all pcdof errors."""
@@ -40,7 +42,12 @@ class OutputInUseError(ImageWriteError):
     """An output folder is owned by another running batch (see :mod:`pcdof.batch.lock`)."""
 
 
-# CLI exit codes, one per failure kind (0 = success; click uses 2 for usage errors).
+class ServeError(PcdofError, OSError):
+    """The browser viewer cannot listen where it was asked to (the port is taken or needs privileges)."""
+
+
+# CLI exit codes, one per failure kind (0 = success; click uses 2 for usage errors; 9 out of memory; 10 and
+# 11 some or all frames of a batch or export failed; 130 interrupted by Ctrl-C, 143 by SIGTERM).
 EXIT_CODES: dict[type, int] = {
     ImageReadError: 3,
     CalibrationError: 4,
@@ -48,6 +55,7 @@ EXIT_CODES: dict[type, int] = {
     InputError: 6,
     ImageWriteError: 7,
     PcdofError: 8,
+    ServeError: 12,
 }
 
 
@@ -80,3 +88,20 @@ def exit_code_for(error: BaseException) -> int:
         if klass in EXIT_CODES:
             return EXIT_CODES[klass]
     return 1
+
+
+@contextlib.contextmanager
+def library_errors(what: str):
+    """Any error of a third-party reader (rosbags, PyAV, OpenCV, Pillow, ...) within the block as one ImageReadError.
+
+    The message is *what*, then the library's error class and message on one line. pcdof's own errors,
+    Ctrl-C and running out of memory pass unchanged.
+    """
+    try:
+        yield
+    except PcdofError:
+        raise
+    except Exception as err:  # noqa: BLE001 - a library's own error classes, whatever they are
+        if is_out_of_memory(err):
+            raise
+        raise ImageReadError(f"{what} ({type(err).__name__}: {one_line(err)})") from None

@@ -1,6 +1,6 @@
 """Offline batch rendering of RGB-D sequences (folders, list files, the TUM RGB-D layout).
 
-:mod:`~pcdof.batch.inputs` finds colour/depth pairs and reads the rig once;
+:mod:`~pcdof.sources.discovery` finds colour/depth pairs and reads the rig once;
 :mod:`~pcdof.batch.schedule` decides the lens of every frame (fixed, keyframed, or following a
 pixel's depth with flicker-free smoothing), :mod:`~pcdof.batch.focus` runs the focus pass;
 :mod:`~pcdof.batch.runner` renders the frames serially, over local processes
@@ -10,7 +10,7 @@ pixel's depth with flicker-free smoothing), :mod:`~pcdof.batch.focus` runs the f
 (:mod:`~pcdof.batch.signals`).
 """
 
-from .inputs import FramePair, Sequence, associate, discover, load_rig, read_tum_list
+from ..sources.discovery import FramePair, Sequence, associate, discover, load_rig, read_tum_list
 from .runner import (
     EXIT_ALL_FAILED,
     EXIT_OK,

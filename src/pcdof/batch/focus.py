@@ -11,7 +11,7 @@ from ..camera import Rig
 from ..errors import InputError, PcdofError
 from ..lens import check_radius_px, focus_depth_at, parse_focus_pixel, pixel_inside
 from .frames import read_depth_m
-from .inputs import Sequence
+from ..sources.discovery import Sequence
 from .report import progress_bar
 from .schedule import LensSchedule, build_schedule, parse_keyframes, smooth_focus_track
 

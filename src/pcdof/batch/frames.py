@@ -8,7 +8,7 @@ import numpy as np
 
 from ..camera import RGBDFrame, Rig
 from ..errors import InputError
-from .inputs import FramePair, Sequence
+from ..sources.discovery import FramePair, Sequence
 
 
 def read_frame(pair: FramePair, rig: Rig) -> RGBDFrame:

@@ -6,7 +6,7 @@ import contextlib
 import os
 
 from ..errors import InputError
-from .inputs import Sequence
+from ..sources.discovery import Sequence
 
 REPORT_NAME = "report.json"
 DEPTH_DIR = "depth"

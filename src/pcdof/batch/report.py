@@ -10,7 +10,7 @@ import sys
 import time
 
 from ..errors import PcdofError
-from .inputs import Sequence
+from ..sources.discovery import Sequence
 from .outputs import REPORT_NAME
 from .signals import interrupted_by
 

@@ -52,7 +52,7 @@ from .focus import (
     plan_lens,
 )
 from .frames import open_recording, read_depth_m, read_frame
-from .inputs import DEFAULT_MAX_DIFFERENCE_S, Sequence, discover, load_rig
+from ..sources.discovery import DEFAULT_MAX_DIFFERENCE_S, Sequence, discover, load_rig
 from .lock import folder_lock
 from .outputs import DEPTH_DIR, REPORT_NAME, check_inputs_kept, frame_name, sweep_temp_files
 from ..runtime.threads import threads_restored
@@ -419,7 +419,7 @@ def render_sequence(input_path: str, output_dir: str, *, lens=None, options=None
 
     Parameters
     ----------
-    input_path : str, folder or list file (see :mod:`pcdof.batch.inputs`), or a recording
+    input_path : str, folder or list file (see :mod:`pcdof.sources.discovery`), or a recording
         (``.mkv``, ``.bag``: :func:`pcdof.sources.is_recording`) read through its frame source
     output_dir : str
     lens : ThinLens or PaperLens, the fixed settings (focus / f-number unless keyframed or followed)

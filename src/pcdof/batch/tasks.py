@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from ..camera import Rig
 from ..errors import ImageWriteError
 from ..lens import ThinLens
-from .inputs import FramePair
+from ..sources.discovery import FramePair
 
 
 @dataclass(frozen=True, eq=False)

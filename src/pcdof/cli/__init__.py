@@ -158,6 +158,11 @@ def main(ctx: click.Context, verbose: int, quiet: bool) -> None:
 def console_main() -> None:
     """The ``pcdof`` console script: :func:`main` in a process of its own.
 
+    Ctrl-C is pcdof's from the start (:mod:`pcdof.interrupts`: the console script,
+    the top-level module ``pcdof_console``, installs the handler before this module is imported): one ``pcdof: interrupted`` line and exit status 130 at any moment,
+    and the exit of an interrupted or failed command is given :data:`pcdof.interrupts.EXIT_GRACE_S` seconds,
+    so that no thread left running can hold the process.
+
     What a command imports lives until the process ends, so the garbage collector is told to leave it out of
     its passes (``gc.freeze``) once the command's module is imported, and again as the process ends: the
     collector's full passes over numba's and the modules' objects otherwise took about 0.25 s of a one-shot
@@ -166,11 +171,19 @@ def console_main() -> None:
     as it was.
     """
     global _own_process
+    from .. import interrupts
+
     _own_process = True
     from ..runtime.process import tune_process
 
     tune_process()  # before numba or OpenMP loads: they read their settings once
     try:
         main()
+    except SystemExit as done:
+        if done.code and isinstance(done.code, int) and interrupts.installed():
+            interrupts.exit_soon(done.code)  # a failed or interrupted command: no thread left can hold the exit
+        raise
+    except KeyboardInterrupt:  # outside a command's body (click's own "Aborted!" would say exit 1)
+        interrupts.exit_now()
     finally:
         gc.freeze()

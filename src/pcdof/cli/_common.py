@@ -7,6 +7,7 @@ its own exit code, not as a click usage error.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import logging
@@ -37,8 +38,11 @@ def handle_errors(func):
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
+        from .. import interrupts
+
         try:
-            return func(*args, **kwargs)
+            with interrupts.raising():  # Ctrl-C in the body unwinds it: its finally blocks clean up
+                return func(*args, **kwargs)
         except (click.exceptions.Exit, click.ClickException, click.Abort):
             raise
         except PcdofError as err:
@@ -47,8 +51,11 @@ def handle_errors(func):
             click.echo(f"pcdof: error: {one_line(err)}", err=True)
             sys.exit(exit_code_for(err))
         except KeyboardInterrupt:
-            click.echo("pcdof: interrupted", err=True)
-            sys.exit(130)
+            if interrupts.installed():  # the console script: the line once, however the exit goes on
+                interrupts.say_interrupted()
+            else:
+                click.echo("pcdof: interrupted", err=True)
+            sys.exit(interrupts.EXIT_INTERRUPTED)
         except Exception as err:  # noqa: BLE001 - the CLI promises no tracebacks
             if is_out_of_memory(err):  # MemoryError, or OpenCV's "Insufficient memory"
                 click.echo("pcdof: error: out of memory (try a smaller image)", err=True)
@@ -99,6 +106,36 @@ def make_output_folder(path: str, name: str) -> None:
         os.makedirs(path, exist_ok=True)
     except OSError as err:
         raise ImageWriteError(f"cannot create {name} folder {path!r}: {err.strerror or err}") from None
+
+
+@contextlib.contextmanager
+def all_or_nothing(files: list, folders: list = ()):
+    """Within the block a command writes *files*; on any failure (Ctrl-C too) it leaves nothing behind.
+
+    The files the block created (those that did not exist before it) are removed, then the *folders*
+    it created, deepest first, if they are empty. A file that existed before is left as it is now
+    (each file is written atomically, so it is either the old one or a complete new one).
+    """
+    from .. import interrupts
+
+    existed = {path for path in files if os.path.lexists(path)}
+    made = [folder for folder in folders if not os.path.lexists(folder)]
+
+    def roll_back() -> None:
+        for path in files:
+            if path not in existed:
+                with contextlib.suppress(OSError):
+                    os.remove(path)
+        for folder in sorted(made, key=len, reverse=True):
+            with contextlib.suppress(OSError):
+                os.rmdir(folder)  # only when empty
+
+    with interrupts.cleanup_on_interrupt(roll_back):  # also when Ctrl-C ends the process at once
+        try:
+            yield
+        except BaseException:
+            roll_back()
+            raise
 
 
 def _check_parents(path: str, name: str) -> None:

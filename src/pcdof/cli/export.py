@@ -16,14 +16,17 @@ import click
 import numpy as np
 
 from ..errors import ImageReadError, InputError
-from ._common import check_output_folder, handle_errors, make_output_folder
+from ._common import all_or_nothing, check_output_file, check_output_folder, handle_errors, make_output_folder
 
 #: exit status when some frames could not be decoded (as `pcdof batch`)
 EXIT_SOME_FAILED = 10
 
 
 def parse_frames(spec: str | None, n: int) -> range:
-    """``"A:B[:STEP]"`` or ``"I"`` (Python slice rules, negative from the end) -> the frame indices."""
+    """``"A:B[:STEP]"`` or ``"I"`` (Python slice rules, negative from the end) -> the frame indices.
+
+    InputError for a malformed spec, an index out of range, or a range that selects no frame.
+    """
     if spec is None:
         return range(n)
     try:
@@ -35,11 +38,15 @@ def parse_frames(spec: str | None, n: int) -> range:
             return range(i, i + 1)
         if len(parts) > 3 or (len(parts) == 3 and parts[2] is not None and parts[2] <= 0):
             raise ValueError
-        return range(n)[slice(*parts)]
+        chosen = range(n)[slice(*parts)]
     except (ValueError, TypeError):
         raise InputError(f"--frames must be I or START:STOP[:STEP] (step > 0); got {spec!r}") from None
     except IndexError:
         raise InputError(f"--frames {spec}: the recording has {n} frames (0..{n - 1})") from None
+    if not chosen:
+        raise InputError(f"--frames {spec} selects no frame of the recording's {n} (0..{n - 1}); START:STOP "
+                         "writes START up to STOP - 1")
+    return chosen
 
 
 @click.command("export")
@@ -63,8 +70,14 @@ def command(recording, output, registered, frames, color_format, calib):
         outs.update({f"depth/{n}": os.path.join(output, "depth", f"{n}.png") for n in names})
         outs["calib.json"] = os.path.join(output, "calib.json")
         refuse_overwriting_inputs({"RECORDING": recording, "--calib": calib}, outs)
-        make_output_folder(output, "output")
-        written, failed = export_frames(src, output, indices, registered=registered, color_format=color_format)
+        folders = [output, os.path.join(output, "color"), os.path.join(output, "depth")]
+        for folder in folders[1:]:  # everything in the way is found before any work
+            check_output_folder(folder, "output")
+        for path in outs.values():
+            check_output_file(path, "output")
+        with all_or_nothing(list(outs.values()), folders):  # a failure part-way leaves nothing behind
+            make_output_folder(output, "output")
+            written, failed = export_frames(src, output, indices, registered=registered, color_format=color_format)
     click.echo(f"wrote {written} of {len(indices)} frames to {output}"
                + (f" ({len(failed)} could not be decoded: frames {', '.join(map(str, failed))})" if failed else ""))
     if failed:

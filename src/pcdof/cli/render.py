@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import contextlib
 import os
 
 import click
 
 from ..errors import InputError
 from ..io.writers import IMAGE_FORMATS
-from ._common import build_render_options, check_device, check_output_file, check_output_folder, \
+from ._common import all_or_nothing, build_render_options, check_device, check_output_file, check_output_folder, \
     device_option, focus_source, handle_errors, load_source_frame, make_output_folder, photo_lens, \
     render_options, source_arguments, warn_float_colour
 from ._report import report_decision
@@ -50,6 +49,8 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     if save_maps:
         check_output_folder(save_maps, "--save-maps")
     maps = {f"--save-maps {name}": os.path.join(save_maps, name) for name in MAP_NAMES} if save_maps else {}
+    for label, path in maps.items():  # a folder in the way of a map is found before the work
+        check_output_file(path, label)
     options = build_render_options(render_flags).replace(device=device)
     check_device(device)  # --device gpu without a usable GPU: one line, before any input is read
     frame, what = load_source_frame(color, depth, calib=calib, depth_scale=depth_scale, frame_index=frame_index,
@@ -64,20 +65,11 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     big = frame.color.shape[0] * frame.color.shape[1] >= BIG_PIXELS  # a phone photo: say how far the work is
     with pipeline.stage_progress((lambda line: click.echo(f"pcdof: {line}", err=True)) if big else None):
         result = pipeline.run(frame, options)
-    if save_maps:  # the maps first and the image last: a failure leaves neither behind
-        created = not os.path.isdir(save_maps)
-        make_output_folder(save_maps, "--save-maps")
-        written = []
-        try:
-            write_maps(save_maps, result, written, source=what)
+    if save_maps:  # the maps first and the image last: a failure (Ctrl-C too) leaves neither behind
+        with all_or_nothing(list(maps.values()) + [output], [save_maps]):
+            make_output_folder(save_maps, "--save-maps")
+            write_maps(save_maps, result, source=what)
             io.write_image(output, result.image)
-        except BaseException:
-            for path in written:
-                _remove_quietly(path)
-            if created:
-                with contextlib.suppress(OSError):
-                    os.rmdir(save_maps)  # only if still empty
-            raise
     else:
         io.write_image(output, result.image)
     if explain:
@@ -123,10 +115,3 @@ def write_maps(folder: str, result, written: list | None = None, *, source: str 
     put("trace.json", io.write_json,
         {"focus_distance_m": result.lens.focus_distance_m, "trace": [t.to_dict() for t in result.trace],
          **({"source": source} if source else {})})
-
-
-def _remove_quietly(path: str) -> None:
-    try:
-        os.remove(path)
-    except OSError:
-        pass

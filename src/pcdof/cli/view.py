@@ -76,18 +76,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
     from ..viewer.ui import scene_from_frame
 
     window_size = check_window_size(window_size, name="--window-size")
-    if serve and (screenshot or html_path):
-        raise InputError("--serve cannot be combined with --screenshot or --html")
-    if output_dir and not serve:
-        raise InputError("--output-dir is for --serve (the download button's folder)")
-    if screenshot:
-        check_output_file(screenshot, "--screenshot")
-    if html_path:
-        check_output_file(html_path, "--html")
-    if screenshot and os.path.splitext(screenshot)[1].lower() not in IMAGE_SUFFIXES:
-        raise InputError(f"--screenshot must end in one of {', '.join(IMAGE_SUFFIXES)}; got {screenshot!r}")
-    if html_path and os.path.splitext(html_path)[1].lower() not in HTML_SUFFIXES:
-        raise InputError(f"--html must end in one of {', '.join(HTML_SUFFIXES)}; got {html_path!r}")
+    check_view_outputs(screenshot, html_path, serve=serve, output_dir=output_dir, host=host, port=port)
     options = build_render_options(render_flags, extra_positive={"--coc-limit": coc_limit_px}, thin_lens=True)
     off_screen = bool(screenshot or html_path or serve)
     if output_dir:
@@ -135,6 +124,26 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
             viewer.show()
     finally:
         viewer.close()
+
+
+def check_view_outputs(screenshot, html_path, *, serve: bool, output_dir, host: str, port: int) -> None:
+    """The output flags of ``pcdof view`` checked before the frame is loaded (one line per mistake)."""
+    if serve and (screenshot or html_path):
+        raise InputError("--serve cannot be combined with --screenshot or --html")
+    if output_dir and not serve:
+        raise InputError("--output-dir is for --serve (the download button's folder)")
+    if serve:  # a bad address or a taken port is found before the frame is loaded
+        from ..viewer.web.listen import check_listen_address
+
+        check_listen_address(host, port)
+    if screenshot:
+        check_output_file(screenshot, "--screenshot")
+    if html_path:
+        check_output_file(html_path, "--html")
+    if screenshot and os.path.splitext(screenshot)[1].lower() not in IMAGE_SUFFIXES:
+        raise InputError(f"--screenshot must end in one of {', '.join(IMAGE_SUFFIXES)}; got {screenshot!r}")
+    if html_path and os.path.splitext(html_path)[1].lower() not in HTML_SUFFIXES:
+        raise InputError(f"--html must end in one of {', '.join(HTML_SUFFIXES)}; got {html_path!r}")
 
 
 def serve_frame(frame, options, *, coc_limit_px, stride, color_by, source_name, host, port, output_dir) -> None:

@@ -11,14 +11,15 @@ import stat
 import struct
 import tempfile
 import warnings
-import zlib
 
 import cv2
 import numpy as np
 
 from ..camera import MAX_IMAGE_SIDE
 from ..errors import ImageReadError, ImageWriteError, InputError
+from ..interrupts import on_interrupt
 from ._jpeg import decode_jpeg
+from ._png import check_png
 from .capture import captured_stderr, pass_on
 
 #: Largest image the readers decode (pixels); together with ``MAX_IMAGE_SIDE`` per side.
@@ -42,12 +43,6 @@ _MAGIC = (
     (b"P2", "pnm"),
     (b"P3", "pnm"),
 )
-#: PNG colour type -> (samples per pixel, allowed bit depths).
-_PNG_COLOUR_TYPES = {0: (1, (1, 2, 4, 8, 16)), 2: (3, (8, 16)), 3: (1, (1, 2, 4, 8)), 4: (2, (8, 16)),
-                     6: (4, (8, 16))}
-#: Adam7 passes: (x0, y0, dx, dy).
-_ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2))
-_INFLATE_BLOCK = 1 << 20
 #: Start of the lines libpng and libtiff print about a file they decode (captured, never shown).
 _LIBRARY_NOTES = ("libpng warning", "libpng error", "TIFFRead", "TIFFFetch", "TIFFAdvance", "TIFFScan",
                   "OJPEG", "JPEGLib", "Warning", "imread_", "TIFF")
@@ -93,6 +88,10 @@ def open_regular(path: str, what: str) -> tuple[int, int]:
     except IsADirectoryError:
         raise ImageReadError(f"{what} path is a folder, expected a file: {path!r}") from None
     except OSError as err:
+        with contextlib.suppress(OSError, ValueError):
+            mode = os.stat(path).st_mode
+            if not stat.S_ISREG(mode):  # a socket (ENXIO), a device without a driver, ...
+                raise ImageReadError(f"{what} path {path!r} is {_kind_of(mode)}, not a regular file") from None
         raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
     try:
         info = os.fstat(fd)
@@ -111,19 +110,59 @@ def open_regular(path: str, what: str) -> tuple[int, int]:
     return fd, info.st_size
 
 
+def read_open(fd: int, size: int, path: str, what: str) -> bytes:
+    """The content of the open file *fd* (closed here), *size* bytes as :func:`open_regular` found it.
+
+    Memory is reserved for the file's size, not for :data:`MAX_FILE_BYTES` (under an address-space
+    limit a 4 GiB reservation fails for a file of a few kilobytes); a file that grows while it is read
+    is read on in 1 MiB steps, up to the limit.
+    """
+    try:
+        with os.fdopen(fd, "rb") as f:
+            data = f.read(size + 1)
+            if len(data) > size:  # it grew while being read (or its size is not known, as in /proc)
+                parts, total = [data], len(data)
+                while total <= MAX_FILE_BYTES:
+                    more = f.read(1 << 20)
+                    if not more:
+                        break
+                    parts.append(more)
+                    total += len(more)
+                data = b"".join(parts)
+    except OSError as err:
+        raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
+    if len(data) > MAX_FILE_BYTES:
+        raise ImageReadError(f"{what} file {path!r} is larger than {MAX_FILE_BYTES / 2**30:.0f} GiB")
+    return data
+
+
 def read_bytes(path: str, what: str) -> bytes:
     """The whole content of *path*; ImageReadError when it is missing, not a regular file, unreadable or empty."""
     fd, size = open_regular(path, what)
-    try:
-        with os.fdopen(fd, "rb") as f:
-            data = f.read(MAX_FILE_BYTES + 1)
-    except OSError as err:
-        raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
+    data = read_open(fd, size, path, what)
     if not data:
         raise ImageReadError(f"{what} file is empty: {path!r}")
-    if len(data) > MAX_FILE_BYTES:  # it grew while being read
-        raise ImageReadError(f"{what} file {path!r} is larger than {MAX_FILE_BYTES / 2**30:.0f} GiB")
     return data
+
+
+def read_head(path: str, count: int) -> bytes:
+    """The first *count* bytes of *path* when it is a regular file; ``b""`` otherwise (missing, a FIFO, a device...).
+
+    For format detection: a file that is not a regular file is never opened (a FIFO would block, a
+    device could be read forever), and nothing here raises.
+    """
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return b""
+        fd, _ = open_regular(path, "input")
+    except (OSError, ValueError, ImageReadError):
+        return b""
+    try:
+        return os.read(fd, count)
+    except OSError:
+        return b""
+    finally:
+        os.close(fd)
 
 
 def read_text(path: str, what: str) -> str:
@@ -131,13 +170,10 @@ def read_text(path: str, what: str) -> str:
 
     An empty file is an empty string. A NUL byte is refused (no path or number holds one).
     """
-    fd, _ = open_regular(path, what)
+    fd, size = open_regular(path, what)
+    data = read_open(fd, size, path, what)
     try:
-        with os.fdopen(fd, "rb") as f:
-            data = f.read(MAX_FILE_BYTES + 1)
         text = data.decode("utf-8-sig")
-    except OSError as err:
-        raise ImageReadError(f"cannot read {what} file {path!r}: {err.strerror or err}") from None
     except UnicodeDecodeError as err:
         raise ImageReadError(f"cannot read {what} file {path!r}: not UTF-8 text ({err.reason} at byte "
                              f"{err.start})") from None
@@ -281,132 +317,6 @@ def decode_pfm(data: bytes, path: str, what: str) -> np.ndarray:
     img = np.frombuffer(data, dtype="<f4" if scale < 0 else ">f4", count=count, offset=pos)
     img = img.reshape(height, width, channels)[::-1].astype(np.float32)  # rows are stored bottom to top
     return img[:, :, 0] if channels == 1 else img[:, :, ::-1]  # RGB -> OpenCV's BGR, like decode_image
-
-
-def check_png(data: bytes, path: str, what: str) -> None:
-    """ImageReadError for a truncated or corrupt PNG, raised before OpenCV decodes it.
-
-    libpng reports a corrupt file by printing on stderr, where no caller can catch it, and OpenCV then
-    returns nothing; this makes libpng's decoding checks first. Checked: the chunk layout, every
-    chunk's CRC, the IHDR values, a PLTE chunk for palette images, consecutive IDAT chunks, the IEND
-    chunk, and the IDAT zlib stream, which must inflate to exactly the bytes of the rows the header
-    declares (Adam7 passes included), each row with a filter type 0..4. The stream is inflated in
-    blocks of ``_INFLATE_BLOCK`` bytes and discarded: memory stays small, time is about that of a decode.
-    """
-    n = len(data)
-    view = memoryview(data)
-    bad = f"{what} file {path} is corrupt"
-    short = f"{what} file {path} is truncated or corrupt"
-    ihdr: tuple[int, ...] | None = None
-    has_plte = False
-    idat: list[tuple[int, int]] = []
-    idat_done = False
-    pos = len(b"\x89PNG\r\n\x1a\n")
-    while True:
-        if pos + 12 > n:
-            raise ImageReadError(f"{short}: the PNG has no end chunk (it stops at byte {n})")
-        length, ctype = struct.unpack_from(">I4s", data, pos)
-        name = ctype.decode("latin-1")
-        if length > 0x7FFFFFFF or not ctype.isalpha():
-            raise ImageReadError(f"{bad}: invalid PNG chunk header at byte {pos}")
-        start, end = pos + 8, pos + 8 + length
-        if end + 4 > n:
-            raise ImageReadError(f"{short}: its {name} chunk at byte {pos} runs past the end of the file")
-        if zlib.crc32(view[pos + 4:end]) != struct.unpack_from(">I", data, end)[0]:
-            raise ImageReadError(f"{bad}: its {name} chunk at byte {pos} fails its CRC check")
-        if idat and ctype != b"IDAT":
-            idat_done = True
-        if ihdr is None:
-            if ctype != b"IHDR" or length != 13:
-                raise ImageReadError(f"{bad}: the PNG does not start with a 13-byte IHDR chunk")
-            ihdr = struct.unpack_from(">IIBBBBB", data, start)
-            _check_ihdr(ihdr, bad)
-        elif ctype == b"IDAT":
-            if idat_done:
-                raise ImageReadError(f"{bad}: its IDAT chunks are not consecutive")
-            if ihdr[3] == 3 and not has_plte:
-                raise ImageReadError(f"{bad}: a palette image without a PLTE chunk before its pixel data")
-            idat.append((start, end))
-        elif ctype == b"PLTE":
-            if length == 0 or length % 3 or length > 3 * 256 or idat:
-                raise ImageReadError(f"{bad}: invalid PLTE chunk ({length} bytes)")
-            has_plte = True
-        elif ctype == b"IEND":
-            break
-        elif not ctype[0] & 0x20:  # an upper-case first letter: critical
-            raise ImageReadError(f"{bad}: unknown critical PNG chunk {name!r}")
-        pos = end + 4
-    if not idat:
-        raise ImageReadError(f"{bad}: the PNG has no pixel data (IDAT chunk)")
-    _check_png_pixels(view, idat, ihdr, bad, short)
-
-
-def _check_ihdr(ihdr: tuple[int, ...], bad: str) -> None:
-    width, height, depth, colour, compression, filtering, interlace = ihdr
-    if not (1 <= width <= 0x7FFFFFFF and 1 <= height <= 0x7FFFFFFF):
-        raise ImageReadError(f"{bad}: invalid PNG size {width}x{height}")
-    if colour not in _PNG_COLOUR_TYPES or depth not in _PNG_COLOUR_TYPES[colour][1]:
-        raise ImageReadError(f"{bad}: invalid PNG bit depth {depth} for colour type {colour}")
-    if compression != 0 or filtering != 0 or interlace not in (0, 1):
-        raise ImageReadError(f"{bad}: invalid PNG header (compression {compression}, filter {filtering}, "
-                             f"interlace {interlace})")
-
-
-def _png_rows(ihdr: tuple[int, ...]) -> list[tuple[int, int, int]]:
-    """Row segments of the inflated IDAT stream: (first byte, end byte, bytes per row incl. the filter byte)."""
-    width, height, depth, colour, _, _, interlace = ihdr
-    bits = _PNG_COLOUR_TYPES[colour][0] * depth
-    passes = _ADAM7 if interlace else ((0, 0, 1, 1),)
-    segments, offset = [], 0
-    for x0, y0, dx, dy in passes:
-        w, h = max(0, -(-(width - x0) // dx)), max(0, -(-(height - y0) // dy))
-        if w and h:
-            stride = 1 + (w * bits + 7) // 8
-            segments.append((offset, offset + h * stride, stride))
-            offset += h * stride
-    return segments
-
-
-def _check_png_pixels(view: memoryview, idat: list[tuple[int, int]], ihdr: tuple[int, ...], bad: str,
-                      short: str) -> None:
-    """Inflate the IDAT stream block by block: valid zlib, the declared number of bytes, valid filter types."""
-    segments = _png_rows(ihdr)
-    expected = segments[-1][1]
-    inflater = zlib.decompressobj()
-    done = 0
-
-    def check(block: bytes) -> None:
-        nonlocal done
-        if done + len(block) > expected:
-            raise ImageReadError(f"{bad}: its pixel data is longer than its {ihdr[0]}x{ihdr[1]} header declares")
-        arr = np.frombuffer(block, np.uint8)
-        for first, stop, stride in segments:
-            lo, hi = max(done, first), min(done + len(block), stop)
-            if lo < hi:
-                row = first + -(-(lo - first) // stride) * stride
-                if row < hi and arr[row - done:hi - done:stride].max() > 4:
-                    raise ImageReadError(f"{bad}: invalid PNG row filter type in its pixel data")
-        done += len(block)
-
-    try:
-        for start, end in idat:
-            for piece in range(start, end, _INFLATE_BLOCK):
-                pending = view[piece:min(end, piece + _INFLATE_BLOCK)]
-                while len(pending):
-                    if inflater.eof:
-                        raise ImageReadError(f"{bad}: data after the end of its compressed pixel data")
-                    check(inflater.decompress(pending, _INFLATE_BLOCK))
-                    pending = inflater.unconsumed_tail
-                if inflater.unused_data:
-                    raise ImageReadError(f"{bad}: data after the end of its compressed pixel data")
-        check(inflater.flush())
-    except zlib.error as err:
-        raise ImageReadError(f"{bad}: invalid compressed pixel data ({err})") from None
-    if done < expected:
-        raise ImageReadError(f"{short}: its pixel data holds {done} of the {expected} bytes its "
-                             f"{ihdr[0]}x{ihdr[1]} header declares")
-    if not inflater.eof:
-        raise ImageReadError(f"{short}: its compressed pixel data has no end")
 
 
 def decode_image(data: bytes, kind: str | None, path: str, what: str) -> np.ndarray:
@@ -587,3 +497,6 @@ def remove_pending_temp_files() -> None:
     for tmp in list(_PENDING):
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+
+
+on_interrupt(remove_pending_temp_files)  # Ctrl-C that ends the process at once leaves no temporary file

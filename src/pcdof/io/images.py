@@ -12,7 +12,7 @@ import warnings
 import numpy as np
 
 from ..camera import RGBDFrame, as_depth_m
-from ..errors import ImageReadError, InputError
+from ..errors import ImageReadError, InputError, library_errors
 from ._files import (MAX_PIXELS, check_size, decode_exr, decode_image, decode_npy, fspath, header_size, read_bytes,
                      sniff)
 from .calibration import scale_argument, read_calibration
@@ -31,16 +31,17 @@ def _decode(path: str, what: str, expect=None) -> tuple[np.ndarray | dict, str |
     """
     data = read_bytes(path, what)
     kind = sniff(data)
-    if expect is not None and kind != "npy":  # .npy is not compressed, and a (3, H, W) one is named by the reader
-        size = header_size(data, kind)
-        if size is not None:
-            check_size(size[0], size[1], path, what)
-            expect(size)
-    if kind == "npy":
-        return decode_npy(data, path, what), kind
-    if kind == "exr":
-        return decode_exr(data, path, what), kind
-    return decode_image(data, kind, path, what), kind
+    with library_errors(f"cannot decode {what} file {path}"):  # what a decoding library raises is a read error
+        if expect is not None and kind != "npy":  # .npy is not compressed, and a (3, H, W) one is named by the reader
+            size = header_size(data, kind)
+            if size is not None:
+                check_size(size[0], size[1], path, what)
+                expect(size)
+        if kind == "npy":
+            return decode_npy(data, path, what), kind
+        if kind == "exr":
+            return decode_exr(data, path, what), kind
+        return decode_image(data, kind, path, what), kind
 
 
 def read_color(path) -> np.ndarray:

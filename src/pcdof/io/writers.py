@@ -16,7 +16,7 @@ import warnings
 import cv2
 import numpy as np
 
-from ..errors import InputError
+from ..errors import ImageWriteError, InputError
 from ._files import atomic_write_bytes, encode_cv2, encode_exr, exr_available, fspath
 
 #: Suffixes :func:`write_image` accepts, and the dtypes each can store.
@@ -47,15 +47,17 @@ def output_format(path, formats, *, name: str = "output") -> str:
     Raises
     ------
     InputError
-        The suffix is not one of *formats*, the path is a folder, or EXR is asked for without an EXR backend.
+        The suffix is not one of *formats*, or EXR is asked for without an EXR backend.
+    ImageWriteError
+        The path is a folder.
     """
     path = fspath(path, name=name)
     ext = os.path.splitext(path)[1].lower()
     formats = tuple(formats)
     if ext not in formats:
         raise InputError(f"{name} must end in one of {', '.join(formats)}; got {path!r}")
-    if os.path.isdir(path):
-        raise InputError(f"{name} {path!r} is a folder; expected a file name")
+    if os.path.isdir(path):  # a write failure, as everywhere an output is in the way (exit status 7)
+        raise ImageWriteError(f"{name} {path!r} is a folder; expected a file name")
     if ext == ".exr" and not exr_available():
         raise InputError(f"{name} {path!r}: writing EXR needs the 'openexr' package (pip install openexr)")
     return ext

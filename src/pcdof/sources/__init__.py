@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from ..errors import ImageReadError, InputError
-from ..io._files import fspath
+from ..io._files import fspath, read_head
 from . import azure_kinect, depth_jpeg, folder, heif_depth, listfile, realsense_bag, tum
 from .base import FrameSource, RecordingSource, SourceFrame, pair_by_time
 from .pair import pair_source
@@ -88,14 +88,6 @@ def register_source(name: str, kind: SourceKind) -> None:
     SOURCES[name] = kind
 
 
-def _head(path: str) -> bytes:
-    try:
-        with open(path, "rb") as f:
-            return f.read(64)
-    except OSError:
-        return b""
-
-
 def source_format(path) -> str | None:
     """The :data:`SOURCES` name of the input at *path*, or None (an image, an unknown folder, anything else).
 
@@ -103,7 +95,7 @@ def source_format(path) -> str | None:
     """
     path = fspath(path, name="path")
     is_dir = os.path.isdir(path)
-    head = b"" if is_dir else _head(path)
+    head = b"" if is_dir else read_head(path, 64)  # b"" for a FIFO or device: never opened
     for name, kind in SOURCES.items():
         if (head or is_dir) and kind.can_open(path, head) and not path.lower().endswith(_other_suffixes(name)):
             return name

@@ -36,7 +36,8 @@ import numpy as np
 
 from ..camera import Intrinsics, Rig
 from ..errors import CalibrationError, ImageReadError, PcdofError
-from .base import RecordingSource, file_size, pair_by_time
+from ..io._files import open_regular
+from .base import RecordedStreams, RecordingSource, pair_by_time
 
 MATROSKA_MAGIC = b"\x1a\x45\xdf\xa3"
 
@@ -192,7 +193,7 @@ class AzureKinectSource(RecordingSource):
         check_segment_size(path)
         try:
             self._container = av.open(path)
-        except (av.FFmpegError, OSError) as err:
+        except Exception as err:  # noqa: BLE001 - FFmpeg's errors and PyAV's own
             raise ImageReadError(f"cannot read recording {path}: {err}") from None
         with contextlib.ExitStack() as on_error:
             on_error.callback(self._container.close)
@@ -215,13 +216,18 @@ class AzureKinectSource(RecordingSource):
         if _fourcc(self._depth) != "b16g":
             raise ImageReadError(f"{path}: the DEPTH track's codec {_fourcc(self._depth)!r} is unknown; Azure Kinect "
                                  "depth is 'b16g' (16-bit big-endian millimetres)")
-        depth_mode, color_mode = self._tag(path, self._depth, "K4A_DEPTH_MODE"), self._tag(path, self._color, "K4A_COLOR_MODE")
-        rig = k4a_rig(self._calibration(av), depth_mode=depth_mode, color_mode=color_mode,
-                      where=f"{path}: calibration.json")
-        for s, intr, name in ((self._color, rig.color, "COLOR"), (self._depth, rig.depth, "DEPTH")):
-            if (s.codec_context.width, s.codec_context.height) != (intr.width, intr.height):
-                raise ImageReadError(f"{path}: the {name} track is {s.codec_context.width}x{s.codec_context.height}; "
-                                     f"its mode needs {intr.width}x{intr.height}")
+        sizes = {name: (s.codec_context.height, s.codec_context.width)
+                 for name, s in (("COLOR", self._color), ("DEPTH", self._depth))}
+        rig = None
+        self._modes = {name: s.metadata.get(tag) or c.metadata.get(tag)  # as recorded, when the tags are there
+                       for name, s, tag in (("COLOR", self._color, "K4A_COLOR_MODE"),
+                                            ("DEPTH", self._depth, "K4A_DEPTH_MODE"))}
+        if override is None:  # the recording's own calibration: needed only when none replaces it
+            rig = self._recorded_rig(path, av)
+            for name, intr in (("COLOR", rig.color), ("DEPTH", rig.depth)):
+                if sizes[name] != intr.shape:
+                    raise ImageReadError(f"{path}: the {name} track is {sizes[name][1]}x{sizes[name][0]}; "
+                                         f"its mode needs {intr.width}x{intr.height}")
         self._index = {s.index: [] for s in (self._color, self._depth)}
         try:
             for packet in c.demux(self._color, self._depth):
@@ -233,9 +239,16 @@ class AzureKinectSource(RecordingSource):
         fps = float(self._color.average_rate or 0) or None
         pairs, tol = pair_by_time(*times, max_difference_s=max_difference_s,
                                   periods_s=(1 / fps if fps else None, 1 / fps if fps else None))
-        self._modes = {"COLOR": color_mode, "DEPTH": depth_mode}
         super().__init__(path, rig, times[0], times[1], pairs, max_difference_s=tol, override=override,
-                         override_path=calib_path)
+                         override_path=calib_path, streams=RecordedStreams(sizes["COLOR"], sizes["DEPTH"], 0.001))
+
+    def _recorded_rig(self, path: str, av) -> Rig:
+        """The rig of the recording's calibration.json attachment and its mode tags."""
+        depth_mode = self._tag(path, self._depth, "K4A_DEPTH_MODE")
+        color_mode = self._tag(path, self._color, "K4A_COLOR_MODE")
+        self._modes = {"COLOR": color_mode, "DEPTH": depth_mode}
+        return k4a_rig(self._calibration(av), depth_mode=depth_mode, color_mode=color_mode,
+                       where=f"{path}: calibration.json")
 
     def _tag(self, path: str, stream, name: str) -> str:
         value = stream.metadata.get(name) or self._container.metadata.get(name)
@@ -328,16 +341,19 @@ def check_segment_size(path: str) -> None:
     header says how long the file must be (a recording whose writer was killed has an unknown size,
     all ones, and is read as far as it goes).
     """
-    size = file_size(path)
+    fd, size = open_regular(path, "recording")  # a FIFO, device or dangling link is refused, never read
     try:
-        with open(path, "rb") as f:
-            head = f.read(4096)
+        head = os.read(fd, 4096)
     except OSError as err:
         raise ImageReadError(f"cannot read recording {path}: {err.strerror or err}") from None
+    finally:
+        os.close(fd)
     if not head.startswith(MATROSKA_MAGIC):
         raise ImageReadError(f"{path} is not a Matroska file (no EBML header)")
     pos = 4
     ebml_size, pos = _vint(head, pos, path)
+    if ebml_size is None:  # the EBML header is a few fixed elements: its writer always knows their size
+        raise ImageReadError(f"{path} is corrupt: its EBML header declares an unknown size")
     pos += ebml_size
     if head[pos:pos + 4] != b"\x18\x53\x80\x67":
         raise ImageReadError(f"{path} is truncated or not a Matroska file: no Segment after its EBML header")

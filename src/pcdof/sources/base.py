@@ -21,7 +21,7 @@ import os
 import numpy as np
 
 from ..camera import Rig, RGBDFrame
-from ..errors import CalibrationError, ImageReadError, InputError, PcdofError
+from ..errors import CalibrationError, ImageReadError, InputError, PcdofError, library_errors
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -92,7 +92,7 @@ def pair_by_time(color_times, depth_times, *, max_difference_s: float | None = N
     pairs : (k, 2) int64 ndarray, (colour index, depth index), in colour-time order
     max_difference_s : float, the tolerance used
     """
-    from ..batch.inputs import associate  # TUM associate.py's greedy nearest-time pairing
+    from .discovery import associate  # TUM associate.py's greedy nearest-time pairing
 
     if max_difference_s is None:
         periods = [p if p else frame_period_s(t) for p, t in zip(periods_s, (color_times, depth_times))]
@@ -184,7 +184,8 @@ class FrameSource(abc.ABC):
         """Read frame *index*; the reader's error class, its message prefixed with the source and the frame."""
         i = self.check_index(index)
         try:
-            frame = self._read(i)
+            with library_errors("cannot be read"):
+                frame = self._read(i)
         except PcdofError as err:
             raise type(err)(f"{self._where(i)}{err}") from None
         shapes = ((frame.color.shape[:2], frame.rig.color.shape, "colour"),
@@ -215,24 +216,49 @@ class FrameSource(abc.ABC):
                 "calibration": self.rig.to_dict()}
 
 
+@dataclasses.dataclass(frozen=True)
+class RecordedStreams:
+    """What a recording says about its streams without its calibration: image shapes and depth units.
+
+    Attributes
+    ----------
+    color_shape, depth_shape : (height, width) of the colour and depth images, or None when unknown
+    depth_scale : float, metres per unit of the recording's integer depth
+    """
+
+    color_shape: tuple[int, int] | None
+    depth_shape: tuple[int, int] | None
+    depth_scale: float
+
+    @classmethod
+    def of(cls, rig: Rig) -> "RecordedStreams":
+        """The streams a recording's own calibration describes."""
+        return cls(rig.color.shape, rig.depth.shape, rig.depth_scale)
+
+
 class RecordingSource(FrameSource):
     """A recording file with a colour and a depth stream, paired by timestamp (``.mkv``, ``.bag``).
 
     Subclasses pair their streams once, in the constructor, and call ``super().__init__`` with the
     rig, the streams' timestamps and the pairs; they implement the reading of one colour or depth
-    image by its stream index (:meth:`_read_color`, :meth:`_read_depth`) and :meth:`_streams`.
+    image by its stream index (:meth:`_read_color`, :meth:`_read_depth`) and :meth:`_streams`. When a
+    calibration replaces the recording's (*override*), a subclass reads none of its own: it passes
+    ``rig=None`` and the :class:`RecordedStreams` that the override is checked against.
     """
 
-    def __init__(self, path: str, rig: Rig, color_times, depth_times, pairs, *, max_difference_s: float,
-                 override: Rig | None = None, override_path: str | None = None) -> None:
+    def __init__(self, path: str, rig: Rig | None, color_times, depth_times, pairs, *, max_difference_s: float,
+                 override: Rig | None = None, override_path: str | None = None,
+                 streams: RecordedStreams | None = None) -> None:
         self.color_times = np.asarray(color_times, dtype=np.float64)
         self.depth_times = np.asarray(depth_times, dtype=np.float64)
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.max_difference_s = max_difference_s
         calibration_from = "recording"
         if override is not None:
-            rig = _override(rig, override, override_path, path)
+            rig = _override(streams or RecordedStreams.of(rig), override, override_path, path)
             calibration_from = override_path or "caller"
+        elif rig is None:
+            raise CalibrationError(f"{path}: the recording's calibration was not read and none replaces it")
         super().__init__(path, rig, calibration_from=calibration_from)
         if len(self.pairs) == 0:
             raise ImageReadError(f"{path}: no colour frame has a depth frame within {max_difference_s:.4g} s "
@@ -241,7 +267,12 @@ class RecordingSource(FrameSource):
     @classmethod
     def open(cls, path: str, *, calib=None, depth_scale: float | None = None,
              max_difference_s: float | None = None) -> "RecordingSource":
-        """Open the recording *path*; *calib* (a calibration file) replaces the recording's calibration."""
+        """Open the recording *path*; *calib* (a calibration file) replaces the recording's calibration.
+
+        The calibration file is read first, and the recording's own calibration is then not needed
+        (a recording that lacks it opens with *calib*). Any error of the library that reads the file
+        is an :class:`~pcdof.errors.ImageReadError` naming *path*.
+        """
         if depth_scale is not None:
             raise InputError(f"depth_scale applies to integer depth files; the recording {path} carries its own "
                              f"depth units (got depth_scale={depth_scale!r})")
@@ -252,7 +283,8 @@ class RecordingSource(FrameSource):
 
             calib_path = fspath(calib, name="calib")
             rig = read_calibration(calib_path, depth_scale=1.0)  # the scale is the recording's; see _override
-        return cls(path, rig=rig, calib_path=calib_path, max_difference_s=max_difference_s)
+        with library_errors(f"cannot read recording {path}"):
+            return cls(path, rig=rig, calib_path=calib_path, max_difference_s=max_difference_s)
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -287,14 +319,14 @@ class RecordingSource(FrameSource):
         """name -> plain dict (encoding, size, frames, fps, ...) of the source's streams."""
 
 
-def _override(recorded: Rig, rig: Rig, override_path: str | None, path: str) -> Rig:
+def _override(recorded: RecordedStreams, rig: Rig, override_path: str | None, path: str) -> Rig:
     """*rig* in place of the recording's calibration: same image sizes required; depth units stay the recording's."""
     where = override_path or "calib"
-    for name in ("color", "depth"):
-        a, b = getattr(rig, name), getattr(recorded, name)
-        if a.shape != b.shape:
+    for name, shape in (("color", recorded.color_shape), ("depth", recorded.depth_shape)):
+        a = getattr(rig, name)
+        if shape is not None and a.shape != tuple(shape):
             raise CalibrationError(f"{where}: its {name} camera is {a.width}x{a.height} but the {name} stream of "
-                                   f"{path} is {b.width}x{b.height}")
+                                   f"{path} is {shape[1]}x{shape[0]}")
     # the recording's integers are converted with the recording's own units; a calibration file's
     # depth_scale describes integer depth *files*, which a recording is not
     return dataclasses.replace(rig, depth_scale=recorded.depth_scale)

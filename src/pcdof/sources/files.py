@@ -2,8 +2,8 @@
 
 :class:`FileSource` is what the file layouts share (:mod:`~pcdof.sources.pair`,
 :mod:`~pcdof.sources.folder`, :mod:`~pcdof.sources.tum`, :mod:`~pcdof.sources.listfile`): the
-pairs come from :func:`pcdof.batch.inputs.discover` (or one given pair), the rig from
-:func:`pcdof.batch.inputs.load_rig`, and every frame is read by :func:`pcdof.io.load_frame` with that
+pairs come from :func:`pcdof.sources.discovery.discover` (or one given pair), the rig from
+:func:`pcdof.sources.discovery.load_rig`, and every frame is read by :func:`pcdof.io.load_frame` with that
 rig's depth scale, so a frame read through a source is the frame ``load_frame`` gives for its files.
 """
 
@@ -18,20 +18,20 @@ from .base import FrameSource, SourceFrame
 
 
 class FileSource(FrameSource):
-    """The frames of a :class:`~pcdof.batch.inputs.Sequence` of colour/depth files and one calibration.
+    """The frames of a :class:`~pcdof.sources.discovery.Sequence` of colour/depth files and one calibration.
 
     Parameters
     ----------
     path : str, the source as the caller named it (folder, list file, colour image)
     sequence : Sequence, the colour/depth file pairs, in order (at least one)
     calib : str or os.PathLike or None, calibration file; None: one of
-        :data:`pcdof.batch.inputs.CALIBRATION_NAMES` in ``sequence.root``
+        :data:`pcdof.sources.discovery.CALIBRATION_NAMES` in ``sequence.root``
     depth_scale : float or None, metres per unit of integer depth files; overrides the calibration's,
         which overrides the layout's default (TUM: 0.0002)
     """
 
     def __init__(self, path: str, sequence, calib=None, *, depth_scale: float | None = None) -> None:
-        from ..batch.inputs import find_calibration, load_rig
+        from .discovery import find_calibration, load_rig
         from ..io._files import fspath
 
         if not len(sequence):
@@ -72,13 +72,13 @@ def _seconds(t: float | None) -> float | None:
 
 
 def discovered(path, layouts: tuple[str, ...], what: str, **options):
-    """:func:`pcdof.batch.inputs.discover` of *path* (with *options*), checked to be one of *layouts*.
+    """:func:`pcdof.sources.discovery.discover` of *path* (with *options*), checked to be one of *layouts*.
 
     Returns
     -------
     (str, Sequence), the path as a string and its pairs
     """
-    from ..batch.inputs import discover
+    from .discovery import discover
     from ..io._files import fspath
 
     path = fspath(path, name="path")

@@ -1,4 +1,4 @@
-"""A folder of colour and depth images, paired by name (the two folder layouts of :mod:`pcdof.batch.inputs`).
+"""A folder of colour and depth images, paired by name (the two folder layouts of :mod:`pcdof.sources.discovery`).
 
 ``color/`` (or ``rgb/``) + ``depth/`` subfolders, paired by stem or by the last number in it; or
 ``NAME_color.png`` (or ``_rgb``) + ``NAME_depth.png`` side by side, paired by ``NAME``. The images
@@ -20,7 +20,7 @@ TAGS = ("_color", "_rgb", "_depth")
 
 def can_open(path: str, head: bytes) -> bool:
     """A folder with ``color/`` (or ``rgb/``) and ``depth/``, or with tagged images, and no TUM lists."""
-    from ..batch.inputs import IMAGE_SUFFIXES
+    from .discovery import IMAGE_SUFFIXES
 
     if not os.path.isdir(path) or all(os.path.isfile(os.path.join(path, n)) for n in ("rgb.txt", "depth.txt")):
         return False

@@ -1,7 +1,7 @@
 """A list file: one frame a line, ``color_path depth_path`` or ``t_color color_path t_depth depth_path``.
 
 Paths are relative to the list file; the syntax (separators, quotes, ``#`` comments) is
-:func:`pcdof.batch.inputs.split_fields`'s. Frames keep the file's order; the four-column form
+:func:`pcdof.sources.discovery.split_fields`'s. Frames keep the file's order; the four-column form
 (TUM ``associate.py``'s output) gives them timestamps.
 """
 

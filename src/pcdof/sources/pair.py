@@ -21,7 +21,7 @@ class PairSource(FileSource):
     format = "pair"
 
     def __init__(self, color, depth, calib=None, *, depth_scale: float | None = None) -> None:
-        from ..batch.inputs import FramePair, Sequence
+        from .discovery import FramePair, Sequence
         from ..io._files import fspath
 
         color, depth = fspath(color, name="color path"), fspath(depth, name="depth path")
@@ -39,7 +39,7 @@ def pair_source(color, depth, calib=None, *, depth_scale: float | None = None) -
     ----------
     color, depth : str or os.PathLike, the image files (see :func:`pcdof.io.read_color`, :func:`pcdof.io.read_depth`)
     calib : str or os.PathLike, optional, the calibration file; default one of
-        :data:`pcdof.batch.inputs.CALIBRATION_NAMES` in the colour image's folder
+        :data:`pcdof.sources.discovery.CALIBRATION_NAMES` in the colour image's folder
     depth_scale : float, optional, metres per unit of an integer depth file; overrides the calibration's
 
     Returns

@@ -26,7 +26,8 @@ import numpy as np
 
 from ..camera import Intrinsics, Rig
 from ..errors import CalibrationError, ImageReadError
-from .base import RecordingSource, float32_value, pair_by_time
+from ..io._files import open_regular
+from .base import RecordedStreams, RecordingSource, float32_value, pair_by_time
 
 BAG_MAGIC = b"#ROSBAG V2.0\n"
 _STREAM = re.compile(r"^/device_(\d+)/sensor_(\d+)/([A-Za-z]+)_(\d+)/")
@@ -53,6 +54,23 @@ def _rosbags():
     return AnyReader, get_typestore(Stores.ROS1_NOETIC)
 
 
+class _CheckedBagPath(type(Path())):
+    """The path rosbags is given: a ROS1 bag whatever its name's suffix (rosbags goes by the suffix) that
+    opens as the file pcdof already opened and checked (a regular file; never opened a second time)."""
+
+    checked_file = None
+
+    @property
+    def suffix(self) -> str:
+        return ".bag"
+
+    def open(self, *args, **kwargs):
+        f, self.checked_file = self.checked_file, None
+        if f is None:
+            raise ImageReadError(f"{os.fspath(self)}: the recording was already opened")
+        return f
+
+
 class RealSenseBagSource(RecordingSource):
     """Frames of a RealSense ``.bag`` recording; see the module documentation."""
 
@@ -61,13 +79,21 @@ class RealSenseBagSource(RecordingSource):
     def __init__(self, path: str, *, rig: Rig | None = None, calib_path: str | None = None,
                  max_difference_s: float | None = None) -> None:
         AnyReader, typestore = _rosbags()
-        with open(path, "rb") as f:
+        fd, _ = open_regular(path, "recording")  # a FIFO, device or dangling link is refused, never read
+        f = os.fdopen(fd, "rb")
+        try:
             if not f.read(len(BAG_MAGIC)) == BAG_MAGIC:
                 raise ImageReadError(f"{path} is not a ROS bag v2 file (no '#ROSBAG V2.0' line)")
-        self._reader = AnyReader([Path(path)], default_typestore=typestore)
-        try:
+            f.seek(0)
+            bag = _CheckedBagPath(path)
+            bag.checked_file = f
+            self._reader = AnyReader([bag], default_typestore=typestore)
             self._reader.open()
+        except ImageReadError:
+            f.close()
+            raise
         except Exception as err:  # noqa: BLE001 - rosbags raises its own error classes for damaged files
+            f.close()
             raise ImageReadError(f"cannot read recording {path}: truncated or corrupt bag ({err})") from None
         try:
             self._setup(path, rig, calib_path, max_difference_s)
@@ -85,25 +111,37 @@ class RealSenseBagSource(RecordingSource):
                                      f"{sorted(t for t in conns if t.endswith('/image/data')) or 'none'})")
             self._image[kind] = conns[topics[0]]
         self._path = path
-        infos, poses, stamps = {}, {}, {}
-        for kind, conn in self._image.items():
-            base = conn.topic[: -len("image/data")]
-            infos[kind] = self._one(conns, base + "info/camera_info", path)
-            poses[kind] = self._one(conns, base + "tf/0", path)
         units = self._depth_units(conns, self._image["Depth"].topic)
+        stamps, shapes = {}, {}
         for kind, conn in self._image.items():
-            stamps[kind] = [(t, self._stamp(conn, raw)) for _, t, raw in self._messages(conn)]
+            stamps[kind] = []
+            for _, t, raw in self._messages(conn):
+                msg = self._reader.deserialize(raw, conn.msgtype)
+                stamps[kind].append((t, msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9))
+                shapes.setdefault(kind, (int(msg.height), int(msg.width)))
         self._bag_times = {k: [t for t, _ in v] for k, v in stamps.items()}
         times = [np.array([s for _, s in stamps[k]], np.float64) for k in ("Color", "Depth")]
-        rig = Rig(_intrinsics(infos["Color"], f"{path}: colour camera_info"),
-                  _intrinsics(infos["Depth"], f"{path}: depth camera_info"),
-                  _pose(poses["Color"]) @ np.linalg.inv(_pose(poses["Depth"])), depth_scale=units)
+        rig = None
+        if override is None:  # the recording's own calibration: needed only when none replaces it
+            rig = self._calibration(conns, path, units)
         fps = [self._fps(conns, self._image[k].topic) for k in ("Color", "Depth")]
         pairs, tol = pair_by_time(*times, max_difference_s=max_difference_s,
                                   periods_s=tuple(1 / f if f else None for f in fps))
         self._fps_values = dict(zip(("Color", "Depth"), fps))
         super().__init__(path, rig, times[0], times[1], pairs, max_difference_s=tol, override=override,
-                         override_path=calib_path)
+                         override_path=calib_path,
+                         streams=RecordedStreams(shapes.get("Color"), shapes.get("Depth"), units))
+
+    def _calibration(self, conns: dict, path: str, units: float) -> Rig:
+        """The rig of the recording's camera_info and tf messages."""
+        infos, poses = {}, {}
+        for kind, conn in self._image.items():
+            base = conn.topic[: -len("image/data")]
+            infos[kind] = self._one(conns, base + "info/camera_info", path)
+            poses[kind] = self._one(conns, base + "tf/0", path)
+        return Rig(_intrinsics(infos["Color"], f"{path}: colour camera_info"),
+                   _intrinsics(infos["Depth"], f"{path}: depth camera_info"),
+                   _pose(poses["Color"]) @ np.linalg.inv(_pose(poses["Depth"])), depth_scale=units)
 
     def _messages(self, conn, start=None, stop=None):
         try:
@@ -137,10 +175,6 @@ class RealSenseBagSource(RecordingSource):
             return None
         fps = float(getattr(self._one(conns, topic, self._path), "fps", 0) or 0)
         return fps or None
-
-    def _stamp(self, conn, raw) -> float:
-        msg = self._reader.deserialize(raw, conn.msgtype)
-        return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
     def _image_msg(self, kind: str, i: int):
         conn, t = self._image[kind], self._bag_times[kind][i]

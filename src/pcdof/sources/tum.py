@@ -1,6 +1,6 @@
 """A TUM RGB-D folder: ``rgb.txt`` and ``depth.txt`` (``timestamp path`` lines), paired by nearest time.
 
-The pairing is TUM ``associate.py``'s, as :func:`pcdof.batch.inputs.discover` does it: each depth
+The pairing is TUM ``associate.py``'s, as :func:`pcdof.sources.discovery.discover` does it: each depth
 image used at most once, within *max_difference_s* (default 0.02 s). TUM depth PNGs hold 5000 units
 per metre: the depth scale is 0.0002 m unless the calibration file or the caller states another.
 """
@@ -32,7 +32,7 @@ class TumSource(FileSource):
     def open(cls, path, *, calib=None, depth_scale: float | None = None,
              max_difference_s: float | None = None) -> "TumSource":
         """Open the TUM folder *path* (or its ``rgb.txt`` / ``depth.txt``)."""
-        from ..batch.inputs import DEFAULT_MAX_DIFFERENCE_S
+        from .discovery import DEFAULT_MAX_DIFFERENCE_S
         from ..io._files import fspath
 
         path = fspath(path, name="path")

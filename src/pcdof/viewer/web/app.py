@@ -22,9 +22,9 @@ import sys
 
 import numpy as np
 
-from ...errors import ImageWriteError, InputError, PcdofError
-from ..html_export import page_title
+from ...errors import ImageWriteError, InputError, PcdofError, ServeError
 from ..actors import FocusScene
+from ..html_export import page_title
 from .session import ViewSession
 
 log = logging.getLogger("pcdof")
@@ -274,7 +274,19 @@ class WebViewer:
     # --- serving ------------------------------------------------------------------------------------
 
     def start(self, *, host: str = "127.0.0.1", port: int = 8080, **options) -> None:
-        """Serve until interrupted (blocks). ``host`` other than the loopback is logged as a warning."""
+        """Serve until interrupted (blocks). ``host`` other than the loopback is logged as a warning.
+
+        Raises
+        ------
+        InputError
+            *host* is not an address of this machine (:func:`pcdof.viewer.web.listen.check_listen_address`).
+        ServeError
+            The port is taken or needs privileges.
+        """
+        from .listen import check_listen_address, quiet_server_logs
+
+        check_listen_address(host, port)
+        quiet_server_logs()
         if host not in LOOPBACK_HOSTS:
             log.warning("serving on %s: anyone who can reach this machine on port %s can use the viewer", host, port)
         argv = sys.argv
@@ -282,5 +294,8 @@ class WebViewer:
         try:
             self.server.start(host=host, port=port, open_browser=False, show_connection_info=False, timeout=0,
                               **options)
+        except OSError as err:  # taken between the check and the start
+            raise ServeError(f"cannot listen on {host} port {port}: {err.strerror or err}; choose another "
+                             "with --port") from None
         finally:
             sys.argv = argv

@@ -1,0 +1,5 @@
+"""``python -m pcdof``: the ``pcdof`` command."""
+
+import pcdof_console
+
+pcdof_console.main()

@@ -77,6 +77,28 @@ for kind in WIDE_SCENES:
 print("rendered", len(os.listdir(out)), "frames")
 '''
 
+#: the timing program: median ms of pcdof.pipeline.run on the speed frames, after one warm-up run each
+TIMER = r'''
+import json, statistics, sys, time
+from pcdof import ThinLens
+from pcdof.pipeline import run
+from pcdof.synth import generate_scene
+
+spec = json.loads(sys.argv[1])
+out = {}
+for size in spec["speed_sizes"]:
+    sf = generate_scene("portrait", color_size=tuple(size), depth_size=(512, 424), seed=0)
+    lens = ThinLens(focal_length_mm=50.0, f_number=1.4, focus_distance_m=1.2)
+    run(sf.frame, lens)
+    times = []
+    for _ in range(spec["repeats"]):
+        t0 = time.perf_counter()
+        run(sf.frame, lens)
+        times.append((time.perf_counter() - t0) * 1e3)
+    out[f"{size[0]}x{size[1]}"] = statistics.median(times)
+print(json.dumps(out))
+'''
+
 
 def checkout(rev: str, where: Path) -> Path:
     """A folder holding revision *rev* ("." = the working tree as it is)."""
@@ -96,6 +118,26 @@ def render(tree: Path, out: Path, spec: str) -> None:
     env = {**os.environ, "PYTHONPATH": str(package_root(tree)), "PCDOF_ADAPT_THREADS": "0"}
     subprocess.run([sys.executable, "-c", WORKER, str(out), str(ROOT / "data"), spec], env=env, check=True,
                    cwd=str(out))
+
+
+def timed(trees, spec: str, rounds: int) -> None:
+    """Median pipeline ms of each tree in fresh processes, the trees alternated (ABBA...) *rounds* times; prints the
+    per-round medians and the median ratio after / before."""
+    import json
+
+    rows = {0: [], 1: []}
+    for r in range(rounds):
+        for i in ((0, 1) if r % 2 == 0 else (1, 0)):
+            env = {**os.environ, "PYTHONPATH": str(package_root(trees[i])), "PCDOF_ADAPT_THREADS": "0"}
+            done = subprocess.run([sys.executable, "-c", TIMER, spec], env=env, check=True, capture_output=True,
+                                  text=True)
+            rows[i].append(json.loads(done.stdout.strip().splitlines()[-1]))
+    for size in rows[0][0]:
+        before = [row[size] for row in rows[0]]
+        after = [row[size] for row in rows[1]]
+        ratios = [a / b for a, b in zip(after, before)]
+        print(f"{size}: before {np.median(before):.1f} ms, after {np.median(after):.1f} ms, "
+              f"after/before median {np.median(ratios):.3f} (rounds: {', '.join(f'{x:.2f}' for x in ratios)})")
 
 
 def compare(a: Path, b: Path) -> int:
@@ -129,11 +171,13 @@ def main(argv=None) -> int:
     ap.add_argument("--wide-seeds", default="100,101,102,103,104,105,106,107,108,109",
                     help="the wide benchmark's seeds to render (default: its reported seeds)")
     ap.add_argument("--quick", action="store_true", help="speed frames at 640x480 only")
+    ap.add_argument("--time", type=int, default=0, metavar="ROUNDS",
+                    help="also time the pipeline on the speed frames, the revisions alternated ROUNDS times")
     args = ap.parse_args(argv)
     import json
 
     spec = json.dumps({"speed_sizes": [[640, 480]] + ([] if args.quick else [[1920, 1080]]),
-                       "wide_seeds": [int(s) for s in args.wide_seeds.split(",") if s.strip()]})
+                       "wide_seeds": [int(s) for s in args.wide_seeds.split(",") if s.strip()], "repeats": 9})
     with tempfile.TemporaryDirectory(prefix="pcdof-compare-") as tmp:
         tmp = Path(tmp)
         trees = []
@@ -143,7 +187,10 @@ def main(argv=None) -> int:
                 trees.append(tree)
                 print(f"{label}: {rev}: rendering ...", flush=True)
                 render(tree, tmp / label, spec)
-            return compare(tmp / "before", tmp / "after")
+            status = compare(tmp / "before", tmp / "after")
+            if args.time:
+                timed(trees, spec, args.time)
+            return status
         finally:
             for tree in trees:
                 if tree != ROOT:

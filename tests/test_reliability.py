@@ -41,9 +41,9 @@ from conftest import pcdof_command, run_pcdof
 
 from pcdof.camera import Intrinsics, Rig
 from pcdof.errors import (EXIT_CODES, CalibrationError, ImageReadError, ImageWriteError, InputError, LensError,
+                          OutputInUseError, PcdofError, is_out_of_memory, one_line)
 
 pytestmark = pytest.mark.subprocess  # most tests here run pcdof in a child process
-                          OutputInUseError, PcdofError, is_out_of_memory, one_line)
 
 W, H = 24, 18
 INPUT = EXIT_CODES[InputError]

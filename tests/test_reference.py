@@ -26,9 +26,9 @@ from pcdof.camera import Intrinsics, Rig
 from pcdof.color import decode_to_linear
 from pcdof.lens import PaperLens, ThinLens
 from pcdof.plans import plan_render
-from pcdof.reference import coc as ref_coc
 from pcdof.reference import fill as ref_fill
 from pcdof.reference import render as ref_render
+from pcdof.stages.coc import reference as ref_coc
 from pcdof.stages.register import reference as ref_register
 from pcdof.stages.register import reproject_depth
 from pcdof.tiles import TileMap, classify_tiles

@@ -7,7 +7,8 @@ no tiles, no reduced resolution, no threads). They are slow on purpose and meant
 
 - :mod:`pcdof.stages.register.reference`: depth into the colour camera (per-triangle z-buffer; kept with its stage)
 - :mod:`pcdof.reference.fill`: directional hole filling, per hole pixel
-- :mod:`pcdof.reference.coc`: thin-lens signed circle of confusion; the seed paper's eq. 1 / eq. 2 weights
+- :mod:`pcdof.stages.coc.reference`: thin-lens signed circle of confusion; the seed paper's eq. 1 / eq. 2 weights
+  (kept with its stage)
 - :mod:`pcdof.reference.render`: physical renderer (exact per-source scatter, layered compositing) and the
   seed paper's method
 """

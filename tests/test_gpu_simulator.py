@@ -198,7 +198,7 @@ def _holes(depth, rng):
 def test_fill_matches_reference():
     from pcdof.color import to_float
     from pcdof.gpu.fill import fill_depth
-    from pcdof.reference.fill import fill_directional
+    from pcdof.stages.fill.reference import fill_directional
 
     frame, _ = _frame()
     rng = np.random.default_rng(3)
@@ -269,7 +269,7 @@ def test_pipeline_on_the_gpu_matches_the_references_chained():
     from pcdof.options import RenderOptions
     from pcdof.pipeline import RenderResult
     from pcdof.stages.coc.reference import signed_coc_px
-    from pcdof.reference.fill import fill_directional
+    from pcdof.stages.fill.reference import fill_directional
     from pcdof.stages.register.reference import reproject_depth
     from pcdof.reference.render import render_physical
 

@@ -54,7 +54,7 @@ class RenderOptions:
     device: str = "auto"
 
     def __post_init__(self) -> None:
-        from .fill import check_fill_method
+        from .stages.fill import check_fill_method
         from .renderer import check_method, check_quality
 
         if not isinstance(self.lens, (ThinLens, PaperLens)):

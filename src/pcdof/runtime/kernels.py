@@ -24,7 +24,9 @@ import time
 STAGES = {
     "register": (("pcdof.stages.register",), ("pcdof.stages.register.project", "pcdof.stages.register.raster",
                                              "pcdof.distortion")),
-    "fill": (("pcdof.fill",), ("pcdof.fill",)),
+    "fill": (("pcdof.stages.fill",), ("pcdof.stages.fill.index", "pcdof.stages.fill.boundary",
+                                      "pcdof.stages.fill.combine", "pcdof.stages.fill.cleanup",
+                                      "pcdof.stages.fill.inputs")),
     "render": (("pcdof.renderer", "pcdof.tiles"), ("pcdof.renderer", "pcdof.tiles", "pcdof.lens", "pcdof.color")),
 }
 

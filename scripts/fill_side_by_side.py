@@ -88,8 +88,8 @@ def real_frames():
 
 def pipeline_runs(before, size) -> dict:
     """The whole pipeline on the speed frame at *size*, its fill stage with the fill of *before* or the current
-    one (pcdof.pipeline.fill_stage imports fill_depth, needs_fill and plan_fill from pcdof.fill when it runs)."""
-    import pcdof.fill as now
+    one (the fill stage imports fill_depth, needs_fill and plan_fill from pcdof.stages.fill when it runs)."""
+    import pcdof.stages.fill as now
     import pcdof.pipeline as pipeline
     from pcdof.synth import generate_scene
 
@@ -141,7 +141,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
 
-    from pcdof import fill as now
+    from pcdof.stages import fill as now
 
     before = load_fill(args.before)
     frames = {size: speed_frame(size) for size in sizes}

@@ -7,18 +7,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pcdof.errors import InputError
-from pcdof.fill import (
-    _DIRS,
-    _HALF,
-    FILL_METHODS,
-    HOLE,
-    INSIDE,
-    _index,
-    _sweep,
-    fill_depth,
-    fill_telea,
-    needs_fill,
-)
+from pcdof.stages.fill import FILL_METHODS, fill_depth, fill_telea, needs_fill
+from pcdof.stages.fill.boundary import sweep
+from pcdof.stages.fill.index import index_depth
+from pcdof.stages.fill.rules import DIRS, HALF, HOLE, INSIDE
 
 H, W = 120, 160
 WALL_M, BOX_M = 3.0, 1.5
@@ -198,8 +190,8 @@ class TestSmoothSurfaces:
 def brute_force_candidate(known, y, x, k):
     """Walk the Bresenham line of direction k from (y, x) until a known pixel; (y, x) or None."""
     H_, W_ = known.shape
-    dx, dy = _DIRS[k]
-    hx, hy = _HALF[k]
+    dx, dy = DIRS[k]
+    hx, hy = HALF[k]
     while True:
         if hx or hy:
             if 0 <= y + hy < H_ and 0 <= x + hx < W_ and known[y + hy, x + hx]:
@@ -218,7 +210,7 @@ def test_sweep_matches_brute_force(seed, density):
     depth = np.where(rng.random((13, 19)) < density, 1.0, 0.0).astype(np.float32)
     if depth.all():
         depth[0, 0] = 0
-    code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = _index(depth)
+    code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = index_depth(depth)
     assert zmin == zmax == 1.0 and np.array_equal(np.diff(row_start), (depth == 0).sum(axis=1))
     known = depth > 0
     assert np.array_equal(np.nonzero(~known), (hole_y, hole_x))
@@ -230,9 +222,9 @@ def test_sweep_matches_brute_force(seed, density):
     expect = np.where(known, HOLE + 1, HOLE)
     expect[b_y, b_x] = np.arange(b_y.size)
     assert HOLE + 1 == INSIDE and np.array_equal(code, expect)
-    cand = _sweep(code, hole_x, row_start, _DIRS, _HALF)
+    cand = sweep(code, hole_x, row_start, DIRS, HALF)
     for h in range(hole_y.size):
-        for k in range(len(_DIRS)):
+        for k in range(len(DIRS)):
             expect = brute_force_candidate(known, int(hole_y[h]), int(hole_x[h]), k)
             got = None if cand[k, h] < 0 else (int(b_y[cand[k, h]]), int(b_x[cand[k, h]]))
             assert got == expect
@@ -269,14 +261,15 @@ def test_parallel_kernels_match_serial(method):
 
 class TestPlan:
     def test_chosen_from_holes_and_overridable(self):
-        from pcdof.fill import _PARALLEL_MIN_HOLES, plan_fill
+        from pcdof.stages.fill import plan_fill
+        from pcdof.stages.fill.plan import PARALLEL_MIN_HOLES
 
         few = np.ones((10, 10), np.float32)
         few[2, 2] = 0
         assert plan_fill(few).threads == 1 and "1 holes" in plan_fill(few).describe()
         many = np.zeros((200, 200), np.float32)
         many[0, 0] = 1
-        assert many.size - 1 >= _PARALLEL_MIN_HOLES
+        assert many.size - 1 >= PARALLEL_MIN_HOLES
         import numba
 
         assert plan_fill(many).threads == numba.get_num_threads()
@@ -284,7 +277,7 @@ class TestPlan:
         assert plan_fill(few, parallel=True).threads == numba.get_num_threads()
 
     def test_invalid(self):
-        from pcdof.fill import plan_fill
+        from pcdof.stages.fill import plan_fill
 
         with pytest.raises(InputError, match="parallel"):
             plan_fill(np.ones((2, 2)), parallel="yes")

@@ -9,7 +9,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pcdof.fill import BORDER, _fill_directional, fill_depth
+from pcdof.stages.fill import BORDER, fill_depth
+from pcdof.stages.fill.directional import fill_directional
 
 REAL = Path(__file__).resolve().parents[1] / "data" / "real"
 EDGE_RATIO = 0.04  # the default: two depths further apart than this (relative) are two surfaces
@@ -156,8 +157,8 @@ def test_border_bands_are_held(seed, sides, width):
            "t": (slice(0, width), slice(None)), "b": (slice(h - width, h), slice(None))}
     for s in sides:
         depth[cut[s]] = 0
-    out, kind = _fill_directional(depth, color, use_color=True, edge_ratio=EDGE_RATIO, sigma_color=0.04,
-                                  background_bias=6.0, with_kinds=True, border=border)
+    out, kind = fill_directional(depth, color, use_color=True, edge_ratio=EDGE_RATIO, sigma_color=0.04,
+                                 background_bias=6.0, with_kinds=True, border=border)
     hy, hx = np.nonzero(depth == 0)
     y_in, x_in = max(("t" in sides) * width, 0), max(("l" in sides) * width, 0)
     y_out, x_out = h - 1 - ("b" in sides) * width, w - 1 - ("r" in sides) * width
@@ -202,7 +203,7 @@ def test_narrow_gap_is_one_surface(seed, gap, thick):
 def test_lost_pixels_take_the_nearest_straight_pixel(h, w, seed):
     """Lost pixels (rows without a known pixel crossed with columns without one) take the nearest pixel
     that is not lost, Euclidean, ties up, left, down, right: checked against a brute-force search."""
-    from pcdof.fill import _nearest_not_lost
+    from pcdof.stages.fill.lost import nearest_not_lost
 
     rng = np.random.default_rng(seed)
     rows, cols = rng.random(h) < 0.5, rng.random(w) < 0.5
@@ -211,7 +212,7 @@ def test_lost_pixels_take_the_nearest_straight_pixel(h, w, seed):
         rows[rng.integers(h)] = False
         lost = rows[:, None] & cols[None, :]
     depth = rng.uniform(0.5, 5.0, (h, w)).astype(np.float32)
-    got = _nearest_not_lost(depth, lost)
+    got = nearest_not_lost(depth, lost)
     ny, nx = np.nonzero(~lost)
     order = {(-1, 0): 0, (0, -1): 1, (1, 0): 2, (0, 1): 3}
     for y, x in zip(*np.nonzero(lost)):
@@ -227,8 +228,8 @@ def test_lost_pixels_take_the_nearest_straight_pixel(h, w, seed):
 def test_lost_pixels_blend_the_nearest_straight_pixels(h, w, seed):
     """With the rules "candidates" and "extend", lost pixels take 1/d weights on 1/z of the nearest pixels that
     are not lost up, left, down and right: the fast searches against the reference's walks."""
-    from pcdof.fill import _blend_not_lost
-    from pcdof.reference.fill import blend_not_lost
+    from pcdof.stages.fill.lost import blend_not_lost
+    from pcdof.stages.fill import reference
 
     rng = np.random.default_rng(seed)
     rows, cols = rng.random(h) < 0.5, rng.random(w) < 0.5
@@ -237,7 +238,7 @@ def test_lost_pixels_blend_the_nearest_straight_pixels(h, w, seed):
         rows[rng.integers(h)] = False
         lost = rows[:, None] & cols[None, :]
     depth = rng.uniform(0.5, 5.0, (h, w)).astype(np.float32)
-    got = _blend_not_lost(depth, lost)
+    got = blend_not_lost(depth, lost)
     for y, x in zip(*np.nonzero(lost)):
-        assert got[y, x] == pytest.approx(blend_not_lost(depth, lost, y, x), rel=1e-6)
+        assert got[y, x] == pytest.approx(reference.blend_not_lost(depth, lost, y, x), rel=1e-6)
     np.testing.assert_array_equal(got[~lost], depth[~lost])

@@ -1,6 +1,6 @@
 """The fill's colour vote skips a nearer surface only when it cannot win: its score, every colour similarity 1
-(:func:`pcdof.fill._support_bound`), is no more than the best so far. The bound holds bit for bit (the score's
-terms are rounded alike and summed in the same order), so the fill is the one that samples every surface;
+(:func:`pcdof.stages.fill.surfaces.support_bound`), is no more than the best so far. The bound holds bit for bit
+(the score's terms are rounded alike and summed in the same order), so the fill is the one that samples every surface;
 ``tests/test_reference.py`` compares the whole fill with the per-pixel reference."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pcdof import fill
+from pcdof.stages.fill.surfaces import support_bound
 
 
 @settings(max_examples=200, deadline=None)
@@ -23,9 +23,9 @@ def test_no_score_exceeds_the_bound(seed, m, support):
     sims = rng.random(m)
     sims[rng.random(m) < 0.3] = 1.0  # exact matches give the largest similarity
     score = 0.0
-    for i in range(start, end):  # as pcdof.fill._choose_surface sums it
+    for i in range(start, end):  # as pcdof.stages.fill.surfaces.choose_surface sums it
         score += sims[order[i]] / (r[order[i]] + support)
-    bound = fill._support_bound(r, order, start, end, support)
+    bound = support_bound(r, order, start, end, support)
     assert score <= bound
     for bias in (1.0, 6.0, 36.0):
         assert score / bias <= bound / bias

@@ -20,9 +20,19 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from numba import njit
 
-from pcdof import fill
 from pcdof.camera import as_depth_m
-from pcdof.fill import BORDER, GAP, LOST, SURFACE, _color_sim  # the similarity itself is unchanged
+from pcdof.runtime.kernels import read_only
+from pcdof.runtime.threads import numba_threads
+from pcdof.stages.fill import (BORDER, BORDER_RULES, DEFAULT_BACKGROUND_BIAS, DEFAULT_BORDER, DEFAULT_EDGE_RATIO,
+                               DEFAULT_SIGMA_COLOR, GAP, LOST, SURFACE)
+from pcdof.stages.fill.boundary import fit_boundary, sweep
+from pcdof.stages.fill.cleanup import despeckle
+from pcdof.stages.fill.combine import combine
+from pcdof.stages.fill.index import index_depth
+from pcdof.stages.fill.inputs import color_for_kernel, prepare
+from pcdof.stages.fill.rules import DIRS, FIT_RADIUS_STEPS, HALF, HOLE, Boundary, Holes, kernel_rules
+from pcdof.stages.fill.surfaces import border_inv, collect_candidates, gap_depth, sort_far_to_near, support_bound
+from pcdof.stages.fill.surfaces import color_sim  # the similarity itself is unchanged
 
 # ---------------------------------------------------------------------------------------------
 # the plain formulations
@@ -42,7 +52,7 @@ def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, 
     end0 = 1
     while end0 < m and z[end0 - 1] - z[end0] <= rules.edge_ratio * z[end0 - 1]:
         end0 += 1
-    kind = GAP if rules.use_color and fill._gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
+    kind = GAP if rules.use_color and gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
     bias = bias0 * bias0 if kind == GAP else bias0
     c0 = float(color[py, px, 0]) if rules.use_color else 0.0
     c1 = float(color[py, px, 1]) if rules.use_color else 0.0
@@ -55,7 +65,7 @@ def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, 
         while end < m and z[end - 1] - z[end] <= rules.edge_ratio * z[end - 1]:
             end += 1
         if rules.use_color and start > 0 and \
-                fill._support_bound(r, order, start, end, rules.support_px) / bias <= best_score:
+                support_bound(r, order, start, end, rules.support_px) / bias <= best_score:
             start = end
             continue
         score = 0.0
@@ -67,8 +77,8 @@ def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, 
                 k = kq[j]
                 ux = rules.step if dirs[k, 0] > 0 else (-rules.step if dirs[k, 0] < 0 else 0)
                 uy = rules.step if dirs[k, 1] > 0 else (-rules.step if dirs[k, 1] < 0 else 0)
-                sim = _color_sim(color, depth, c0, c1, c2, bnd.y[qs[j]], bnd.x[qs[j]], uy, ux,
-                                       rules.n_samples, rules.inv_two_sigma2)
+                sim = color_sim(color, depth, c0, c1, c2, bnd.y[qs[j]], bnd.x[qs[j]], uy, ux,
+                                rules.n_samples, rules.inv_two_sigma2)
                 score += sim / (r[j] + rules.support_px)
             sw += 1.0 / r[j]
             swi += iv[j] / r[j]
@@ -97,7 +107,7 @@ def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
         py = holes.y[h]
         px = holes.x[h]
         r_near[h] = 0.0
-        inv, r_border = fill._border_inv(holes, bnd, h, rules)
+        inv, r_border = border_inv(holes, bnd, h, rules)
         outside = inv >= 0.0
         if outside and rules.border == 0:  # "candidates": from the candidates, with the border's bias
             inv = -1.0
@@ -106,7 +116,7 @@ def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
             if rules.border_median:
                 r_near[h] = r_border
         else:
-            m = fill._candidates(holes, bnd, h, rules, iv, r, kq, qs, slot)
+            m = collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot)
             if m == 0:
                 kind[h] = LOST
                 continue
@@ -191,16 +201,16 @@ def _frame(rng, h, w, levels, hole_frac, grey, colours=None, noise=40):
     return depth, color
 
 
-def _kernel_inputs(depth, color, *, edge_ratio, sigma_color, bias, use_color, sixteen_bit, border=fill.DEFAULT_BORDER):
-    depth, color, _, _, _ = fill._prepare(depth, color, need_color=True)
-    guide, unit = fill._color_for_kernel(color.astype(np.uint16) * 257 if sixteen_bit else color)
-    depth, guide = fill.read_only(depth), fill.read_only(guide)
-    code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = fill._index(depth)
-    rules = fill._rules(depth.shape, use_color=use_color, unit=unit, edge_ratio=edge_ratio, sigma_color=sigma_color,
-                        background_bias=bias, zmin=zmin, zmax=zmax, border=border)
-    holes = fill._Holes(hole_y, hole_x, fill._sweep(code, hole_x, row_start, fill._DIRS, fill._HALF))
-    bnd = fill._Boundary(b_y, b_x, np.empty((b_y.size, 3)))
-    fill._fit_boundary(depth, b_y, b_x, fill._FIT_RADIUS_STEPS * rules.step, rules.step, edge_ratio, bnd.plane)
+def _kernel_inputs(depth, color, *, edge_ratio, sigma_color, bias, use_color, sixteen_bit, border=DEFAULT_BORDER):
+    depth, color, _, _, _ = prepare(depth, color, need_color=True)
+    guide, unit = color_for_kernel(color.astype(np.uint16) * 257 if sixteen_bit else color)
+    depth, guide = read_only(depth), read_only(guide)
+    code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = index_depth(depth)
+    rules = kernel_rules(depth.shape, use_color=use_color, unit=unit, edge_ratio=edge_ratio, sigma_color=sigma_color,
+                         background_bias=bias, zmin=zmin, zmax=zmax, border=border)
+    holes = Holes(hole_y, hole_x, sweep(code, hole_x, row_start, DIRS, HALF))
+    bnd = Boundary(b_y, b_x, np.empty((b_y.size, 3)))
+    fit_boundary(depth, b_y, b_x, FIT_RADIUS_STEPS * rules.step, rules.step, edge_ratio, bnd.plane)
     return depth, guide, holes, bnd, rules
 
 
@@ -208,7 +218,7 @@ def _run_combine(fn, depth, guide, holes, bnd, rules):
     out = depth.copy()
     r_near = np.full(holes.y.size, np.nan)
     kind = np.full(holes.y.size, -1, np.int8)
-    fn(depth, guide, holes, bnd, fill._DIRS, rules, out, r_near, kind)
+    fn(depth, guide, holes, bnd, DIRS, rules, out, r_near, kind)
     return out, r_near, kind
 
 
@@ -222,7 +232,7 @@ def _run_combine(fn, depth, guide, holes, bnd, rules):
        sigma_color=st.sampled_from([0.01, 0.04, 0.3, 3.0]), bias=st.sampled_from([1.0, 1.5, 6.0, 40.0]),
        use_color=st.booleans(), grey=st.booleans(), colours=st.sampled_from([None, 1, 2]),
        noise=st.sampled_from([0, 3, 40]), sixteen_bit=st.booleans(), parallel=st.booleans(),
-       border=st.sampled_from(fill.BORDER_RULES))
+       border=st.sampled_from(BORDER_RULES))
 def test_combine_matches_the_plain_vote(seed, h, w, levels, hole_frac, edge_ratio, sigma_color, bias, use_color, grey,
                                         colours, noise, sixteen_bit, parallel, border):
     depth, color = _frame(np.random.default_rng(seed), h, w, levels, hole_frac, grey, colours, noise)
@@ -230,8 +240,8 @@ def test_combine_matches_the_plain_vote(seed, h, w, levels, hole_frac, edge_rati
         depth[h // 2, w // 2] = 0
     args = _kernel_inputs(depth, color, edge_ratio=edge_ratio, sigma_color=sigma_color, bias=bias,
                           use_color=use_color, sixteen_bit=sixteen_bit, border=border)
-    with fill._threads(numba.get_num_threads() if parallel else 1):
-        fast = _run_combine(fill._combine, *args)
+    with numba_threads(numba.get_num_threads() if parallel else 1):
+        fast = _run_combine(combine, *args)
     plain = _run_combine(_plain_combine, *args)
     for a, b in zip(fast, plain):
         assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True)
@@ -243,10 +253,10 @@ def test_combine_matches_the_plain_vote_on_a_synthetic_frame():
     from pcdof.synth import generate_scene
 
     sf = generate_scene("portrait", color_size=(320, 240), depth_size=(256, 212), seed=3)
-    args = _kernel_inputs(register_depth(sf.frame), sf.frame.color, edge_ratio=fill.DEFAULT_EDGE_RATIO,
-                          sigma_color=fill.DEFAULT_SIGMA_COLOR, bias=fill.DEFAULT_BACKGROUND_BIAS, use_color=True,
+    args = _kernel_inputs(register_depth(sf.frame), sf.frame.color, edge_ratio=DEFAULT_EDGE_RATIO,
+                          sigma_color=DEFAULT_SIGMA_COLOR, bias=DEFAULT_BACKGROUND_BIAS, use_color=True,
                           sixteen_bit=False)
-    fast, plain = _run_combine(fill._combine, *args), _run_combine(_plain_combine, *args)
+    fast, plain = _run_combine(combine, *args), _run_combine(_plain_combine, *args)
     assert np.count_nonzero(fast[2] == SURFACE) > 1000
     for a, b in zip(fast, plain):
         assert np.array_equal(a, b)
@@ -259,7 +269,7 @@ def test_rank_sort_matches_insertion_sort(m, seed, distinct):
     values = rng.uniform(0.1, 3.0, distinct)
     iv = values[rng.integers(0, distinct, m)]  # ties: equal depths keep their order
     zu, z, order = np.empty(16), np.full(16, np.nan), np.full(16, -1)
-    fill._sort_far_to_near(iv, m, zu, z, order)
+    sort_far_to_near(iv, m, zu, z, order)
     want_z, want_order = _insertion_sort(iv)
     assert np.array_equal(z[:m], want_z) and np.array_equal(order[:m], want_order)
 
@@ -272,7 +282,7 @@ def test_index_matches_numpy(seed, h, w, hole_frac):
     with np.errstate(over="ignore"):  # 3e38 may become inf: known, the largest
         depth *= rng.uniform(0.5, 1.5, (h, w)).astype(np.float32)
     depth[rng.random((h, w)) < hole_frac] = rng.choice(np.array([0.0, -0.0, -1.0, np.nan, -np.inf], np.float32))
-    code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = fill._index(depth)
+    code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = index_depth(depth)
     known = depth > 0
     assert np.array_equal(np.nonzero(~known), (hole_y, hole_x))
     assert np.array_equal(row_start, np.concatenate([[0], np.cumsum((~known).sum(axis=1))]))
@@ -280,7 +290,7 @@ def test_index_matches_numpy(seed, h, w, hole_frac):
         assert (zmin, zmax) == (depth[known].min(), depth[known].max())
     else:
         assert (zmin, zmax) == (np.inf, -np.inf)
-    assert np.array_equal(code == fill.HOLE, ~known)
+    assert np.array_equal(code == HOLE, ~known)
     assert np.array_equal(code[b_y, b_x], np.arange(b_y.size))
 
 
@@ -295,7 +305,7 @@ def test_despeckle_matches_sorting_every_hole(seed, h, w, n, edge_ratio):
     hole_y, hole_x = (flat // w).astype(np.int64), (flat % w).astype(np.int64)
     want = _plain_despeckle(out, hole_y, hole_x, edge_ratio)
     got = out.copy()
-    fill._despeckle(got, hole_y, hole_x, edge_ratio)
+    despeckle(got, hole_y, hole_x, edge_ratio)
     assert np.array_equal(got, want)
 
 
@@ -310,7 +320,7 @@ def test_prepared_depth_matches_as_depth_m(layout, seed, h, w):
              "int": np.clip(np.nan_to_num(depth, posinf=9, neginf=-9), -9, 9).astype(np.int32)}[layout]
     want, _ = as_depth_m(depth)
     holes = int(want.size - np.count_nonzero(want > 0))
-    got, _, n_holes, done, out = fill._prepare(depth, None, need_color=False)
+    got, _, n_holes, done, out = prepare(depth, None, need_color=False)
     assert np.array_equal(got.view(np.uint32), want.view(np.uint32)) and n_holes == holes
     assert (done is got) == (holes == 0)
     if out is not None:

@@ -110,7 +110,7 @@ def test_cli_part_writes_its_section(tmp_path):
 
 
 def test_fill_trace_says_what_the_border_rule_assumes():
-    from pcdof.fill import BORDER_ASSUMPTIONS, DEFAULT_BORDER, plan_fill
+    from pcdof.stages.fill import BORDER_ASSUMPTIONS, DEFAULT_BORDER, plan_fill
 
     text = plan_fill(np.array([[1.0, 0.0]], np.float32)).describe()
     assert f"border {DEFAULT_BORDER}: {BORDER_ASSUMPTIONS[DEFAULT_BORDER]}" in text

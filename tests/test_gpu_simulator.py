@@ -146,7 +146,7 @@ def _frame(distorted=False):
 def test_coc_matches_reference():
     from pcdof.gpu.coc import coc_maps
     from pcdof.lens import ThinLens
-    from pcdof.reference.coc import signed_coc_px
+    from pcdof.stages.coc.reference import signed_coc_px
 
     rng = np.random.default_rng(0)
     depth = rng.uniform(0.3, 8.0, (12, 16)).astype(np.float32)
@@ -198,7 +198,7 @@ def _holes(depth, rng):
 def test_fill_matches_reference():
     from pcdof.color import to_float
     from pcdof.gpu.fill import fill_depth
-    from pcdof.reference.fill import fill_directional
+    from pcdof.stages.fill.reference import fill_directional
 
     frame, _ = _frame()
     rng = np.random.default_rng(3)
@@ -268,8 +268,8 @@ def test_pipeline_on_the_gpu_matches_the_references_chained():
     from pcdof.gpu.api import run
     from pcdof.options import RenderOptions
     from pcdof.pipeline import RenderResult
-    from pcdof.reference.coc import signed_coc_px
-    from pcdof.reference.fill import fill_directional
+    from pcdof.stages.coc.reference import signed_coc_px
+    from pcdof.stages.fill.reference import fill_directional
     from pcdof.stages.register.reference import reproject_depth
     from pcdof.stages.render.reference import render_physical
 
@@ -344,7 +344,7 @@ def test_highlights_and_paper_paths():
     from pcdof.stages.highlights import prepare_highlights, reconstruct_prepared
     from pcdof.lens import PaperLens, ThinLens
     from pcdof.options import RenderOptions
-    from pcdof.reference.coc import signed_coc_px
+    from pcdof.stages.coc.reference import signed_coc_px
     from pcdof.stages.render.reference import render_layers_linear
     from pcdof.stages.render import render_image
 

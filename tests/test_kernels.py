@@ -44,7 +44,8 @@ class TestReadOnly:
     def test_fill_compiles_one_type_per_colour_path(self):
         """Writable, read-only, grey and every colour dtype share two kernel types (uint8, float64), all
         read-only; the results are the same whatever the caller's array flags."""
-        from pcdof.fill import _combine, fill_joint_bilateral
+        from pcdof.stages.fill import fill_joint_bilateral
+        from pcdof.stages.fill.combine import combine
 
         rng = np.random.default_rng(3)
         depth = rng.uniform(1.0, 3.0, (12, 16)).astype(np.float32)
@@ -59,10 +60,10 @@ class TestReadOnly:
         for c in (color[:, :, 0], color.astype(np.uint16) * 257, color.astype(np.float32) / 255,
                   color.astype(np.float16) / 255, color.astype(np.float64) / 255):
             assert fill_joint_bilateral(depth, c).shape == depth.shape
-        colour_types = {sig[1] for sig in _combine.signatures}
+        colour_types = {sig[1] for sig in combine.signatures}
         assert {t.dtype.name for t in colour_types} <= {"uint8", "float64"}
         assert all(not t.mutable and t.layout == "C" for t in colour_types)
-        assert all(not sig[0].mutable for sig in _combine.signatures)  # the depth too
+        assert all(not sig[0].mutable for sig in combine.signatures)  # the depth too
 
     def test_coc_and_tiles_take_read_only_inputs(self):
         from pcdof.lens import ThinLens, _signed_coc
@@ -182,13 +183,15 @@ class TestColdCache:
 
     @pytest.mark.slow
     def test_fill_compiles_once_with_progress(self, tmp_path):
-        """A real compile of one stage into an empty cache: progress on stderr, then a warm cache, silent."""
+        """A real compile of one stage into an empty cache at the caller's boundary: progress on stderr, then a
+        warm cache, silent."""
         code = """
             import numpy as np
-            from pcdof.fill import fill_depth
+            from pcdof.runtime import kernels
+            from pcdof.stages.fill import fill_depth
+            kernels.ensure_warm(stages=["fill"])
             d = np.array([[1.0, 0.0, 2.0]], np.float32)
             print(fill_depth(d, np.zeros((1, 3, 3), np.uint8)).tolist())
-            from pcdof.runtime import kernels
             print(kernels.cold_stages(["fill"]))
         """
         env = {"NUMBA_CACHE_DIR": str(tmp_path)}
@@ -272,7 +275,7 @@ RENDER_KERNEL_MODULES = tuple(f"pcdof.stages.render.{m}" for m in
 @pytest.mark.parametrize("warm_module,module_names", [
     ("pcdof.stages.render", RENDER_KERNEL_MODULES),
     ("pcdof.stages.register", ("pcdof.stages.register.project", "pcdof.stages.register.raster")),
-    ("pcdof.fill", ("pcdof.fill",))])
+    ("pcdof.stages.fill", kernels.STAGES["fill"][1])])
 def test_stage_warmup_reaches_every_kernel_of_its_module(warm_module, module_names):
     """A stage's warm-up takes every path of its modules, so a first frame never compiles a kernel silently."""
     import importlib

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from pcdof.camera import RGBDFrame
 from pcdof.cli import main
 from pcdof.errors import InputError, LensError
-from pcdof.fill import fill_depth
+from pcdof.stages.fill import fill_depth
 from pcdof.stages.register.guided import coarse_depth_scale, open_coarse_edges, open_depth_edges
 from pcdof.lens import ThinLens
 from pcdof.pipeline import prepare_depth

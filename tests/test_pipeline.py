@@ -42,7 +42,7 @@ class TestSkipping:
         np.testing.assert_array_equal(res.depth_registered_m, two_planes())
 
     def test_no_holes_no_fill(self, monkeypatch):
-        import pcdof.fill as fill_module
+        import pcdof.stages.fill as fill_module
 
         monkeypatch.setattr(fill_module, "fill_depth", lambda *a, **k: (_ for _ in ()).throw(AssertionError))
         res = run(frame_with(two_planes()), ThinLens(50, 2, 1.0))

@@ -203,9 +203,9 @@ def test_a_failure_on_the_worker_is_raised_in_the_callers_thread(monkeypatch):
 
 def test_the_fill_kernels_release_the_gil():
     """The fill runs while the worker does: its kernels must not hold the GIL (numba's nogil)."""
-    from pcdof.runtime.kernels import _cached_dispatchers
+    from pcdof.runtime.kernels import STAGES, _cached_dispatchers
 
-    kernels = _cached_dispatchers("pcdof.fill")
-    assert {k.__name__ for k in kernels} >= {"_index", "_sweep", "_fit_boundary", "_combine", "_despeckle",
-                                             "_median_far"}
+    kernels = [k for module in STAGES["fill"][1] for k in _cached_dispatchers(module)]
+    assert {k.__name__ for k in kernels} >= {"index_depth", "sweep", "fit_boundary", "combine", "despeckle",
+                                             "median_far"}
     assert all(k.targetoptions.get("nogil") for k in kernels), [k.__name__ for k in kernels]

@@ -1,4 +1,4 @@
-"""Every fast path of every stage against the plain reference of :mod:`pcdof.reference`.
+"""Every fast path of every stage against the plain reference of its stage (``reference.py``).
 
 The references are whole-frame numpy code stating each stage's rules; the fast paths (numba kernels,
 threads, tiles, block and scanline rasterisation, reduced-resolution layers, convolution of uniform
@@ -21,14 +21,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pcdof.metrics import psnr
-from pcdof import fill as fast_fill
+from pcdof.stages import fill as fast_fill
+from pcdof.stages.fill.directional import fill_directional
 import pcdof.stages.render as renderer
 from pcdof.camera import Intrinsics, Rig
 from pcdof.color import decode_to_linear
 from pcdof.lens import PaperLens, ThinLens
 from pcdof.plans import plan_render
-from pcdof.reference import coc as ref_coc
-from pcdof.reference import fill as ref_fill
+from pcdof.stages.coc import reference as ref_coc
+from pcdof.stages.fill import reference as ref_fill
 from pcdof.stages.register import reference as ref_register
 from pcdof.stages.register import reproject_depth
 from pcdof.stages.render import reference as ref_render
@@ -212,10 +213,10 @@ def _assert_fill_matches(out, ref):
 FILL_PATHS = {
     "public": lambda d, c, use_color: fast_fill.FILL_METHODS["joint-bilateral" if use_color else "nearest-background"](
         d, (c * 255).round().astype(np.uint8) if use_color else None),
-    "serial": lambda d, c, use_color: fast_fill._fill_directional(
+    "serial": lambda d, c, use_color: fill_directional(
         d, c, use_color=use_color, edge_ratio=fast_fill.DEFAULT_EDGE_RATIO, sigma_color=fast_fill.DEFAULT_SIGMA_COLOR,
         background_bias=fast_fill.DEFAULT_BACKGROUND_BIAS, parallel=False),
-    "parallel": lambda d, c, use_color: fast_fill._fill_directional(
+    "parallel": lambda d, c, use_color: fill_directional(
         d, c, use_color=use_color, edge_ratio=fast_fill.DEFAULT_EDGE_RATIO, sigma_color=fast_fill.DEFAULT_SIGMA_COLOR,
         background_bias=fast_fill.DEFAULT_BACKGROUND_BIAS, parallel=True),
 }
@@ -316,7 +317,8 @@ def _one_row(rng, h=1, w=40):
     return depth, color
 
 
-#: adversarial fill frames by name, and the kinds of hole (pcdof.fill's classification, with colour) each must have
+#: adversarial fill frames by name, and the kinds of hole (pcdof.stages.fill's classification, with colour) each
+#: must have
 FILL_CASES = {
     "lone-known-pixel": (_lone_known_pixel, {fast_fill.BORDER, fast_fill.LOST}),
     "known-border-only": (_known_border_only, {fast_fill.SURFACE}),
@@ -336,9 +338,9 @@ FILL_CASES = {
 def test_fill_adversarial_frames_match_reference(case, use_color, path):
     build, kinds = FILL_CASES[case]
     depth, color = build(np.random.default_rng(5))
-    _, kind = fast_fill._fill_directional(depth, color, use_color=True, edge_ratio=fast_fill.DEFAULT_EDGE_RATIO,
-                                          sigma_color=fast_fill.DEFAULT_SIGMA_COLOR,
-                                          background_bias=fast_fill.DEFAULT_BACKGROUND_BIAS, with_kinds=True)
+    _, kind = fill_directional(depth, color, use_color=True, edge_ratio=fast_fill.DEFAULT_EDGE_RATIO,
+                               sigma_color=fast_fill.DEFAULT_SIGMA_COLOR,
+                               background_bias=fast_fill.DEFAULT_BACKGROUND_BIAS, with_kinds=True)
     assert kinds <= set(kind.tolist()), f"the {case} frame no longer has the holes it is named for"
     _assert_fill_matches(FILL_PATHS[path](depth, color, use_color), _ref_fill(depth, color, use_color, path))
 
@@ -372,9 +374,9 @@ def test_fill_border_rules_match_reference(case, use_color, border):
     """Every rule outside the depth camera's view, fast path against the reference."""
     depth, color = FILL_CASES[case][0](np.random.default_rng(5))
     guide = color if use_color else None
-    fast = fast_fill._fill_directional(depth, guide, use_color=use_color, edge_ratio=fast_fill.DEFAULT_EDGE_RATIO,
-                                       sigma_color=fast_fill.DEFAULT_SIGMA_COLOR,
-                                       background_bias=fast_fill.DEFAULT_BACKGROUND_BIAS, border=border)
+    fast = fill_directional(depth, guide, use_color=use_color, edge_ratio=fast_fill.DEFAULT_EDGE_RATIO,
+                            sigma_color=fast_fill.DEFAULT_SIGMA_COLOR,
+                            background_bias=fast_fill.DEFAULT_BACKGROUND_BIAS, border=border)
     _assert_fill_matches(fast, ref_fill.fill_directional(depth, guide, use_color=use_color, border=border))
 
 

@@ -706,7 +706,7 @@ class TestFoundBugs:
 
     def test_fill_with_float16_colour(self):
         # fill_depth(method='joint-bilateral') raised numba's TypingError on float16 colour
-        from pcdof.fill import fill_depth
+        from pcdof.stages.fill import fill_depth
 
         depth = np.array([[1.0, 0.0, 2.0], [1.0, 0.0, 2.0]], np.float32)
         filled = fill_depth(depth, np.zeros((2, 3, 3), np.float16), method="joint-bilateral")
@@ -718,7 +718,7 @@ class TestFoundBugs:
     def test_telea_fill_of_a_one_pixel_thin_image_is_deterministic(self, shape):
         # cv2.inpaint (Telea) read uninitialised memory on images one pixel high or wide: the filled
         # depth changed from run to run (found comparing runs of scripts/stress in separate processes)
-        from pcdof.fill import fill_depth
+        from pcdof.stages.fill import fill_depth
 
         rng = np.random.default_rng(5)
         depth = rng.uniform(0.5, 5.0, shape).astype(np.float32)

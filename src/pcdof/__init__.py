@@ -18,7 +18,7 @@ _EXPORTS = {
     "load_frame": "io", "read_calibration": "io", "read_color": "io", "read_depth": "io",
     "write_depth": "io", "write_image": "io", "write_json": "io",
     "ThinLens": "lens", "PaperLens": "lens", "focus_depth_at": "lens",
-    "register_depth": "stages.register", "fill_depth": "fill",
+    "register_depth": "stages.register", "fill_depth": "stages.fill",
     "RenderResult": "pipeline", "StageTrace": "pipeline", "render": "pipeline", "run": "pipeline",
     "RenderOptions": "options",
     "open_source": "sources", "FrameSource": "sources", "SOURCES": "sources",

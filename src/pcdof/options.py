@@ -31,7 +31,7 @@ class RenderOptions:
     lens : ThinLens (physical or paper method) or PaperLens (paper method only)
     method : a key of :data:`pcdof.stages.render.METHODS` ("physical", "paper")
     quality : physical method's speed/accuracy tier, a key of :data:`pcdof.stages.render.QUALITIES`
-    fill_method : depth hole filling, a key of :data:`pcdof.fill.FILL_METHODS`
+    fill_method : depth hole filling, a key of :data:`pcdof.stages.fill.FILL_METHODS`
     linear : colour holds linear light (float, may exceed 1) instead of sRGB
     focus_at : None (the lens's focus distance), an (x, y) colour pixel or "center" (the image centre): the
         focus distance becomes the robust depth there (:mod:`pcdof.focus`)
@@ -54,7 +54,7 @@ class RenderOptions:
     device: str = "auto"
 
     def __post_init__(self) -> None:
-        from .fill import check_fill_method
+        from .stages.fill import check_fill_method
         from .stages.render import check_method, check_quality
 
         if not isinstance(self.lens, (ThinLens, PaperLens)):

@@ -157,7 +157,7 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
     frame : RGBDFrame
     lens : a :class:`pcdof.options.RenderOptions`, or a ThinLens / PaperLens with the options as
         keywords: ``method`` (a key of :data:`pcdof.stages.render.METHODS`), ``fill_method`` (a key of
-        :data:`pcdof.fill.FILL_METHODS`), ``focus_at`` ((x, y) colour pixel or "center": focus at the robust
+        :data:`pcdof.stages.fill.FILL_METHODS`), ``focus_at`` ((x, y) colour pixel or "center": focus at the robust
         depth there), ``linear`` (colour is linear light), ``quality`` (a key of
         :data:`pcdof.plans.QUALITIES`), ``device`` ("auto", "cpu", "gpu": where the stages run, see
         :mod:`pcdof.gpu`); see :class:`~pcdof.options.RenderOptions`

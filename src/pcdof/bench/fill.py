@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from ..fill import FILL_METHODS, warmup
+from ..stages.fill import FILL_METHODS, warmup
 from . import table_lines
 
 #: A filled pixel more than this far off (relative) took the wrong surface.
@@ -60,7 +60,7 @@ def run_fill_bench(*, scenes=None, size=(640, 480), depth_size=None, seed: int =
     size : (W, H), colour size of the scenes (``quick``: 160x120)
     depth_size : (w, h) of the depth camera, or None for the synthetic rig's default
     seed : int, scene and sensor-noise seed
-    methods : sequence of :data:`pcdof.fill.FILL_METHODS` names, or None for all
+    methods : sequence of :data:`pcdof.stages.fill.FILL_METHODS` names, or None for all
     repeats : int, timed runs per method (median reported; ``quick``: 1)
     quick : bool, a smoke run
     progress : bool, show a progress bar

@@ -34,7 +34,7 @@ BLUR_SHARE = 0.025
 
 def default_methods() -> dict:
     """Method name -> fill(depth_m, color): pcdof's default, its other border rules, and OpenCV's Telea."""
-    from ..fill import BORDER_RULES, DEFAULT_BORDER, fill_joint_bilateral, fill_telea
+    from ..stages.fill import BORDER_RULES, DEFAULT_BORDER, fill_joint_bilateral, fill_telea
 
     out = {"pcdof": lambda d, c: fill_joint_bilateral(d, c)}
     for rule in BORDER_RULES:

@@ -293,7 +293,7 @@ def _parse_xy(ctx, param, value):
 
 
 def _render_option_decorators() -> list:
-    from ..fill import FILL_METHODS
+    from ..stages.fill import FILL_METHODS
     from ..stages.render import METHODS, QUALITIES
 
     return [

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from ..fill import FILL_METHODS, fill_depth
+from ..stages.fill import FILL_METHODS, fill_depth
 from ._common import check_output_file, check_output_paths, handle_errors, load_source_frame, \
     source_arguments, source_inputs
 from ._report import report_decision

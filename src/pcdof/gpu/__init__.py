@@ -9,7 +9,7 @@ Modules: :mod:`~pcdof.gpu.device` (discovery: :func:`available`), :mod:`~pcdof.g
 :mod:`~pcdof.gpu.stages` (the stages chained on the device), :mod:`~pcdof.gpu.api` (``run(frame, options)``,
 the pipeline's result) and :mod:`~pcdof.gpu.stream` (frames streamed with upload, compute and download
 overlapped). The kernels run unchanged in numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``), which is how the
-test suite checks them against the plain references of :mod:`pcdof.reference` on a machine without a GPU.
+test suite checks them against the stages' plain references (``pcdof.stages.<stage>.reference``) on a machine without a GPU.
 """
 
 from .device import available, require

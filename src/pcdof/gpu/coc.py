@@ -1,6 +1,6 @@
 """Circle of confusion on the GPU: the thin-lens map of :meth:`pcdof.lens.ThinLens.coc_maps_px`.
 
-Rules: those of :func:`pcdof.reference.coc.signed_coc_px`, in float64 per pixel, stored as float32.
+Rules: those of :func:`pcdof.stages.coc.reference.signed_coc_px`, in float64 per pixel, stored as float32.
 """
 
 from __future__ import annotations

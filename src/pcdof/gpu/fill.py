@@ -1,6 +1,6 @@
-"""Depth hole filling on the GPU: the directional fill of :mod:`pcdof.fill`, one thread per hole.
+"""Depth hole filling on the GPU: the directional fill of :mod:`pcdof.stages.fill`, one thread per hole.
 
-The rules are those of :mod:`pcdof.reference.fill` (``"joint-bilateral"``, and ``"nearest-background"`` without
+The rules are those of :mod:`pcdof.stages.fill.reference` (``"joint-bilateral"``, and ``"nearest-background"`` without
 colour), numbered as there: one kernel finds each hole's 16 candidates, fits each candidate's plane of 1/z
 (rule 2, by Cramer's rule on the 3 x 3 normal equations, in float64) and chooses its depth (rules 3 to 5); then
 one kernel gives the lost holes their nearest value (rule 6), two Jacobi passes take medians far from the
@@ -15,7 +15,7 @@ import numpy as np
 from numba import cuda
 
 from ..errors import InputError
-from ..fill import DEFAULT_BACKGROUND_BIAS, DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_COLOR
+from ..stages.fill.rules import DEFAULT_BACKGROUND_BIAS, DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_COLOR
 from .launch import grid_2d, on_device, to_device, zeros
 
 _DX = np.array([1, 1, 0, -1, -1, -1, 0, 1, 2, 1, -1, -2, -2, -1, 1, 2], np.int64)
@@ -356,13 +356,13 @@ def count_holes(depth_m, stream=0):
 def fill_depth(depth_m, color=None, *, use_color: bool = True, edge_ratio: float = DEFAULT_EDGE_RATIO,
                sigma_color: float = DEFAULT_SIGMA_COLOR, background_bias: float = DEFAULT_BACKGROUND_BIAS,
                prepared=None, stream=0):
-    """Fill every unknown pixel (the rules of :mod:`pcdof.reference.fill`) on the device.
+    """Fill every unknown pixel (the rules of :mod:`pcdof.stages.fill.reference`) on the device.
 
     Parameters
     ----------
     depth_m : (H, W) float32 array (host or device), metres; 0, NaN, inf, negative are unknown; at least one known
     color : (H, W, C) float32 array (host or device) in [0, 1], the guide; None (or *use_color* False): no colour
-    edge_ratio, sigma_color, background_bias : as in :func:`pcdof.fill.fill_joint_bilateral`
+    edge_ratio, sigma_color, background_bias : as in :func:`pcdof.stages.fill.fill_joint_bilateral`
     prepared : :func:`count_holes` of *depth_m*, if the caller has it
 
     Returns

@@ -63,7 +63,7 @@ def _register(frame: RGBDFrame, depth_dev, trace, stream, sync):
 
 def _fill(registered, frame: RGBDFrame, color_dev, opts, trace, stream, sync):
     """Filled depth on the device, and the registered depth's number of holes."""
-    from ..fill import fill_depth as cpu_fill
+    from ..stages.fill import fill_depth as cpu_fill
 
     with _Stage(trace, "fill", stream, sync) as rec:
         prepared = count_holes(registered, stream)

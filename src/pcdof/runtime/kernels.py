@@ -24,7 +24,9 @@ import time
 STAGES = {
     "register": (("pcdof.stages.register",), ("pcdof.stages.register.project", "pcdof.stages.register.raster",
                                              "pcdof.distortion")),
-    "fill": (("pcdof.fill",), ("pcdof.fill",)),
+    "fill": (("pcdof.stages.fill",), ("pcdof.stages.fill.index", "pcdof.stages.fill.boundary",
+                                      "pcdof.stages.fill.combine", "pcdof.stages.fill.cleanup",
+                                      "pcdof.stages.fill.inputs")),
     "render": (("pcdof.stages.render", "pcdof.stages.render.tiles"),
                ("pcdof.stages.render.classify", "pcdof.stages.render.scatter", "pcdof.stages.render.composite",
                 "pcdof.stages.render.extend", "pcdof.stages.render.uniform", "pcdof.stages.render.grids",

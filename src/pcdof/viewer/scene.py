@@ -475,7 +475,7 @@ def prepare_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral"
     ----------
     frame : RGBDFrame
     lens : ThinLens, the starting lens
-    fill_method : a key of :data:`pcdof.fill.FILL_METHODS`
+    fill_method : a key of :data:`pcdof.stages.fill.FILL_METHODS`
     focus_at : None, an (x, y) colour pixel or "center": the lens is focused at the robust depth there
         (:func:`pcdof.focus.resolve_lens`)
 
@@ -485,7 +485,7 @@ def prepare_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilateral"
     lens : ThinLens, focused at *focus_at* when given
     """
     from ..camera import RGBDFrame
-    from ..fill import check_fill_method
+    from ..stages.fill import check_fill_method
     from ..focus import parse_focus_at, resolve_lens
     from ..pipeline import prepare_depth
 

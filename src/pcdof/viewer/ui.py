@@ -389,7 +389,7 @@ def scene_from_frame(frame, lens: ThinLens, *, fill_method: str = "joint-bilater
     ----------
     frame : RGBDFrame
     lens : ThinLens, the starting lens
-    fill_method : a key of :data:`pcdof.fill.FILL_METHODS`
+    fill_method : a key of :data:`pcdof.stages.fill.FILL_METHODS`
     focus_at : None, an (x, y) colour pixel or "center": focus at the robust depth there (:mod:`pcdof.focus`)
     **options : keyword options of :func:`build_scene`
 

@@ -1,4 +1,4 @@
-"""The fill stage: every unknown pixel of the registered depth filled (:func:`pcdof.fill.fill_depth`)."""
+"""The fill stage: every unknown pixel of the registered depth filled (:func:`pcdof.stages.fill.fill_depth`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ class FillStage(Stage):
     name = "fill"
 
     def skip(self, state: FrameState, options) -> str | None:
-        from ...fill import needs_fill
+        from . import needs_fill
 
         needed, reason = needs_fill(state.registered_m)
         return None if needed else reason
@@ -20,12 +20,12 @@ class FillStage(Stage):
         return {"filled_m": state.registered_m}
 
     def plan(self, state: FrameState, options):
-        from ...fill import plan_fill
+        from . import plan_fill
 
         return plan_fill(state.registered_m)
 
     def run(self, state: FrameState, plan, options) -> StageOutput:
-        from ...fill import fill_depth, needs_fill
+        from . import fill_depth, needs_fill
 
         filled = fill_depth(state.registered_m, state.color, method=options.fill_method, parallel=plan.threads > 1)
         reason = f"{needs_fill(state.registered_m)[1]} ({options.fill_method}; {plan.describe()})"

@@ -5,7 +5,7 @@ A phone stores its depth map in the photo's own camera at a fraction of the reso
 into the colour grid as a mesh plus half-pixel footprints, so an object's outline keeps the depth
 grid's steps: up to half a depth pixel (2.6 colour pixels on an iPhone) off the photo's edge.
 :func:`open_coarse_edges` clears a band of one depth pixel around every depth discontinuity of the
-registered map, and the colour-guided fill (:func:`pcdof.fill.fill_depth`, joint bilateral) draws
+registered map, and the colour-guided fill (:func:`pcdof.stages.fill.fill_depth`, joint bilateral) draws
 the edge again where the colour changes. On a synthetic ellipse at 1/5 resolution this takes the
 pixels on the wrong side of the edge from 324 to 10 (tests/test_phone_lens.py).
 

@@ -41,7 +41,7 @@ import numpy as np
 from ...apertures import Aperture, aperture_from_blades, as_aperture
 from ...color import decode_to_linear, encode_from_linear, to_float
 from ...lens import MAX_COC_PX, aperture_for
-from ...reference.coc import paper_alpha, signed_coc_px
+from ..coc.reference import paper_alpha, signed_coc_px
 from .classify import LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, SHARP_COC_PX
 
 
@@ -275,7 +275,7 @@ def gaussian_blur(image: np.ndarray, sigma_px: float) -> np.ndarray:
 def render_paper(color, depth_m, lens, *, max_range_m: float = 10.0) -> np.ndarray:
     """Seed paper eq. 3: out = B alpha + O (1 - alpha) in the image's own encoding; float64 in [0, 1] units.
 
-    B is :func:`gaussian_blur` with ``lens.blur_sigma_px``; alpha is :func:`pcdof.reference.coc.paper_alpha`.
+    B is :func:`gaussian_blur` with ``lens.blur_sigma_px``; alpha is :func:`pcdof.stages.coc.reference.paper_alpha`.
     """
     src = to_float(color[:, :, None] if color.ndim == 2 else color).astype(np.float64)
     blurred = gaussian_blur(src, lens.blur_sigma_px)

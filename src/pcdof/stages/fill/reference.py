@@ -1,7 +1,7 @@
-"""Reference hole filling: the directional fill of :mod:`pcdof.fill`, one hole pixel at a time.
+"""Reference hole filling: the directional fill of :mod:`pcdof.stages.fill`, one hole pixel at a time.
 
 Rules stated here (``"joint-bilateral"`` and, without colour, ``"nearest-background"``); spatial
-constants scale with the image as in :mod:`pcdof.fill` (scale = size / 640, size the longest side;
+constants scale with the image as in :mod:`pcdof.stages.fill` (scale = size / 640, size the longest side;
 step = max(1, round(scale))):
 
 1. Candidates: along each of the 16 directions (8 king, 8 knight moves) walk from the hole; for a
@@ -37,7 +37,7 @@ step = max(1, round(scale))):
    nearest pixels that are not lost straight up, left, down and right of it (the pixels that are not
    lost are whole rows and whole columns). ``"candidates"`` and ``"extend"``: inverse-distance weights 1/d
    on 1/z over those that exist. ``"hold"``: the value of the nearest; among equally near ones the first in
-   the order up, left, down, right (:mod:`pcdof.fill` searches the four directions itself, so the rule
+   the order up, left, down, right (:mod:`pcdof.stages.fill` searches the four directions itself, so the rule
    does not hang on a library's scan order).
 7. Holes farther than 3 steps from their nearest candidate: twice (Jacobi), the median of their
    5 x 5 neighbourhood (taps one step apart, clamped at the border) when its range exceeds
@@ -56,7 +56,7 @@ import math
 
 import numpy as np
 
-from ..fill import DEFAULT_BACKGROUND_BIAS, DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_COLOR
+from .rules import DEFAULT_BACKGROUND_BIAS, DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_COLOR
 
 _DIRS = [(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1),
          (2, 1), (1, 2), (-1, 2), (-2, 1), (-2, -1), (-1, -2), (1, -2), (2, -1)]
@@ -301,7 +301,7 @@ def fill_directional(depth_m, color=None, *, use_color: bool = True, edge_ratio:
     ----------
     depth_m : (H, W) float ndarray, metres, with at least one known pixel
     color : (H, W, 3) float ndarray in [0, 1] (the guide), or None without colour
-    use_color, edge_ratio, sigma_color, background_bias, border : as in :func:`pcdof.fill.fill_joint_bilateral`
+    use_color, edge_ratio, sigma_color, background_bias, border : as in :func:`pcdof.stages.fill.fill_joint_bilateral`
 
     Returns
     -------

@@ -1,0 +1,241 @@
+"""The per-hole rules of the combine kernel (steps 1-4 of :mod:`pcdof.stages.fill`): candidates extrapolated
+along their planes, outside the depth camera's view, narrow gaps, surfaces split and scored by their colour support.
+
+The helpers are inlined (inline="always") into :func:`pcdof.stages.fill.combine.combine`: as plain calls they
+compile it in about a quarter less time but make the fill 5-10 % slower.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .rules import EXTEND, GAP, GAP_MIN_PAIRS, SURFACE
+
+
+@njit(cache=True, inline="always")
+def color_sim(color, depth, c0, c1, c2, qy, qx, uy, ux, n_samples, inv_two_sigma2):
+    """exp(-d^2 / 2 sigma^2) of the best match to colour (c0, c1, c2) among *n_samples* known
+    pixels from (qy, qx) on, stepping (uy, ux): one boundary pixel mixes the colours of both
+    sides of an edge, and a textured surface needs several samples."""
+    H, W, _ = color.shape
+    best = np.inf
+    sy = qy
+    sx = qx
+    for _ in range(n_samples):
+        if not (0 <= sy < H and 0 <= sx < W and depth[sy, sx] > 0.0):
+            break
+        d0 = float(color[sy, sx, 0]) - c0
+        d1 = float(color[sy, sx, 1]) - c1
+        d2 = float(color[sy, sx, 2]) - c2
+        best = min(best, d0 * d0 + d1 * d1 + d2 * d2)
+        sy += uy
+        sx += ux
+    return math.exp(-best * inv_two_sigma2)
+
+
+
+@njit(cache=True, inline="always")
+def _extrapolate(bnd, q, px, py, cap_px, rules):
+    """(1/z, distance) of boundary pixel *q*'s plane at (px, py); the offset stops growing past *cap_px*."""
+    ddx = float(px - bnd.x[q])
+    ddy = float(py - bnd.y[q])
+    rq = math.sqrt(ddx * ddx + ddy * ddy)
+    f = 1.0 if rq <= cap_px else cap_px / rq
+    ivq = bnd.plane[q, 0] + f * (bnd.plane[q, 1] * ddx + bnd.plane[q, 2] * ddy)
+    return min(max(ivq, rules.inv_lo), rules.inv_hi), rq
+
+
+@njit(cache=True, inline="always")
+def border_inv(holes, bnd, h, rules):
+    """(1/z, distance) of hole *h* if it lies outside the depth camera's view, else (-1, 0); (0, 0): outside,
+    with nothing on its row or column to take a depth from.
+
+    Outside: on its row or its column, one side has no known pixel up to the frame border (the
+    other side's nearest known pixel is the surface just inside the view), and neither line has
+    known pixels on both sides (that hole is enclosed: a disocclusion or a sensor hole). The hole
+    takes the plane of the nearest such inside pixel: extrapolated to it for at most
+    ``rules.border_px`` and held beyond (``"extend"``), or its depth held from the start (``"hold"``).
+    """
+    best_r = np.inf
+    best = 0.0
+    for a in range(2):  # the x axis is DIRS[0] and [4], the y axis DIRS[2] and [6]
+        qa = holes.cand[2 * a, h]
+        qb = holes.cand[2 * a + 4, h]
+        if qa >= 0 and qb >= 0:
+            return -1.0, 0.0
+        q = max(qa, qb)
+        if q >= 0:
+            rq = abs(holes.x[h] - bnd.x[q]) + abs(holes.y[h] - bnd.y[q])  # along an axis: the distance
+            if rq < best_r:
+                best_r = rq
+                if rules.border == EXTEND:
+                    best = _extrapolate(bnd, q, holes.x[h], holes.y[h], rules.border_px, rules)[0]
+                else:
+                    best = min(max(bnd.plane[q, 0], rules.inv_lo), rules.inv_hi)
+    return best, (best_r if best > 0.0 else 0.0)
+
+
+@njit(cache=True, inline="always")
+def gap_depth(slot, iv, r, far_min_z, gap_px):
+    """Depth of the foreground around a hole in a narrow gap, else 0.
+
+    A narrow gap has foreground on both sides: at least GAP_MIN_PAIRS opposite pairs of
+    candidates, both nearer than the farthest surface (depth below *far_min_z*), each pair at most
+    *gap_px* apart (summed). A channel qualifies along the pairs across it; a corner of a wider
+    hole only along the few that cut the corner. Returns the largest depth among those pairs.
+    """
+    n = 0
+    z_fg = 0.0
+    for p in range(8):
+        ka = p if p < 4 else p + 4  # king pairs (k, k + 4) for k < 4, knight pairs for 8 <= k < 12
+        sa = slot[ka]
+        sb = slot[ka + 4]
+        if sa < 0 or sb < 0 or r[sa] + r[sb] > gap_px:
+            continue
+        za = 1.0 / iv[sa]
+        zb = 1.0 / iv[sb]
+        if za < far_min_z and zb < far_min_z:
+            n += 1
+            z_fg = max(z_fg, za, zb)
+    return z_fg if n >= GAP_MIN_PAIRS else 0.0
+
+
+@njit(cache=True, inline="always")
+def collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot):
+    """Collect hole *h*'s candidates into the slot arrays (step 1); returns how many."""
+    m = 0
+    for k in range(holes.cand.shape[0]):
+        slot[k] = -1
+        q = holes.cand[k, h]
+        if q < 0:
+            continue
+        iv[m], r[m] = _extrapolate(bnd, q, holes.x[h], holes.y[h], rules.extrapolate_px, rules)
+        kq[m] = k
+        qs[m] = q
+        slot[k] = m
+        m += 1
+    return m
+
+
+@njit(cache=True, inline="always")
+def support_bound(r, order, start, end, support_px):
+    """The most a surface's candidates order[start:end] can score: every colour similarity 1 (its largest).
+
+    Summed in the order the score is, so the score, rounded alike term by term, never exceeds it."""
+    bound = 0.0
+    for i in range(start, end):
+        bound += 1.0 / (r[order[i]] + support_px)
+    return bound
+
+
+@njit(cache=True, inline="always")
+def _surface_end(z, start, m, edge_ratio):
+    """End of the surface that starts at *start* among the depths ``z[:m]``, sorted far to near (step 2)."""
+    end = start + 1
+    while end < m and z[end - 1] - z[end] <= edge_ratio * z[end - 1]:
+        end += 1
+    return end
+
+
+@njit(cache=True, inline="always")
+def _interpolate(iv, r, order, start, end):
+    """1/z of the surface order[start:end] at the hole: inverse-distance weights 1/r on 1/z (step 4)."""
+    sw = 0.0
+    swi = 0.0
+    for i in range(start, end):
+        j = order[i]
+        sw += 1.0 / r[j]
+        swi += iv[j] / r[j]
+    return swi / sw
+
+
+@njit(cache=True, inline="always")
+def _color_score(depth, color, bnd, dirs, rules, c0, c1, c2, r, kq, qs, order, start, end, enough):
+    """Colour support of the surface order[start:end] (step 3), summed in that order; the sum stops once it
+    reaches *enough* (every term is >= 0, so a partial sum is a lower bound of the whole)."""
+    score = 0.0
+    i = start
+    while i < end and not score >= enough:
+        j = order[i]
+        k = kq[j]
+        ux = rules.step if dirs[k, 0] > 0 else (-rules.step if dirs[k, 0] < 0 else 0)
+        uy = rules.step if dirs[k, 1] > 0 else (-rules.step if dirs[k, 1] < 0 else 0)
+        sim = color_sim(color, depth, c0, c1, c2, bnd.y[qs[j]], bnd.x[qs[j]], uy, ux, rules.n_samples,
+                        rules.inv_two_sigma2)
+        score += sim / (r[j] + rules.support_px)
+        i += 1
+    return score
+
+
+@njit(cache=True, inline="always")
+def sort_far_to_near(iv, m, zu, z, order):
+    """z = 1 / iv[:m] sorted far to near, and order: their indices (a stable sort: equal depths keep their order).
+
+    Each candidate's rank is counted (those farther, and those as far before it): no branch depends on the
+    depths, which an insertion sort's do at every step.
+    """
+    for j in range(m):
+        zu[j] = 1.0 / iv[j]
+    for j in range(m):
+        zj = zu[j]
+        rank = 0
+        for i in range(m):
+            zi = zu[i]
+            rank += (zi > zj) | ((zi == zj) & (i < j))
+        z[rank] = zj
+        order[rank] = j
+
+
+@njit(cache=True, inline="always")
+def choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, zu, z, order, ends, bounds,
+                   bias0):
+    """(1/z, kind) of a hole whose candidates span several surfaces (steps 2-4); *bias0*: the background bias."""
+    sort_far_to_near(iv, m, zu, z, order)
+    end0 = _surface_end(z, 0, m, rules.edge_ratio)
+    # in a narrow gap the foreground around it needs bias**2 times the support (not bias times) of
+    # the surface behind: a gap whose colour is ambiguous takes that surface throughout, not per pixel
+    kind = GAP if rules.use_color and gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
+    if not rules.use_color:
+        return _interpolate(iv, r, order, 0, end0), kind  # the farthest surface
+    bias = bias0 * bias0 if kind == GAP else bias0
+    # the nearer surfaces and the most each can score (every colour similarity 1), divided by the bias
+    n_near = 0
+    near_max = -np.inf
+    start = end0
+    while start < m:
+        end = _surface_end(z, start, m, rules.edge_ratio)
+        ends[n_near] = end
+        bounds[n_near] = support_bound(r, order, start, end, rules.support_px) / bias
+        near_max = max(near_max, bounds[n_near])
+        n_near += 1
+        start = end
+    c0 = float(color[py, px, 0])
+    c1 = float(color[py, px, 1])
+    c2 = float(color[py, px, 2])
+    # the farthest surface wins as soon as its support reaches what any nearer one can score: its
+    # similarities are then not all needed (with an infinite 1 / 2 sigma^2 a similarity can be NaN: all are)
+    score = _color_score(depth, color, bnd, dirs, rules, c0, c1, c2, r, kq, qs, order, 0, end0,
+                         near_max if rules.inv_two_sigma2 < np.inf else np.inf)
+    if score >= near_max:
+        return _interpolate(iv, r, order, 0, end0), kind
+    best_score = -1.0
+    best_start = 0
+    best_end = 0
+    if score > best_score:
+        best_score = score
+        best_end = end0
+    start = end0
+    for s in range(n_near):  # the nearer surfaces, far to near; the best-supported one gives the depth
+        end = ends[s]
+        if bounds[s] > best_score:  # else it cannot score more than the best so far: not sampled
+            score = _color_score(depth, color, bnd, dirs, rules, c0, c1, c2, r, kq, qs, order, start, end,
+                                 np.inf) / bias
+            if score > best_score:
+                best_score = score
+                best_start = start
+                best_end = end
+        start = end
+    return (_interpolate(iv, r, order, best_start, best_end) if best_end > 0 else 0.0), kind

@@ -6,6 +6,21 @@ from __future__ import annotations
 import numpy as np
 
 
+def nearest_rows_and_columns(lost: np.ndarray):
+    """For every pixel, the row of the nearest pixel that is not lost straight up (-1: none) and down (h: none),
+    and the column of the nearest one to the left (-1) and right (w): four (h, w) int arrays (up, left, down,
+    right)."""
+    h, w = lost.shape
+    ok = ~lost
+    rows = np.arange(h)[:, None]
+    cols = np.arange(w)[None, :]
+    up = np.maximum.accumulate(np.where(ok, rows, -1), axis=0)
+    down = np.minimum.accumulate(np.where(ok, rows, h)[::-1], axis=0)[::-1]
+    left = np.maximum.accumulate(np.where(ok, cols, -1), axis=1)
+    right = np.minimum.accumulate(np.where(ok, cols, w)[:, ::-1], axis=1)[:, ::-1]
+    return up, left, down, right
+
+
 def nearest_not_lost(depth: np.ndarray, lost: np.ndarray) -> np.ndarray:
     """At each lost pixel, the depth of the nearest pixel that is not lost, straight up, left, down or
     right of it (ties in that order); *depth* elsewhere.
@@ -15,13 +30,7 @@ def nearest_not_lost(depth: np.ndarray, lost: np.ndarray) -> np.ndarray:
     give the Euclidean answer, with a tie rule of their own (no dependence on a library's scan order).
     """
     h, w = lost.shape
-    ok = ~lost
-    rows = np.arange(h)[:, None]
-    cols = np.arange(w)[None, :]
-    up = np.maximum.accumulate(np.where(ok, rows, -1), axis=0)
-    down = np.minimum.accumulate(np.where(ok, rows, h)[::-1], axis=0)[::-1]
-    left = np.maximum.accumulate(np.where(ok, cols, -1), axis=1)
-    right = np.minimum.accumulate(np.where(ok, cols, w)[:, ::-1], axis=1)[:, ::-1]
+    up, left, down, right = nearest_rows_and_columns(lost)
     ly, lx = np.nonzero(lost)
     u, l, d, r = up[ly, lx], left[ly, lx], down[ly, lx], right[ly, lx]
     dist = np.stack([np.where(u >= 0, ly - u, h + w), np.where(l >= 0, lx - l, h + w),
@@ -42,13 +51,7 @@ def blend_not_lost(depth: np.ndarray, lost: np.ndarray) -> np.ndarray:
     choice of the nearer one draws a diagonal edge (a triangle), the blend joins them without one.
     """
     h, w = lost.shape
-    ok = ~lost
-    rows = np.arange(h)[:, None]
-    cols = np.arange(w)[None, :]
-    up = np.maximum.accumulate(np.where(ok, rows, -1), axis=0)
-    down = np.minimum.accumulate(np.where(ok, rows, h)[::-1], axis=0)[::-1]
-    left = np.maximum.accumulate(np.where(ok, cols, -1), axis=1)
-    right = np.minimum.accumulate(np.where(ok, cols, w)[:, ::-1], axis=1)[:, ::-1]
+    up, left, down, right = nearest_rows_and_columns(lost)
     ly, lx = np.nonzero(lost)
     sw = np.zeros(ly.size)
     swi = np.zeros(ly.size)

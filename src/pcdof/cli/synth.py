@@ -57,11 +57,12 @@ class _LazyChoice(click.Choice):
 @handle_errors
 def command(name, output, size, depth_size, seed, focal_length_mm, f_number, focus_distance_m, aperture_blades,
             aperture_rotation_deg, samples, ground_truth, linear):
-    """Generate synthetic scene NAME into OUTPUT: colour, sensor depth, exact depths, calibration and lens,
-    and (unless --no-gt) the ray-traced thin-lens ground truth (an unknown NAME lists the scenes).
+    """Generate synthetic scene NAME into the folder named by -o: colour, sensor depth, exact depths,
+    calibration and lens, and (unless --no-gt) the ray-traced thin-lens ground truth (an unknown NAME
+    lists the scenes).
 
-    A rerun into the same OUTPUT removes the files of an earlier run that this one does not write
-    (e.g. dof_gt.png after --no-gt); other files in OUTPUT are left alone.
+    A rerun into the same -o folder removes the files of an earlier run that this one does not write
+    (e.g. dof_gt.png after --no-gt); other files there are left alone.
     """
     from ..errors import LensError
     from ..synth import generate_scene, write_scene

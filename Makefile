@@ -82,7 +82,7 @@ stress: setup
 docs: setup
 	@$(call timed,installing the docs extra (mkdocs; about 20 s the first time),\
 	  $(PY) -m pip install --progress-bar off -e '.[docs]' | { grep --line-buffered -E '^(Collecting|Installing|Successfully)' || true; })
-	@$(call timed,building the documentation site into out/site/,$(VENV)/bin/mkdocs build --strict -d out/site)
+	@$(call timed,building the documentation site into out/site/,NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict -d out/site)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

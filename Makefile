@@ -48,7 +48,7 @@ chromium:
 	fi
 
 $(STAMP): pyproject.toml
-	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@test -x $(PY) || { echo "==> creating the virtual environment $(VENV) (a few seconds)"; $(PYTHON) -m venv $(VENV); }
 	@$(call timed,installing pcdof and its dependencies into $(VENV) (about 80 s the first time),\
 	  $(PY) -m pip install --progress-bar off --upgrade pip | { grep -v "^Requirement already" || true; } && \
 	  $(PY) -m pip install --progress-bar off -e '.[test]' | { grep --line-buffered -E '^(Collecting|Installing|Successfully)' || true; })

@@ -46,10 +46,15 @@ class StageTrace:
 class RenderResult:
     """Output of :func:`run`.
 
-    image : (H, W, 3) like the input colour; depth_registered_m / depth_filled_m : (H, W) float32
-    metres at colour resolution (0 = unknown in the registered one); coc_px : (H, W) float32
-    circle-of-confusion diameter in pixels (thin lens; None for the paper method); lens : the lens
-    used (with the resolved focus distance); trace : list of :class:`StageTrace`.
+    Parameters
+    ----------
+    image : (H, W, 3) ndarray, the render, of the input colour's dtype and shape
+    depth_registered_m : (H, W) float32 ndarray, metres at colour resolution, 0 = unknown
+    depth_filled_m : (H, W) float32 ndarray, metres at colour resolution, no holes
+    coc_px : (H, W) float32 ndarray or None, circle-of-confusion diameter in pixels (thin lens; None for
+        the paper method)
+    lens : ThinLens or PaperLens, the lens used, with the resolved focus distance
+    trace : list of StageTrace, each stage's time and what it skipped
     """
 
     image: np.ndarray
@@ -311,9 +316,22 @@ def _run_stages(frame: RGBDFrame, opts) -> RenderResult:
 
 
 def render(frame: RGBDFrame, lens, **options) -> np.ndarray:
-    """Render *frame*; returns an image of the input colour's dtype and shape.
+    """Render *frame* with a shallow depth of field: :func:`run`, keeping only the image.
 
-    *lens* and *options* are those of :func:`run` (a RenderOptions, or a lens and keyword options).
+    Parameters
+    ----------
+    frame : RGBDFrame
+        colour (H, W, 3) uint8, uint16 or float, depth (h, w) float32 metres, and the rig.
+    lens : RenderOptions, ThinLens or PaperLens
+        a RenderOptions, or a lens with the options as keywords (see :func:`run`).
+    **options
+        ``method``, ``quality``, ``fill_method``, ``focus_at``, ``linear``, ``highlights``: the fields of
+        :class:`~pcdof.options.RenderOptions`.
+
+    Returns
+    -------
+    (H, W, 3) ndarray of the colour's dtype and shape, the same encoding (sRGB, or linear light with
+    ``linear=True``).
     """
     return run(frame, lens, **options).image
 

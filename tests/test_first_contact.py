@@ -188,6 +188,18 @@ class TestWhatTheHelpAndMapsPromise:
 
 # ---------------------------------------------------------------------------------------------------------
 class TestLongStepsShowProgress:
+    def test_synth_says_what_it_is_doing_before_it_does_it(self, tmp_path):
+        result = invoke("synth", "portrait", "-o", tmp_path / "s", "--size", "32x24", "--depth-size", "32x24",
+                        "--no-gt")
+        assert result.exit_code == 0, result.output
+        lines = result.stderr.splitlines()
+        assert lines[0].startswith("pcdof synth: building the portrait scene (32x24 colour")
+        assert any(line.startswith("  scene built in ") for line in lines)
+        assert lines[-1].startswith("  done in ")
+        quiet = invoke("synth", "portrait", "-o", tmp_path / "q", "--size", "32x24", "--depth-size", "32x24",
+                       "--no-gt", "-q")
+        assert quiet.exit_code == 0 and "building" not in quiet.stderr
+
     def test_the_make_steps_say_what_they_do_and_how_long_they_take(self):
         makefile = open(os.path.join(ROOT, "Makefile"), encoding="utf-8").read()
         assert "pip install -q" not in makefile  # pip's progress is shown

@@ -16,6 +16,11 @@ SHELL  := /bin/bash
 
 # $(call timed,WHAT,COMMAND): run COMMAND between a line saying what it does and one saying how long it took
 timed = t0=$$(date +%s); echo "==> $(1)"; $(2) && echo "==> done in $$(( $$(date +%s) - t0 )) s"
+# $(call ticking,WHAT,COMMAND): the same, with a line every 15 s while COMMAND runs (steps that print little)
+ticking = t0=$$(date +%s); echo "==> $(1)"; \
+	( while sleep 15; do echo "    ... still running, $$(( $$(date +%s) - t0 )) s"; done ) & tick=$$!; \
+	$(2); rc=$$?; kill $$tick 2>/dev/null; wait $$tick 2>/dev/null; \
+	[ $$rc = 0 ] && echo "==> done in $$(( $$(date +%s) - t0 )) s"
 
 setup: sysdeps $(STAMP)
 
@@ -49,11 +54,10 @@ chromium:
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || { echo "==> creating the virtual environment $(VENV) (a few seconds)"; $(PYTHON) -m venv $(VENV); }
-	@$(call timed,installing pcdof and its dependencies into $(VENV) (about 80 s the first time),\
+	@$(call ticking,installing pcdof and its dependencies into $(VENV) (about 80 s the first time),\
 	  $(PY) -m pip install --progress-bar off --upgrade pip | { grep -v "^Requirement already" || true; } && \
 	  $(PY) -m pip install --progress-bar off -e '.[test]' | { grep --line-buffered -E '^(Collecting|Installing|Successfully)' || true; })
-	@echo "==> compiling pcdof's kernels once, so that the first render starts at once"
-	-$(VENV)/bin/pcdof warmup
+	-@$(call ticking,compiling pcdof's kernels once so that the first render starts at once,$(VENV)/bin/pcdof warmup)
 	@touch $(STAMP)
 
 demo: setup
@@ -80,7 +84,7 @@ stress: setup
 # the documentation site: MkDocs (Material) with the API reference from the docstrings; --strict fails on a
 # broken link or reference
 docs: setup
-	@$(call timed,installing the docs extra (mkdocs; about 20 s the first time),\
+	@$(call ticking,installing the docs extra (mkdocs; about 20 s the first time),\
 	  $(PY) -m pip install --progress-bar off -e '.[docs]' | { grep --line-buffered -E '^(Collecting|Installing|Successfully)' || true; })
 	@$(call timed,building the documentation site into out/site/,NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict -d out/site)
 

@@ -91,6 +91,13 @@ class TestDepthInTheColourSlot:
         assert len(warning) == 1 and warning[0].startswith("pcdof: warning: colour file ")
         assert "depth.png" in warning[0]
 
+    def test_swapped_files_are_one_error_not_a_warning_and_an_error(self, tmp_path):
+        result = invoke("render", f"{TUM}/depth.png", f"{TUM}/color.png", "--calib", f"{TUM}/calib.json",
+                        "-o", tmp_path / "x.png")
+        assert result.exit_code == 3
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("pcdof: error: depth file ") and "colour image" in lines[0]
+
 
 # ---------------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")

@@ -219,10 +219,15 @@ def load_frame(color_path, depth_path, calib_path, *, depth_scale: float | None 
     def expect(intr, label, path):
         return lambda size: _check_size(size, intr, label, path, calib_path)
 
-    color = _read_color(color_path, expect(rig.color, "colour image", color_path))
-    _check_size(color.shape[1::-1], rig.color, "colour image", color_path, calib_path)
-    depth, n_bad = _read_depth(depth_path, rig.depth_scale, expect(rig.depth, "depth image", depth_path))
-    _check_size(depth.shape[1::-1], rig.depth, "depth image", depth_path, calib_path)
+    # the colour's warnings wait for the depth: swapped files are then one error, not a warning and an error
+    with warnings.catch_warnings(record=True) as held:
+        warnings.simplefilter("always")
+        color = _read_color(color_path, expect(rig.color, "colour image", color_path))
+        _check_size(color.shape[1::-1], rig.color, "colour image", color_path, calib_path)
+        depth, n_bad = _read_depth(depth_path, rig.depth_scale, expect(rig.depth, "depth image", depth_path))
+        _check_size(depth.shape[1::-1], rig.depth, "depth image", depth_path, calib_path)
+    for warning in held:
+        warnings.warn(warning.message, warning.category, stacklevel=2)
     if n_bad:
         warnings.warn(f"{fspath(depth_path)}: {n_bad} depth values were NaN, inf or negative; they are treated "
                       "as unknown (0)", stacklevel=2)

@@ -29,7 +29,16 @@ from .renderer import SHARP_COC_PX, check_method, render_image
 
 @dataclass
 class StageTrace:
-    """What one stage did: its wall time (seconds), whether it was skipped, and why."""
+    """What one stage did: its wall time (seconds), whether it was skipped, and why.
+
+    Parameters
+    ----------
+    name : str, the stage (``register``, ``fill``, ``coc``, ``highlights``, ``render``)
+    seconds : float, wall time of the stage, seconds
+    skipped : bool, whether the stage found nothing to do
+    reason : str, why it was skipped, or what it did
+    detail : dict, the stage's own numbers (plans, layer counts, holes), JSON-compatible
+    """
 
     name: str
     seconds: float

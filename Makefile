@@ -2,12 +2,25 @@
 #   make demo        - set everything up, render every bundled frame into out/demo/ (side-by-side pictures)
 #   make demo-batch  - render the bundled sequence with a focus pull into out/demo-batch/ (frames and a video)
 #   make test        - set everything up, run the test suite
+#   make docs        - build the documentation site into out/site (mkdocs --strict)
+# Each step says what it does, how long it took last time on a 2-core machine, and how long it took now.
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+# a step that filters its output fails when the command does, not only when the filter does
+SHELL  := /bin/bash
+.SHELLFLAGS := -o pipefail -c
 
-.PHONY: demo demo-batch test test-slow bench stress setup sysdeps chromium clean
+.PHONY: demo demo-batch test test-slow bench stress setup sysdeps chromium docs clean
+
+# $(call timed,WHAT,COMMAND): run COMMAND between a line saying what it does and one saying how long it took
+timed = t0=$$(date +%s); echo "==> $(1)"; $(2) && echo "==> done in $$(( $$(date +%s) - t0 )) s"
+# $(call ticking,WHAT,COMMAND): the same, with a line every 15 s while COMMAND runs (steps that print little)
+ticking = t0=$$(date +%s); echo "==> $(1)"; \
+	( while sleep 15; do echo "    ... still running, $$(( $$(date +%s) - t0 )) s"; done ) & tick=$$!; \
+	$(2); rc=$$?; kill $$tick 2>/dev/null; wait $$tick 2>/dev/null; \
+	[ $$rc = 0 ] && echo "==> done in $$(( $$(date +%s) - t0 )) s"
 
 setup: sysdeps $(STAMP)
 
@@ -28,24 +41,27 @@ sysdeps:
 chromium:
 	@if ! command -v chromium >/dev/null 2>&1; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
-	    echo "installing chromium (for the viewer's HTML export test)"; \
-	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null \
-	      || echo "chromium could not be installed; the HTML export test will be skipped"; \
+	    t0=$$(date +%s); \
+	    echo "==> installing Chromium (Debian's package) for the browser tests, once: about 70 s"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium \
+	      | awk '/^Setting up / { n++; if (n % 20 == 0) { print "    " n " packages set up ..."; fflush() } }'; \
+	    if command -v chromium >/dev/null 2>&1; then echo "==> Chromium installed in $$(( $$(date +%s) - t0 )) s"; \
+	    else echo "chromium could not be installed; the HTML export test will be skipped"; fi; \
 	  else \
 	    echo "chromium is missing; the HTML export test will be skipped (sudo apt-get install -y chromium)"; \
 	  fi; \
 	fi
 
 $(STAMP): pyproject.toml
-	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test]'
-	@echo "compiling pcdof's kernels once, so that the first render starts at once (about half a minute on 2 cores)"
-	-$(VENV)/bin/pcdof warmup
+	@test -x $(PY) || { echo "==> creating the virtual environment $(VENV) (a few seconds)"; $(PYTHON) -m venv $(VENV); }
+	@$(call ticking,installing pcdof and its dependencies into $(VENV) (about 80 s the first time),\
+	  $(PY) -m pip install --progress-bar off --upgrade pip | { grep -v "^Requirement already" || true; } && \
+	  $(PY) -m pip install --progress-bar off -e '.[test]' | { grep --line-buffered -E '^(Collecting|Installing|Successfully)' || true; })
+	-@$(call ticking,compiling pcdof's kernels once so that the first render starts at once,$(VENV)/bin/pcdof warmup)
 	@touch $(STAMP)
 
 demo: setup
-	$(VENV)/bin/pcdof demo -o out/demo
+	@$(call timed,rendering the bundled frames into out/demo/ (about 10 s on 2 cores),$(VENV)/bin/pcdof demo -o out/demo)
 
 # data/sequence: six frames of a still scene; focus pulled from the subject (1.49 m) to the wall (3.12 m)
 demo-batch: setup
@@ -54,7 +70,7 @@ demo-batch: setup
 	@echo "look at out/demo-batch/focus_pull.mp4 (the video) and out/demo-batch/frame_*.png"
 
 test: setup chromium
-	$(PY) -m pytest -q
+	@$(call timed,running the test suite (about 2100 tests; about 10 minutes on 2 cores),$(PY) -m pytest -q)
 
 test-slow: setup
 	$(PY) -m pytest -q -m slow
@@ -64,6 +80,15 @@ bench: setup
 
 stress: setup
 	$(PY) scripts/stress --cases 10000
+
+# the documentation site: MkDocs (Material) with the API reference from the docstrings; --strict fails on a
+# broken link or reference
+# (the site needs pcdof's sources, not its compiled kernels: no warm-up here)
+docs:
+	@test -x $(PY) || { echo "==> creating the virtual environment $(VENV) (a few seconds)"; $(PYTHON) -m venv $(VENV); }
+	@$(call ticking,installing pcdof with the docs extra (mkdocs; about 20 s after make setup, 80 s without),\
+	  $(PY) -m pip install --progress-bar off -e '.[docs]' | { grep --line-buffered -E '^(Collecting|Installing|Successfully)' || true; })
+	@$(call timed,building the documentation site into out/site/,NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict -d out/site)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -46,20 +46,24 @@ class TestRenderFlags:
         assert_one_line_error(result, LensError, named)
         assert os.listdir(tmp_path) == []
 
-    def test_float_colour_needs_a_float_output(self, tmp_path):
+    def test_output_formats_that_cannot_hold_the_render(self, tmp_path):
         frame = load_frame(*FRAME[:2], FRAME[3])
-        linear = tmp_path / "in" / "color.npy"
-        linear.parent.mkdir()
-        np.save(linear, frame.color.astype(np.float32) / 255)
-        args = [linear, FRAME[1], *FRAME[2:], "--linear", "--focus-distance", 1.49]
+        inputs = tmp_path / "in"
+        inputs.mkdir()
+        np.save(inputs / "color16.npy", frame.color.astype(np.uint16) * 257)
+        np.save(inputs / "color.npy", frame.color.astype(np.float32) / 255)
         out = tmp_path / "out"
-        result = invoke("render", *args, "-o", out / "x.png")
-        assert_one_line_error(result, InputError, "float32", ".png", ".npy")
+        result = invoke("render", inputs / "color16.npy", *FRAME[1:], "--focus-distance", 1.49, "-o", out / "x.jpg")
+        assert_one_line_error(result, InputError, "uint16", ".jpg", ".png")  # 16-bit colour: no 8-bit JPEG
         assert not out.exists()
+        args = [inputs / "color.npy", FRAME[1], *FRAME[2:], "--linear", "--focus-distance", 1.49]
         result = invoke("render", *args, "-o", out / "x.npy")
         assert result.exit_code == 0, result.output
         image = np.load(out / "x.npy")
         assert image.dtype == np.float32 and image.shape == frame.color.shape
+        result = invoke("render", *args, "-o", out / "x.png")  # float to PNG: encoded (tests/test_first_contact.py)
+        assert result.exit_code == 0, result.output
+        assert pcdof.io.read_color(out / "x.png").dtype == np.uint16
 
 
 class TestAllOrNothingOutputs:
@@ -77,8 +81,8 @@ class TestAllOrNothingOutputs:
         assert result.exit_code == 0, result.output
         assert sorted(os.listdir(tmp_path / "maps")) == ["coc_px.npy", "coc_px.png", "depth_filled.npy",
                                                          "depth_filled.png", "depth_filled_preview.png",
-                                                         "depth_registered.png", "depth_registered_preview.png",
-                                                         "trace.json"]
+                                                         "depth_registered.npy", "depth_registered.png",
+                                                         "depth_registered_preview.png", "trace.json"]
         from pcdof import io
         from pcdof.previews import bar_width_px
 

@@ -170,3 +170,33 @@ def to_uint8(image: np.ndarray) -> np.ndarray:
     else:
         raise InputError(f"image dtype must be an integer or floating dtype; got {image.dtype}")
     return np.rint(unit * 255.0).astype(np.uint8)
+
+
+def encode_for_display(image: np.ndarray, dtype, *, linear: bool) -> tuple[np.ndarray, float]:
+    """A float image -> an sRGB-encoded integer image for a screen format (PNG, JPEG), clipped to [0, 1].
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W) float ndarray; linear light when *linear*, else sRGB-encoded values
+    dtype : numpy dtype, ``uint8`` or ``uint16``, the output's
+    linear : bool, whether *image* holds linear light (encoded with the sRGB curve) or sRGB values (quantised)
+
+    Returns
+    -------
+    (encoded, clipped) : the image of *dtype* and shape, and the share of pixels (0..1) with a channel outside
+    [0, 1] before clipping (light above white, or below black)
+    """
+    arr = np.asarray(image)
+    if arr.dtype.kind != "f" or arr.ndim not in (2, 3) or 0 in arr.shape:
+        raise InputError(f"image must be a non-empty (H, W, 3) or (H, W) float array; got {arr.dtype} {arr.shape}")
+    if np.dtype(dtype) not in (np.uint8, np.uint16):
+        raise InputError(f"dtype must be uint8 or uint16; got {np.dtype(dtype)}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError("image must be finite; got NaN or inf values")
+    out_of_range = (arr > 1.0) | (arr < 0.0)
+    if arr.ndim == 3:
+        out_of_range = out_of_range.any(axis=2)
+    clipped = float(np.count_nonzero(out_of_range)) / out_of_range.size
+    unit = np.clip(arr.astype(np.float32), 0.0, 1.0)
+    encoded = encode_from_linear(unit, dtype) if linear else from_float(unit, dtype)
+    return encoded, clipped

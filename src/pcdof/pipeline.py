@@ -30,7 +30,16 @@ from .stages import STAGES, FrameState
 
 @dataclass
 class StageTrace:
-    """What one stage did: its wall time (seconds), whether it was skipped, and why."""
+    """What one stage did: its wall time (seconds), whether it was skipped, and why.
+
+    Parameters
+    ----------
+    name : str, the stage (``register``, ``fill``, ``coc``, ``highlights``, ``render``)
+    seconds : float, wall time of the stage, seconds
+    skipped : bool, whether the stage found nothing to do
+    reason : str, why it was skipped, or what it did
+    detail : dict, the stage's own numbers (plans, layer counts, holes), JSON-compatible
+    """
 
     name: str
     seconds: float
@@ -47,10 +56,15 @@ class StageTrace:
 class RenderResult:
     """Output of :func:`run`.
 
-    image : (H, W, 3) like the input colour; depth_registered_m / depth_filled_m : (H, W) float32
-    metres at colour resolution (0 = unknown in the registered one); coc_px : (H, W) float32
-    circle-of-confusion diameter in pixels (thin lens; None for the paper method); lens : the lens
-    used (with the resolved focus distance); trace : list of :class:`StageTrace`.
+    Parameters
+    ----------
+    image : (H, W, 3) ndarray, the render, of the input colour's dtype and shape
+    depth_registered_m : (H, W) float32 ndarray, metres at colour resolution, 0 = unknown
+    depth_filled_m : (H, W) float32 ndarray, metres at colour resolution, no holes
+    coc_px : (H, W) float32 ndarray or None, circle-of-confusion diameter in pixels (thin lens; None for
+        the paper method)
+    lens : ThinLens or PaperLens, the lens used, with the resolved focus distance
+    trace : list of StageTrace, each stage's time and what it skipped
     """
 
     image: np.ndarray
@@ -192,9 +206,22 @@ def _run_on_gpu(frame: RGBDFrame, opts) -> RenderResult:
 
 
 def render(frame: RGBDFrame, lens, **options) -> np.ndarray:
-    """Render *frame*; returns an image of the input colour's dtype and shape.
+    """Render *frame* with a shallow depth of field: :func:`run`, keeping only the image.
 
-    *lens* and *options* are those of :func:`run` (a RenderOptions, or a lens and keyword options).
+    Parameters
+    ----------
+    frame : RGBDFrame
+        colour (H, W, 3) uint8, uint16 or float, depth (h, w) float32 metres, and the rig.
+    lens : RenderOptions, ThinLens or PaperLens
+        a RenderOptions, or a lens with the options as keywords (see :func:`run`).
+    **options
+        ``method``, ``quality``, ``fill_method``, ``focus_at``, ``linear``, ``highlights``: the fields of
+        :class:`~pcdof.options.RenderOptions`.
+
+    Returns
+    -------
+    (H, W, 3) ndarray of the colour's dtype and shape, the same encoding (sRGB, or linear light with
+    ``linear=True``).
     """
     return run(frame, lens, **options).image
 

@@ -15,6 +15,7 @@ Conventions shared by every subcommand, implemented once here:
 
 from __future__ import annotations
 
+import difflib
 import gc
 import importlib
 import logging
@@ -122,6 +123,14 @@ class LazyGroup(click.Group):
         if _own_process:
             gc.freeze()  # see console_main
         return _with_verbosity(module.command)
+
+    def resolve_command(self, ctx, args):
+        name = args[0] if args else ""
+        if name and name not in SUBCOMMANDS and not name.startswith("-"):
+            close = difflib.get_close_matches(name, list(SUBCOMMANDS), n=1, cutoff=0.6)
+            hint = f" Did you mean '{close[0]}'?" if close else ""
+            raise click.UsageError(f"No such command '{name}'.{hint}", ctx)
+        return super().resolve_command(ctx, args)
 
     def format_commands(self, ctx, formatter):
         rows = [(name, help_) for name, (_, help_) in SUBCOMMANDS.items()]

@@ -108,7 +108,7 @@ def _output_files(parts) -> list[str]:
 @handle_errors
 def command(output, quick, only, size, depth_size, repeats, samples, scenes, seeds, wide_size, wide_blurs,
             absolute_blurs, wide_highlights):
-    """Run the benchmarks and write JSON, CSV, Markdown tables and plots into OUTPUT.
+    """Run the benchmarks and write JSON, CSV, Markdown tables and plots into the folder named by -o.
 
     Every option is checked before any work (--scenes applies to the dof part; --quick overrides
     --size, --depth-size and --repeats, which are checked all the same).

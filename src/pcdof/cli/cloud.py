@@ -20,7 +20,7 @@ from ._report import report_decision
               help="Keep every N-th pixel in x and y.")
 @handle_errors
 def command(color, depth, calib, depth_scale, frame_index, time_s, output, no_fill, fill_method, stride):
-    """Export one frame as a coloured point cloud (metres, colour camera frame) to OUTPUT.
+    """Export one frame as a coloured point cloud (metres, colour camera frame) to the file named by -o.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
     (.mkv, .bag; --frame or --time chooses the frame), a sequence (folder, TUM folder, list file), or a

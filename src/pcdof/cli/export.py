@@ -59,7 +59,7 @@ def parse_frames(spec: str | None, n: int) -> range:
               help="Calibration to use instead of the recording's.")
 @handle_errors
 def command(recording, output, registered, frames, color_format, calib):
-    """Write the frames of RECORDING (.mkv / .bag, or a phone depth photo .heic / .jpg) into the folder OUTPUT."""
+    """Write the frames of RECORDING (.mkv / .bag, or a phone depth photo .heic / .jpg) into the folder named by -o."""
     from ..sources import open_source
 
     check_output_folder(output, "output")

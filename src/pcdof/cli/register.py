@@ -19,7 +19,7 @@ from ._report import report_decision
               help="Hole filling method (with --fill).")
 @handle_errors
 def command(color, depth, calib, depth_scale, frame_index, time_s, output, fill, fill_method):
-    """Register the depth of one frame into the colour camera and write it to OUTPUT.
+    """Register the depth of one frame into the colour camera and write it to the file named by -o.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
     (.mkv, .bag; --frame or --time chooses the frame), a sequence (folder, TUM folder, list file), or a

@@ -20,13 +20,13 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 #: Everything `pcdof render -o` writes: float (linear) colour needs .tif/.tiff, .exr or .npy.
 RENDER_SUFFIXES = tuple(IMAGE_FORMATS)
 #: The files ``--save-maps`` writes into its folder (``coc_px.*`` only for the physical method).
-MAP_NAMES = ("depth_registered.png", "depth_registered_preview.png", "depth_filled.npy", "depth_filled.png",
+MAP_NAMES = ("depth_registered.npy", "depth_registered.png", "depth_registered_preview.png", "depth_filled.npy", "depth_filled.png",
              "depth_filled_preview.png", "coc_px.npy", "coc_px.png", "trace.json")
 
 
 @click.command("render")
 @source_arguments
-@click.option("-o", "--output", required=True, type=click.Path(readable=False), help="Output image (.png/.jpg/.tif).")
+@click.option("-o", "--output", required=True, type=click.Path(readable=False), help="Output image (.png/.jpg/.tif/.tiff/.exr/.npy); float colour to .png/.jpg is encoded to sRGB.")
 @render_options
 @device_option
 @click.option("--save-maps", type=click.Path(readable=False), default=None,
@@ -34,7 +34,7 @@ MAP_NAMES = ("depth_registered.png", "depth_registered_preview.png", "depth_fill
 @click.option("--explain", is_flag=True, help="Print each stage's time and what was skipped.")
 @handle_errors
 def command(color, depth, calib, depth_scale, frame_index, time_s, output, render_flags, device, save_maps, explain):
-    """Render one frame with a shallow depth of field into OUTPUT.
+    """Render one frame with a shallow depth of field into the file named by -o.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
     (.mkv, .bag; --frame or --time chooses the frame), a sequence (folder, TUM folder, list file), or a
@@ -57,7 +57,8 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
                                      time_s=time_s, outputs={"-o": output, **maps}, folders={"--save-maps": save_maps})
     warn_float_colour(frame.color, options)
     out_dtype = "float32" if frame.color.dtype.kind == "f" else frame.color.dtype.name
-    if out_dtype not in IMAGE_FORMATS[suffix]:  # the render keeps the colour's dtype: refuse before the work
+    encode = out_dtype not in IMAGE_FORMATS[suffix] and out_dtype == "float32"  # float -> sRGB PNG/JPEG
+    if out_dtype not in IMAGE_FORMATS[suffix] and not encode:  # refuse before the work
         fits = [ext for ext, dtypes in IMAGE_FORMATS.items() if out_dtype in dtypes]
         raise InputError(f"COLOR is {out_dtype}, which {suffix} cannot store; write the render as "
                          f"{'/'.join(fits)}")
@@ -65,6 +66,10 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     big = frame.color.shape[0] * frame.color.shape[1] >= BIG_PIXELS  # a phone photo: say how far the work is
     with pipeline.stage_progress((lambda line: click.echo(f"pcdof: {line}", err=True)) if big else None):
         result = pipeline.run(frame, options)
+    details = f"{options.method} method"
+    if encode:
+        result, note = encoded_for_screen(result, suffix, linear=options.linear)
+        details += f", {note}"
     if save_maps:  # the maps first and the image last: a failure (Ctrl-C too) leaves neither behind
         with all_or_nothing(list(maps.values()) + [output], [save_maps]):
             make_output_folder(save_maps, "--save-maps")
@@ -79,11 +84,24 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     report_decision("render", output=output, focus_distance_m=float(result.lens.focus_distance_m),
                     focus_source=focus_source(render_flags),
                     max_blur_px=float(result.coc_px.max()) if result.coc_px is not None and result.coc_px.size
-                    else None, details=f"{options.method} method")
+                    else None, details=details)
+
+
+def encoded_for_screen(result, suffix: str, *, linear: bool):
+    """(*result* with its float image encoded for *suffix*: 16-bit PNG or 8-bit JPEG, the note that says so)."""
+    import dataclasses
+
+    from ..color import encode_for_display
+
+    bits = 16 if suffix == ".png" else 8
+    image, clipped = encode_for_display(result.image, f"uint{bits}", linear=linear)
+    what = "linear light encoded to sRGB" if linear else "float sRGB quantised"
+    note = f"{what}, {bits}-bit, clipped to [0, 1] ({100 * clipped:.1f} % of pixels clipped)"
+    return dataclasses.replace(result, image=image), note
 
 
 def write_maps(folder: str, result, written: list | None = None, *, source: str | None = None) -> None:
-    """Registered depth (16-bit mm PNG), filled depth (float32 .npy), CoC (.npy + colour-mapped PNG).
+    """Registered and filled depth (float32 metres .npy, 16-bit mm PNG, previews), CoC (.npy + colour-mapped PNG).
 
     Each path is appended to *written* once its file is complete (so a caller can remove them); *source*
     (what the frame is, where its intrinsics come from) goes into ``trace.json``.
@@ -103,6 +121,7 @@ def write_maps(folder: str, result, written: list | None = None, *, source: str 
     # the raw maps (16-bit millimetres, float metres) and, beside them, previews any image viewer shows:
     # colour-mapped with a labelled scale bar, the registered and filled depth on one scale
     near_m, far_m = depth_range_m(result.depth_registered_m) or (None, None)
+    put("depth_registered.npy", io.write_depth, result.depth_registered_m)
     put("depth_registered.png", io.write_depth, result.depth_registered_m)
     put("depth_registered_preview.png", io.write_image,
         depth_preview(result.depth_registered_m, near_m=near_m, far_m=far_m))

@@ -5,10 +5,12 @@ from __future__ import annotations
 import dataclasses
 
 import sys
+import time
 
 import click
 
 from ._common import check_output_folder, handle_errors
+from ._report import is_quiet
 
 
 def _scene_names():
@@ -57,11 +59,12 @@ class _LazyChoice(click.Choice):
 @handle_errors
 def command(name, output, size, depth_size, seed, focal_length_mm, f_number, focus_distance_m, aperture_blades,
             aperture_rotation_deg, samples, ground_truth, linear):
-    """Generate synthetic scene NAME into OUTPUT: colour, sensor depth, exact depths, calibration and lens,
-    and (unless --no-gt) the ray-traced thin-lens ground truth (an unknown NAME lists the scenes).
+    """Generate synthetic scene NAME into the folder named by -o: colour, sensor depth, exact depths,
+    calibration and lens, and (unless --no-gt) the ray-traced thin-lens ground truth (an unknown NAME
+    lists the scenes).
 
-    A rerun into the same OUTPUT removes the files of an earlier run that this one does not write
-    (e.g. dof_gt.png after --no-gt); other files in OUTPUT are left alone.
+    A rerun into the same -o folder removes the files of an earlier run that this one does not write
+    (e.g. dof_gt.png after --no-gt); other files there are left alone.
     """
     from ..errors import LensError
     from ..synth import generate_scene, write_scene
@@ -74,13 +77,21 @@ def command(name, output, size, depth_size, seed, focal_length_mm, f_number, foc
     check_seed(seed, "--seed")
     check_positive_flags({"--focal-length": focal_length_mm, "--f-number": f_number,
                           "--focus-distance": focus_distance_m}, LensError)
+    say = (lambda line: None) if is_quiet() else (lambda line: click.echo(line, err=True))
+    t0 = time.perf_counter()
+    say(f"pcdof synth: building the {name} scene ({size[0]}x{size[1]} colour, {depth_size[0]}x{depth_size[1]} "
+        "depth: meshes, ray casting, sensor noise) ...")
     sf = generate_scene(name, color_size=size, depth_size=depth_size, seed=seed)
+    say(f"  scene built in {time.perf_counter() - t0:.0f} s"
+        + ("; ray tracing the ground truth until two half renders agree (the longest step) ..." if ground_truth
+           else ""))
     base = sf.default_lens
     given = {"focal_length_mm": focal_length_mm, "f_number": f_number, "focus_distance_m": focus_distance_m,
              "aperture_blades": aperture_blades, "aperture_rotation_deg": aperture_rotation_deg}
     lens = dataclasses.replace(base, **{k: v for k, v in given.items() if v is not None})
     info = write_scene(sf, output, lens=lens, ground_truth=ground_truth, gt_samples=samples, linear=linear,
                        progress=sys.stderr.isatty())
+    say(f"  done in {time.perf_counter() - t0:.0f} s")
     click.echo(f"{name} (seed {seed}): {sf.description}")
     click.echo(f"lens: {lens.focal_length_mm:g} mm f/{lens.f_number:g}, focus {lens.focus_distance_m:g} m, "
                f"blades {lens.aperture_blades}")

@@ -83,7 +83,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, render_flags,
         check_output_folder(output_dir, "--output-dir")
     if not off_screen and not has_display():
         raise InputError("no display to open a window on (DISPLAY is not set); "
-                         "use --screenshot OUT.png or --html OUT.html")
+                         "use --screenshot OUT.png, --html OUT.html, or --serve (a browser, also over SSH)")
     if off_screen:  # VTK warns that there is no X server, which off-screen rendering does not need
         from vtkmodules.vtkCommonCore import vtkLogger
 

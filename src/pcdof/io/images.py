@@ -23,6 +23,11 @@ DEPTH_FORMATS_TEXT = (
 )
 
 
+#: The warning for a single-channel 16-bit colour file, the way depth maps are stored.
+GREY16_WARNING = ("colour file {path} is a single-channel 16-bit image, the way depth maps are stored; it is used "
+                  "as a grey picture. If it is the depth image, give the colour image first: COLOR DEPTH")
+
+
 def _decode(path: str, what: str, expect=None) -> tuple[np.ndarray | dict, str | None]:
     """(array in OpenCV channel order, or a dict of EXR channels; file kind).
 
@@ -57,7 +62,8 @@ def read_color(path) -> np.ndarray:
     (H, W, 3) ndarray, RGB channel order, in the file's own type: uint8 or uint16 as stored,
     float32 for float files (EXR, float TIFF, ``.npy``; values as stored, e.g. linear light).
     Grey images are expanded to three channels and an alpha channel is dropped. EXIF
-    orientation is ignored (pixels as stored, like the depth file).
+    orientation is ignored (pixels as stored, like the depth file). A single-channel 16-bit file
+    (how depth maps are stored) is read as grey, with a warning that it may be the depth image.
 
     Raises
     ------
@@ -78,6 +84,8 @@ def _read_color(path, expect=None) -> np.ndarray:
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 2:
+        if img.dtype == np.uint16:
+            warnings.warn(GREY16_WARNING.format(path=path), stacklevel=3)
         img = np.repeat(img[:, :, None], 3, axis=2)
     if img.ndim != 3 or img.shape[2] not in (3, 4):
         raise ImageReadError(f"colour file {path} must hold an (H, W), (H, W, 3) or (H, W, 4) image; got {img.shape}")
@@ -212,10 +220,15 @@ def load_frame(color_path, depth_path, calib_path, *, depth_scale: float | None 
     def expect(intr, label, path):
         return lambda size: _check_size(size, intr, label, path, calib_path)
 
-    color = _read_color(color_path, expect(rig.color, "colour image", color_path))
-    _check_size(color.shape[1::-1], rig.color, "colour image", color_path, calib_path)
-    depth, n_bad = _read_depth(depth_path, rig.depth_scale, expect(rig.depth, "depth image", depth_path))
-    _check_size(depth.shape[1::-1], rig.depth, "depth image", depth_path, calib_path)
+    # the colour's warnings wait for the depth: swapped files are then one error, not a warning and an error
+    with warnings.catch_warnings(record=True) as held:
+        warnings.simplefilter("always")
+        color = _read_color(color_path, expect(rig.color, "colour image", color_path))
+        _check_size(color.shape[1::-1], rig.color, "colour image", color_path, calib_path)
+        depth, n_bad = _read_depth(depth_path, rig.depth_scale, expect(rig.depth, "depth image", depth_path))
+        _check_size(depth.shape[1::-1], rig.depth, "depth image", depth_path, calib_path)
+    for warning in held:
+        warnings.warn(warning.message, warning.category, stacklevel=2)
     if n_bad:
         warnings.warn(f"{fspath(depth_path)}: {n_bad} depth values were NaN, inf or negative; they are treated "
                       "as unknown (0)", stacklevel=2)
@@ -232,4 +245,4 @@ def _check_size(size: tuple[int, int], intr, label: str, path, calib_path) -> No
         )
 
 
-__all__ = ["read_color", "read_depth", "load_frame", "MAX_PIXELS"]
+__all__ = ["read_color", "read_depth", "load_frame", "MAX_PIXELS", "GREY16_WARNING"]

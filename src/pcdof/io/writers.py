@@ -222,6 +222,12 @@ def write_json(path, obj, *, indent: int = 2) -> None:
     NumPy arrays and scalars, paths, dataclasses and objects with ``to_dict()`` (e.g. a
     :class:`~pcdof.camera.Rig`, written in the ``calib.json`` schema) are converted.
 
+    Parameters
+    ----------
+    path : str or os.PathLike, the file to write (any suffix)
+    obj : JSON-compatible data, possibly holding the types above
+    indent : int, spaces per nesting level
+
     Raises
     ------
     InputError

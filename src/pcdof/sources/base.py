@@ -115,6 +115,12 @@ class FrameSource(abc.ABC):
     from a path and the caller's options.
 
     Use as a context manager (``with open_source(path) as src: ...``), or call :meth:`close`.
+
+    Parameters
+    ----------
+    path : str, the recording, folder or file the frames come from (for messages)
+    rig : Rig, the calibration of every frame
+    calibration_from : str, where the rig came from (``"source"``, or the calibration file given)
     """
 
     #: the registry name of the format

@@ -9,6 +9,7 @@ import pytest
 
 from conftest import invoke
 
+import pcdof.io
 from pcdof.batch.focus import check_xy
 from pcdof.cli import main
 from pcdof.errors import EXIT_CODES, ImageWriteError, InputError, LensError

@@ -337,7 +337,7 @@ class TestGuardedCalibration:
 
     def test_load_rig_reads_the_file_once_through_read_calibration(self, tmp_path, monkeypatch):
         import pcdof.io
-        from pcdof.batch import inputs
+        from pcdof.sources import discovery as inputs
 
         calls = []
         real = pcdof.io.read_calibration

@@ -51,6 +51,18 @@ def run_pcdof(args, cwd=None, timeout: float = 300) -> subprocess.CompletedProce
                           timeout=timeout, env=env, errors="backslashreplace")
 
 
+def one_line(proc, code: int, *words: str) -> str:
+    """Assert that child process *proc* failed with exit status *code* and one ``pcdof: error:`` line on stderr
+    (no traceback) naming each of *words* (case-insensitive); returns the line."""
+    assert "Traceback" not in proc.stderr, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("pcdof: error: "), proc.stderr
+    assert proc.returncode == code, (proc.returncode, proc.stderr)
+    for word in words:
+        assert word.lower() in lines[0].lower(), lines[0]
+    return lines[0]
+
+
 def disc_kernel(diameter: float, supersample: int = 16) -> np.ndarray:
     """Anti-aliased uniform disc of the given diameter (pixels), sum 1, by supersampling."""
     r = diameter / 2

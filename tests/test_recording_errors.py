@@ -19,6 +19,8 @@ import subprocess
 import numpy as np
 import pytest
 
+from conftest import one_line
+
 from pcdof.errors import EXIT_CODES, CalibrationError, ImageReadError
 from pcdof.sources import open_source, source_format
 
@@ -28,16 +30,6 @@ READ, CALIB = EXIT_CODES[ImageReadError], EXIT_CODES[CalibrationError]
 def run(console_script, *args, timeout=120) -> subprocess.CompletedProcess:
     return subprocess.run(console_script + [os.fspath(a) for a in args], capture_output=True, text=True,
                           timeout=timeout, env={**os.environ, "COLUMNS": "200"})
-
-
-def one_line(proc, code: int, *words: str) -> str:
-    assert "Traceback" not in proc.stderr, proc.stderr
-    lines = proc.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("pcdof: error: "), proc.stderr
-    assert proc.returncode == code, (proc.returncode, proc.stderr)
-    for word in words:
-        assert word.lower() in lines[0].lower(), lines[0]
-    return lines[0]
 
 
 # --------------------------------------------------------------------------- a bag by content, whatever its name

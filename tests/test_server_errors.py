@@ -24,6 +24,8 @@ import time
 
 import pytest
 
+from conftest import one_line
+
 from pcdof.errors import EXIT_CODES, InputError, ServeError
 
 pytest.importorskip("trame")
@@ -44,16 +46,6 @@ def serve_args(frame: dict, port: int, *extra) -> list[str]:
 
 def run(console_script, args, timeout=240) -> subprocess.CompletedProcess:
     return subprocess.run(console_script + args, capture_output=True, text=True, timeout=timeout)
-
-
-def one_line(proc, code: int, *words: str) -> str:
-    assert "Traceback" not in proc.stderr, proc.stderr
-    lines = proc.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("pcdof: error: "), proc.stderr
-    assert proc.returncode == code, (proc.returncode, proc.stderr)
-    for word in words:
-        assert word.lower() in lines[0].lower(), lines[0]
-    return lines[0]
 
 
 # --------------------------------------------------------------------------- --host and --port

@@ -54,7 +54,7 @@ chromium:
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || { echo "==> creating the virtual environment $(VENV) (a few seconds)"; $(PYTHON) -m venv $(VENV); }
-	@$(call ticking,installing pcdof and its dependencies into $(VENV) (about 80 s the first time),\
+	@$(call ticking,installing pcdof and its dependencies into $(VENV) (about 100 s the first time),\
 	  $(PY) -m pip install --progress-bar off --upgrade pip | { grep -v "^Requirement already" || true; } && \
 	  $(PY) -m pip install --progress-bar off -e '.[test]' | { grep --line-buffered -E '^(Collecting|Installing|Successfully)' || true; })
 	-@$(call ticking,compiling pcdof's kernels once so that the first render starts at once,$(VENV)/bin/pcdof warmup)
@@ -70,7 +70,7 @@ demo-batch: setup
 	@echo "look at out/demo-batch/focus_pull.mp4 (the video) and out/demo-batch/frame_*.png"
 
 test: setup chromium
-	@$(call timed,running the test suite (about 2100 tests; about 10 minutes on 2 cores),$(PY) -m pytest -q)
+	@$(call timed,running the test suite (about 2400 tests; about 11 minutes on 2 cores),$(PY) -m pytest -q)
 
 test-slow: setup
 	$(PY) -m pytest -q -m slow

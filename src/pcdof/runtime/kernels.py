@@ -33,9 +33,10 @@ STAGES = {
                 "pcdof.stages.render.ownership", "pcdof.stages.render.tiles", "pcdof.lens", "pcdof.color")),
 }
 
-#: CPU seconds each stage's ``warmup()`` takes to compile with an empty cache, measured on the
-#: project's 2-core reference machine; only for the estimate printed before compiling.
-COMPILE_CPU_S = {"register": 5.0, "fill": 11.0, "render": 13.5}
+#: CPU seconds each stage's ``warmup()`` takes to compile with an empty cache, measured on the project's 2-core
+#: machine (a fresh clone's ``make setup``: render 47 s in one process, fill 38 s then registration 17 s in the
+#: other, 56.5 s in all); only for the estimate printed before compiling.
+COMPILE_CPU_S = {"register": 17.0, "fill": 38.0, "render": 47.0}
 
 #: stages this process has checked (or compiled): each is checked once per process
 _checked: set = set()

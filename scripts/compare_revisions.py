@@ -7,7 +7,7 @@
 Each revision is checked out into a temporary folder (``git worktree``; the working tree is used as it is for
 ``AFTER=.``) and renders, in a fresh interpreter with that revision's package first on the path:
 
-* every bundled frame (``data/``: the demo's frames and the sequence's first frame), physical and paper method;
+* every bundled frame the demo renders (``pcdof.cli.demo.FRAMES``), physical and paper method;
 * the speed benchmark's frames (``portrait`` at 640x480 and 1920x1080 colour, 512x424 depth, seed 0);
 * the wide benchmark's reported seeds (every scene kind, near focus, 16 and 64 px of background blur at
   256x192; ``--wide-seeds`` chooses the seeds).
@@ -46,13 +46,7 @@ def save(name, result):
         arrays["coc"] = result.coc_px
     np.savez(os.path.join(out, name + ".npz"), **arrays)
 
-frames = {
-    "tum": ("real/tum_rgbd_open3d", "color.png", "depth.png", "calib.json"),
-    "nyu": ("real/nyu_v2_raw_open3d", "color.png", "depth.png", "calib.json"),
-    "adirondack": ("real/middlebury2014_evalQ/Adirondack", "im0.png", "depth0.png", "calib_im0.json"),
-    "motorcycle": ("real/middlebury2014_evalQ/Motorcycle", "im0.png", "depth0.png", "calib_im0.json"),
-    "sample": ("sample", "color.png", "depth.png", "calib.json"),
-}
+from pcdof.cli.demo import FRAMES as frames  # every bundled frame the demo renders
 lens = ThinLens(focal_length_mm=85.0, f_number=1.8, focus_distance_m=1.5)
 for name, (folder, c, d, k) in frames.items():
     base = os.path.join(data, folder)

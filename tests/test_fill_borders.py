@@ -198,6 +198,18 @@ def test_narrow_gap_is_one_surface(seed, gap, thick):
     assert np.allclose(out[hole], wall, rtol=0.01), np.unique(out[hole])
 
 
+def lost_frame(h: int, w: int, seed: int):
+    """Random depth (h, w) and a lost mask: whole rows without a known pixel crossed with whole columns without
+    one (never every pixel)."""
+    rng = np.random.default_rng(seed)
+    rows, cols = rng.random(h) < 0.5, rng.random(w) < 0.5
+    lost = rows[:, None] & cols[None, :]
+    if lost.all():
+        rows[rng.integers(h)] = False
+        lost = rows[:, None] & cols[None, :]
+    return rng.uniform(0.5, 5.0, (h, w)).astype(np.float32), lost
+
+
 @settings(max_examples=60, deadline=None)
 @given(h=st.integers(1, 12), w=st.integers(1, 12), seed=st.integers(0, 2**32 - 1))
 def test_lost_pixels_take_the_nearest_straight_pixel(h, w, seed):
@@ -205,13 +217,7 @@ def test_lost_pixels_take_the_nearest_straight_pixel(h, w, seed):
     that is not lost, Euclidean, ties up, left, down, right: checked against a brute-force search."""
     from pcdof.stages.fill.lost import nearest_not_lost
 
-    rng = np.random.default_rng(seed)
-    rows, cols = rng.random(h) < 0.5, rng.random(w) < 0.5
-    lost = rows[:, None] & cols[None, :]
-    if lost.all():
-        rows[rng.integers(h)] = False
-        lost = rows[:, None] & cols[None, :]
-    depth = rng.uniform(0.5, 5.0, (h, w)).astype(np.float32)
+    depth, lost = lost_frame(h, w, seed)
     got = nearest_not_lost(depth, lost)
     ny, nx = np.nonzero(~lost)
     order = {(-1, 0): 0, (0, -1): 1, (1, 0): 2, (0, 1): 3}
@@ -231,13 +237,7 @@ def test_lost_pixels_blend_the_nearest_straight_pixels(h, w, seed):
     from pcdof.stages.fill.lost import blend_not_lost
     from pcdof.stages.fill import reference
 
-    rng = np.random.default_rng(seed)
-    rows, cols = rng.random(h) < 0.5, rng.random(w) < 0.5
-    lost = rows[:, None] & cols[None, :]
-    if lost.all():
-        rows[rng.integers(h)] = False
-        lost = rows[:, None] & cols[None, :]
-    depth = rng.uniform(0.5, 5.0, (h, w)).astype(np.float32)
+    depth, lost = lost_frame(h, w, seed)
     got = blend_not_lost(depth, lost)
     for y, x in zip(*np.nonzero(lost)):
         assert got[y, x] == pytest.approx(reference.blend_not_lost(depth, lost, y, x), rel=1e-6)

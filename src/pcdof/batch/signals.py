@@ -17,13 +17,9 @@ _SIGNALS = {"held": 0, "pending": None}
 
 
 def _on_signal(signum, frame) -> None:
-    from ..interrupts import EXIT_INTERRUPTED, exit_now, in_machinery
-
     error = Terminated("SIGTERM") if signum == signal.SIGTERM else KeyboardInterrupt()
     if _SIGNALS["held"]:
         _SIGNALS["pending"] = _SIGNALS["pending"] or error
-    elif in_machinery(frame):  # an exception raised in numba's compiler or an import is swallowed or unsafe:
-        exit_now(143 if signum == signal.SIGTERM else EXIT_INTERRUPTED)  # end now, after the cleanups
     else:
         raise error
 

@@ -23,7 +23,8 @@ def quick_report(tmp_path_factory):
 
 def test_every_part_is_reported(quick_report):
     out, report = quick_report
-    for part in ("dof", "wide", "wide_budget", "speed", "threads", "startup", "cost", "registration", "fill"):
+    for part in ("dof", "wide", "wide_budget", "speed", "threads", "startup", "cost", "refocus", "refocus_threads",
+                 "memory", "registration", "fill"):
         assert report.get(part), f"{part} missing from report.json"
     md = (out / "report.md").read_text()
     for heading in ("Depth of field against the ray-traced ground truth", "Speed",
@@ -51,6 +52,55 @@ def test_cost_follows_the_blurred_share(quick_report):
     assert shares == sorted(shares) and shares[0] == 0 and shares[-1] == pytest.approx(1.0)
     assert cost[0]["render_skipped"]  # nothing out of focus: the renderer does no work at all
     assert not any(r["render_skipped"] for r in cost[1:])
+
+
+def test_refocus_rows_alternate_the_paper_method_at_each_blur(quick_report):
+    from pcdof.bench.refocus import BLURS_PX
+
+    _, report = quick_report
+    rows = report["refocus"]
+    assert [r["background_blur_px"] for r in rows] == list(BLURS_PX)
+    for r in rows:
+        assert r["refocus_ms"] > 0 and r["paper_ms"] > 0 and r["ratio"] > 0
+        lo, hi = r["refocus_ms_quartiles"]
+        assert lo <= hi
+    assert rows[0]["relative_to_smallest_blur"] == 1.0
+    assert [r["threads"] for r in report["refocus_threads"]][0] == 1
+    (memory,) = report["memory"]
+    assert memory["color_size"] == "160x120" and memory["peak_mb"] >= memory["baseline_mb"] > 0
+
+
+def test_lens_for_background_blur_blurs_the_background_by_the_pixels_asked():
+    import numpy as np
+
+    from pcdof.bench.refocus import BACKGROUND_PERCENTILE, lens_for_background_blur
+    from pcdof.errors import InputError
+
+    rng = np.random.default_rng(1)
+    depth = rng.uniform(0.8, 4.0, (60, 80)).astype(np.float32)
+    depth[0, :5] = 0  # unknown depth is left out
+    z_b = np.percentile(depth[depth > 0], BACKGROUND_PERCENTILE)
+    for blur in (4.0, 64.0):
+        lens = lens_for_background_blur(depth, 500.0, 1.5, blur)
+        assert lens.focus_distance_m == 1.5
+        assert float(lens.coc_px(np.float32([z_b]), 500.0)[0]) == pytest.approx(blur, rel=1e-4)
+    with pytest.raises(InputError, match="blur_px"):
+        lens_for_background_blur(depth, 500.0, 1.5, 0.0)
+    with pytest.raises(InputError, match="depth_m"):
+        lens_for_background_blur(np.zeros((4, 4)), 500.0, 1.5, 4.0)
+
+
+def test_speed_frame_upscales_big_frames_with_their_intrinsics(monkeypatch):
+    from pcdof.bench import refocus
+
+    small = refocus.speed_frame("slanted_plane", (96, 72), (80, 66))
+    assert small.frame.color.shape == (72, 96, 3)
+    monkeypatch.setattr(refocus, "MAX_GENERATED_SIDE", 96)
+    up = refocus.speed_frame("slanted_plane", (192, 144), (80, 66))
+    assert up.frame.color.shape == (144, 192, 3)
+    c, c0 = up.rig.color, small.rig.color
+    assert (c.width, c.height) == (192, 144) and c.fx == pytest.approx(2 * c0.fx)
+    assert c.cx == pytest.approx(2 * c0.cx + 0.5) and up.rig.depth == small.rig.depth
 
 
 def test_lens_for_share_hits_the_requested_share():
@@ -97,13 +147,14 @@ def test_registration_profile_script(capsys):
     (["--only", "dof", "--samples", "0"], "--samples"),
 ])
 def test_bad_options_fail_before_any_work(tmp_path, monkeypatch, args, flag):
-    from pcdof.bench import dof, fill, registration, speed
+    from pcdof.bench import dof, fill, refocus, registration, speed
 
     def no_work(*a, **k):
         raise AssertionError("benchmark work started before the options were checked")
 
     for module, name in ((dof, "run_dof_bench"), (speed, "pipeline_vs_paper"), (speed, "cost_follows_work"),
-                         (speed, "thread_scaling"), (speed, "startup"),
+                         (speed, "thread_scaling"), (speed, "startup"), (refocus, "refocus_vs_paper"),
+                         (refocus, "refocus_threads"), (refocus, "peak_memory"),
                          (registration, "run_registration_bench"), (fill, "run_fill_bench")):
         monkeypatch.setattr(module, name, no_work)
     out = tmp_path / "b"

@@ -195,12 +195,56 @@ def _speed_part(report, md, run) -> None:
     cost = speed.cost_follows_work(size=sizes[0], depth_size=dsize, repeats=repeats)
     speed.cost_plot(cost, os.path.join(run["output"], "cost.png"))
     report["speed"], report["threads"], report["startup"], report["cost"] = rows, scaling, start, cost
-    lines = _speed_lines(rows, scaling, start)
+    refocus_rows, refocus_scaling, memory = _refocus_measures(quick, repeats, dsize)
+    report["refocus"], report["refocus_threads"], report["memory"] = refocus_rows, refocus_scaling, memory
+    lines = _speed_lines(rows, scaling, start) + [""] + _refocus_lines(refocus_rows, refocus_scaling, memory)
     lines += ["", *table_lines(("out of focus", "f-number", "render ms", "relative to 100 %"), (
         (f"{100 * r['share']:.0f} %", f"{r['f_number']:.2f}", f"{r['render_ms']:.2f}", f"{r['relative_to_full']:.3f}")
         for r in cost))]
     md += ["## Speed\n", *lines, ""]
     click.echo("\n".join(lines))
+
+
+def _refocus_measures(quick: bool, repeats: int, dsize) -> tuple[list, list, list]:
+    """The refocus rows (sizes x background blurs, the paper's whole frame alternated), the refocus per thread
+    count, and the pipeline's peak memory per pixel (:mod:`pcdof.bench.refocus`)."""
+    from ..bench import refocus
+
+    if quick:
+        sizes, memory_sizes, scaling_size = ((160, 120),), ((160, 120),), (160, 120)
+    else:
+        sizes = ((640, 480), (1920, 1080), (3840, 2160))
+        memory_sizes = ((640, 480), (1920, 1080), (3840, 2160), (8064, 6048))
+        scaling_size = (1920, 1080)
+    rows = refocus.refocus_vs_paper(sizes=sizes, depth_size=dsize, repeats=repeats)
+    scaling = refocus.refocus_threads(size=scaling_size, depth_size=dsize, repeats=repeats)
+    memory = refocus.peak_memory(sizes=memory_sizes, depth_size=dsize)
+    return rows, scaling, memory
+
+
+def _refocus_lines(rows, scaling, memory) -> list[str]:
+    """The refocus tables: per size and background blur against the paper's whole frame, per thread count, and
+    the pipeline's peak memory per pixel."""
+    from ..bench import table_lines
+
+    def q(pair, fmt="{:.1f}"):
+        return "-".join(fmt.format(v) for v in pair)
+
+    lines = table_lines(
+        ("colour", "background blur px", "refocus ms (coc + highlights + render)", "quartiles",
+         "paper whole frame ms (cv2.registerDepth + blur/weight/blend)", "ratio (per repeat)",
+         "refocus cost over the smallest blur's"),
+        ((r["color_size"], f"{r['background_blur_px']:.0f}", f"{r['refocus_ms']:.1f}", q(r["refocus_ms_quartiles"]),
+          f"{r['paper_ms']:.1f}", f"{r['ratio']:.2f} ({q(r['ratio_quartiles'], '{:.2f}')})",
+          f"{r['relative_to_smallest_blur']:.2f}") for r in rows))
+    lines += ["", *table_lines(("threads", "colour", "background blur px", "refocus ms", "quartiles",
+                                "speed-up over 1 thread"), (
+        (str(r["threads"]), r["color_size"], f"{r['background_blur_px']:.0f}", f"{r['ms']:.1f}",
+         q(r["ms_quartiles"]), f"{r['speedup']:.2f}") for r in scaling))]
+    lines += ["", *table_lines(("colour", "megapixels", "baseline MB", "peak MB", "bytes per pixel above baseline"), (
+        (r["color_size"], f"{r['megapixels']:.2f}", f"{r['baseline_mb']:.0f}", f"{r['peak_mb']:.0f}",
+         f"{r['bytes_per_pixel']:.0f}") for r in memory))]
+    return lines
 
 
 def _speed_lines(rows, scaling, start) -> list[str]:

@@ -43,6 +43,23 @@ class TestUpsampleCells:
         assert out.shape == (19, 22, 4) and out.dtype == np.float32
         np.testing.assert_allclose(out, 0.25, atol=1e-7)
 
+    @pytest.mark.parametrize("s, rows", [(2, 2), (2, 6), (4, 4), (4, 9), (8, 16), (16, 40), (16, 1000)])
+    def test_strips_are_the_upsampled_layer_value_for_value(self, s, rows):
+        from pcdof.stages.render.grids import upsampled_strips
+
+        rng = np.random.default_rng(s * rows)
+        cells = rng.random((23, 7, 4)).astype(np.float32)
+        h = 23 * s - s // 2  # the last cell cropped
+        want = renderer.upsample_cells(cells, s, h, 7 * s)
+        got = np.full_like(want, np.nan)
+        next_row = 0
+        for y0, strip in upsampled_strips(cells, s, h, 7 * s, rows):
+            assert y0 == next_row and strip.shape[1:] == want.shape[1:]
+            got[y0:y0 + strip.shape[0]] = strip
+            next_row = y0 + strip.shape[0]
+        assert next_row == h
+        np.testing.assert_array_equal(got, want)
+
     @pytest.mark.parametrize("s, h, w", [(0, 4, 4), (3, 4, 4), (2.0, 4, 4), (2, 11, 4), (2, 4, 0)])
     def test_bad_sizes_are_refused(self, s, h, w):
         with pytest.raises(InputError, match="upsample_cells"):

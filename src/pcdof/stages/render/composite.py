@@ -89,7 +89,8 @@ def copy_tiles(src: np.ndarray, tiles: TileMap, out: np.ndarray) -> None:
 
 @njit(parallel=True, cache=True)
 def normalise(acc, acc_a, lin, out):
-    """out = acc / acc_a where some light arrived (acc_a > 1e-6), else the input pixel."""
+    """out = acc / acc_a where some light arrived (acc_a > 1e-6), else the input pixel (*out* may be *acc*:
+    each pixel is read before it is written)."""
     h, w, nc = acc.shape
     for y in prange(h):
         for x in range(w):

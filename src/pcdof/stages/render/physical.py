@@ -34,7 +34,7 @@ from .classify import LAYER_EDGES_PX, SHARP_COC_PX
 from .composite import copy_tiles
 from .extend import NO_PIXELS
 from .frame import Canvas, RenderFrame, as_channels
-from .grids import full_grid, reduced_grid, upsample_cells
+from .grids import full_grid, reduced_grid, upsample_cells, upsampled_strips
 from .ownership import continued_pixels
 from .scatter import scatter_sources
 from .tiles import TileMap, classify_tiles
@@ -53,10 +53,12 @@ def _layer_window(frame: RenderFrame, li: int, r_max: float, r_front: float, bbo
     return box, frame.layer[box] == li, ext_reach, extend
 
 
-def scatter_layer(lin, radius, member, s, aperture: RenderAperture, hidden=None, reach_px=0, fast=None):
+def scatter_layer(lin, radius, member, s, aperture: RenderAperture, hidden=None, reach_px=0, fast=None,
+                  upsample=True):
     """Scatter the pixels of *member* at 1/s resolution.
 
-    Returns their (H, W, C+1) buffer at full size (premultiplied colour, coverage), whether the
+    Returns their (H, W, C+1) buffer at full size (premultiplied colour, coverage; with *upsample* False
+    and s > 1, on the 1/s grid, for :func:`pcdof.stages.render.grids.upsampled_strips`), whether the
     layer was extended, the number of uniform-blur kernels used and the number of sources scattered
     (cells of the 1/s grid).
 
@@ -76,7 +78,7 @@ def scatter_layer(lin, radius, member, s, aperture: RenderAperture, hidden=None,
         convolve_uniform(grid.lin, grid.share, bins, groups, aperture.symmetric, aperture.table, buf)
     if nc < 3:
         buf = np.ascontiguousarray(buf[:, :, list(range(nc)) + [3]])
-    if s > 1:
+    if s > 1 and upsample:
         buf = upsample_cells(buf, s, h, w)
     return buf, grid.extended, len(groups), n_scattered
 
@@ -107,9 +109,13 @@ def _blur_layer(frame: RenderFrame, canvas: Canvas, li: int, key: int, n_members
         uniform = frame.tiles.uniform(lo, hi, 1 if key > 0 else -1, r_max + 2 * s + 2)
     fast = UniformTiles(uniform, frame.tiles, box) if uniform.any() else None
     buf, extended, n_kernels, n_scattered = scatter_layer(frame.lin[box], frame.radius[box], m, s, frame.aperture,
-                                                          hidden, ext_reach, fast)
-    with serial.serial_if(buf.shape[0] * buf.shape[1] < serial.SERIAL_BELOW_PX):
-        composite.composite_under(buf, box[0].start, box[1].start, canvas.acc, canvas.acc_a, canvas.trans)
+                                                          hidden, ext_reach, fast, upsample=False)
+    h, w = m.shape
+    # a reduced layer is upsampled and composited a strip at a time: the full-size layer is never in memory
+    strips = [(0, buf)] if s == 1 else upsampled_strips(buf, s, h, w)
+    for y0, strip in strips:
+        with serial.serial_if(strip.shape[0] * strip.shape[1] < serial.SERIAL_BELOW_PX):
+            composite.composite_under(strip, box[0].start + y0, box[1].start, canvas.acc, canvas.acc_a, canvas.trans)
     return {"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
             "side": "front" if key < 0 else "back", "scale": s, "extended": extended,
             "uniform_tiles": int(uniform.sum()), "kernels": n_kernels, "sources_scattered": n_scattered}
@@ -189,7 +195,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
         frame = RenderFrame(lin, radius, layer, tiles, plan, render_aperture, extend_behind)
         canvas = Canvas.start(lin.shape, tiles, plan.copy_tiles)
         layers_run = _composite_layers(frame, canvas, keys, counts, r_maxes, boxes)
-        out = np.empty_like(lin)
+        out = canvas.acc  # normalised in place: no other full-size image
         composite.normalise(canvas.acc, canvas.acc_a, lin, out)
     in_focus = sum(l["pixels"] for l in layers_run if not l["blurred"])
     info = {"layers": layers_run, "foreground_pass": bool((keys < 0).any()), "blurred_pixels": h * w - in_focus,

@@ -242,3 +242,29 @@ def test_lost_pixels_blend_the_nearest_straight_pixels(h, w, seed):
     for y, x in zip(*np.nonzero(lost)):
         assert got[y, x] == pytest.approx(reference.blend_not_lost(depth, lost, y, x), rel=1e-6)
     np.testing.assert_array_equal(got[~lost], depth[~lost])
+
+
+@pytest.mark.parametrize("slope", [0.003, -0.003])
+def test_strip_past_the_measured_range_is_not_held_at_its_end(slope):
+    """A plane wall cut by a strip outside the view (x < 16) in which it runs past every measured depth:
+    nearer (slope > 0: 1/z grows to the left) the strip continues the plane, down to 1.1 times nearer than the
+    nearest measured depth, here exactly; farther, each row keeps about the depth its edge pixel measured, inside
+    the measured range. Clamping each candidate to the measured range would hold its end over the area."""
+    h, w, edge = 40, 64, 16
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    truth = (1.0 / (0.5 + slope * (edge - xx) + 0.0005 * yy)).astype(np.float32)
+    depth = truth.copy()
+    depth[:, :edge] = 0
+    out, kind = fill_directional(depth, np.full((h, w, 3), 128, np.uint8), use_color=True, edge_ratio=EDGE_RATIO,
+                                 sigma_color=0.04, background_bias=6.0, with_kinds=True)
+    assert np.all(kind == BORDER)
+    strip = out[:, :edge]
+    known = depth[depth > 0]
+    same_x, same_y = np.diff(strip, axis=1) == 0, np.diff(strip, axis=0) == 0
+    assert not (same_x[:-1] & same_y[:, :-1]).any()  # no value held over an area
+    if slope > 0:
+        assert strip.min() < known.min() and strip.min() >= known.min() / 1.1
+        np.testing.assert_allclose(strip, truth[:, :edge], rtol=1e-4)
+    else:
+        assert strip.min() >= known.min() and strip.max() <= known.max()
+        assert np.all(np.abs(strip / truth[:, edge:edge + 1] - 1) < EDGE_RATIO)

@@ -39,7 +39,23 @@ from pcdof.stages.fill.surfaces import color_sim  # the similarity itself is unc
 
 
 @njit
-def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, z, order, bias0):
+def _plain_idw(iv, r, past, order, start, end):
+    """IDW on 1/z of candidates order[start:end]; on their past values when every one has one."""
+    all_past = True
+    for i in range(start, end):
+        if past[order[i]] < 0.0:
+            all_past = False
+    sw = 0.0
+    swi = 0.0
+    for i in range(start, end):
+        j = order[i]
+        sw += 1.0 / r[j]
+        swi += (past[j] if all_past else iv[j]) / r[j]
+    return swi / sw
+
+
+@njit
+def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, z, order, bias0, past):
     for j in range(m):  # insertion sort, far to near
         zq = 1.0 / iv[j]
         i = j
@@ -69,8 +85,6 @@ def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, 
             start = end
             continue
         score = 0.0
-        sw = 0.0
-        swi = 0.0
         for i in range(start, end):
             j = order[i]
             if rules.use_color:
@@ -80,13 +94,11 @@ def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, 
                 sim = color_sim(color, depth, c0, c1, c2, bnd.y[qs[j]], bnd.x[qs[j]], uy, ux,
                                 rules.n_samples, rules.inv_two_sigma2)
                 score += sim / (r[j] + rules.support_px)
-            sw += 1.0 / r[j]
-            swi += iv[j] / r[j]
         if start > 0:
             score /= bias
         if score > best_score:
             best_score = score
-            best_inv = swi / sw
+            best_inv = _plain_idw(iv, r, past, order, start, end)
         if not rules.use_color:
             break
         start = end
@@ -103,6 +115,7 @@ def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
     slot = np.empty(K, dtype=np.int64)
     z = np.empty(K)
     order = np.empty(K, dtype=np.int64)
+    past = np.empty(K)
     for h in range(holes.y.shape[0]):
         py = holes.y[h]
         px = holes.x[h]
@@ -116,7 +129,7 @@ def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
             if rules.border_median:
                 r_near[h] = r_border
         else:
-            m = collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot)
+            m = collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot, past, outside)
             if m == 0:
                 kind[h] = LOST
                 continue
@@ -124,20 +137,15 @@ def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
             iv_min = iv[:m].min()
             iv_max = iv[:m].max()
             if 1.0 / iv_min - 1.0 / iv_max <= rules.edge_ratio / iv_min:
-                sw = 0.0
-                swi = 0.0
-                for i in range(m):
-                    sw += 1.0 / r[i]
-                    swi += iv[i] / r[i]
-                inv = swi / sw
+                inv = _plain_idw(iv, r, past, np.arange(m), 0, m)
                 kind[h] = SURFACE
             else:
                 inv, kind[h] = _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot,
-                                                     z, order, rules.border_bias if outside else rules.bias)
+                                                     z, order, rules.border_bias if outside else rules.bias, past)
             if outside:
                 kind[h] = BORDER
         if kind[h] != LOST:
-            out[py, px] = np.float32(min(max(1.0 / inv, rules.zmin), rules.zmax))
+            out[py, px] = np.float32(min(max(1.0 / inv, rules.border_zmin if outside else rules.zmin), rules.zmax))
 
 
 def _insertion_sort(iv):

@@ -40,7 +40,10 @@ Three rules come before and after these steps:
   the surfaces that reach the border continue along their planes, but a nearer surface needs only
   4 times the farthest one's colour support (not ``background_bias``, 6): a near object cut by the
   border stays near where its colour continues, and the wall is not pulled forward where it does
-  not. A corner that no line reaches blends the nearest filled pixels up, left, down and right
+  not. A surface whose planes all run past the measured depth range there is not stopped at the
+  range's end (one value over an area): nearer than the nearest measured depth it continues along its
+  planes, at most 1.1 times nearer; farther than the farthest, each line holds its measured depth.
+  A corner that no line reaches blends the nearest filled pixels up, left, down and right
   (1/d weights on 1/z). ``border="extend"`` continues the plane of the nearest inside pixel along
   the row or column (for at most 64 px at 640 across, then held); ``border="hold"`` holds its depth
   (the rule of earlier releases: constant strips, and triangles in the corners). The choice was
@@ -54,7 +57,7 @@ Three rules come before and after these steps:
 * **Speckles.** A filled pixel whose depth differs from all 8 neighbours by more than
   ``edge_ratio`` takes their median (one pass, after step 5).
 
-Filled values are clamped to the range of the known values. ``"nearest-background"`` is the same
+Filled values are clamped to the range of the known values (outside the view, to 1.1 times nearer). ``"nearest-background"`` is the same
 without colour (always the farthest surface); ``"telea"`` is OpenCV's ``cv2.inpaint`` (Telea), the
 usual baseline, which averages across depth edges and so smears foreground depth into
 disocclusions.

@@ -7,7 +7,7 @@ import numpy as np
 from numba import njit, prange
 
 from .rules import BORDER, CANDIDATES, LOST, SURFACE
-from .surfaces import border_inv, choose_surface, collect_candidates
+from .surfaces import border_inv, choose_surface, collect_candidates, interpolate_all
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -28,6 +28,7 @@ def combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
         order = np.empty(K, dtype=np.int64)
         ends = np.empty(K, dtype=np.int64)  # per nearer surface: its end in order, and its bound
         bounds = np.empty(K)
+        past = np.empty(K)  # per candidate slot: its 1/z when its whole surface runs past the known range
         for h in range(c * n // n_chunks, (c + 1) * n // n_chunks):
             py = holes.y[h]
             px = holes.x[h]
@@ -42,7 +43,7 @@ def combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
                 if rules.border_median:
                     r_near[h] = r_border  # deep in a strip, the median cleans what one row's pixel puts there
             else:
-                m = collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot)
+                m = collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot, past, outside)
                 if m == 0:
                     kind[h] = LOST
                     continue
@@ -57,19 +58,16 @@ def combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
                 r_near[h] = r_min
                 if 1.0 / iv_min - 1.0 / iv_max <= rules.edge_ratio / iv_min:
                     # one surface (the common case inside a surface): no sorting, no colour
-                    sw = 0.0
-                    swi = 0.0
-                    for i in range(m):
-                        sw += 1.0 / r[i]
-                        swi += iv[i] / r[i]
-                    inv = swi / sw
+                    inv = interpolate_all(iv, r, m, past, order)
                     kind[h] = SURFACE
                 else:
                     inv, kind[h] = choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot,
                                                   zu, z, order, ends, bounds,
-                                                  rules.border_bias if outside else rules.bias)
+                                                  rules.border_bias if outside else rules.bias, past)
                 if outside:
                     kind[h] = BORDER
             if kind[h] != LOST:
-                # zmin, zmax are float32 values: clamping before the cast keeps the result inside them
-                out[py, px] = np.float32(min(max(1.0 / inv, rules.zmin), rules.zmax))
+                # zmin, zmax are float32 values: clamping before the cast keeps the result inside them (outside
+                # the view, a surface nearer than the known range goes down to border_zmin)
+                out[py, px] = np.float32(min(max(1.0 / inv, rules.border_zmin if outside else rules.zmin),
+                                             rules.zmax))

@@ -43,7 +43,8 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", parallel: boo
     Returns
     -------
     (H, W) float32 ndarray, metres: known pixels unchanged, holes filled with values in
-    [min known, max known]; a copy when there are no holes
+    [min known, max known] (outside the depth camera's view with ``border="candidates"``, down to
+    min known / 1.1, where a surface runs nearer than all measured depth); a copy when there are no holes
 
     Raises
     ------

@@ -15,7 +15,11 @@ step = max(1, round(scale))):
    column ((0, 1), (0, -1)). If neither line has a candidate on both sides, the hole is outside the
    view. ``"candidates"`` (the default): it goes through rules 4 and 5 as any hole, with nearer
    surfaces' scores divided by 4 (``BORDER_BIAS``) instead of ``background_bias``; with no candidate on
-   any line it is *lost* (rule 6). ``"extend"`` and ``"hold"``: if one of the lines has a candidate on one
+   any line it is *lost* (rule 6). A candidate whose plane at the hole (rule 2, before the clamp) lies
+   past the known 1/z range has a *past* value: above it (nearer than the nearest known depth), that
+   1/z, at most 1.1 (``BORDER_NEARER``) / min known; below it (farther than the farthest), its plane's
+   own 1/z (a) clamped to the range. Where every candidate of the surface that gives the depth in rule 4
+   (all of them when they span one surface) has a past value, the IDW is over the past values. ``"extend"`` and ``"hold"``: if one of the lines has a candidate on one
    side, it takes the plane of the nearer of those one-sided candidates (ties: the row's), clamped to
    the known 1/z range, and skips rules 4 and 5: ``"extend"`` the plane extrapolated to the hole as in
    rule 2 but for at most 64 px x max(1, scale), ``"hold"`` the plane's own 1/z (a); if neither line
@@ -32,7 +36,8 @@ step = max(1, round(scale))):
    count those whose two candidates both exist, are at most 48 px x scale apart (r_a + r_b), and
    both lie strictly nearer than the farthest surface (depth below its nearest member). With at least
    4 such pairs, nearer surfaces' scores are divided by ``background_bias ** 2`` instead.
-6. Clamp to [min known, max known]. A lost hole (no known pixel on its row nor on its column; a hole
+6. Clamp to [min known, max known] (outside the view with ``"candidates"``: [min known / 1.1, max known]).
+   A lost hole (no known pixel on its row nor on its column; a hole
    with no candidate on any of the 16 lines is one of these) is filled, after rules 3-5, from the
    nearest pixels that are not lost straight up, left, down and right of it (the pixels that are not
    lost are whole rows and whole columns). ``"candidates"`` and ``"extend"``: inverse-distance weights 1/d
@@ -63,9 +68,11 @@ _DIRS = [(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1),
 #: Opposite pairs of directions (as indices into _DIRS) that rule 5 counts.
 _PAIRS = [(0, 4), (1, 5), (2, 6), (3, 7), (8, 12), (9, 13), (10, 14), (11, 15)]
 _GAP_MIN_PAIRS = 4
-#: Rule 3's extrapolation limit (px at 640 across), and the background bias outside the view.
+#: Rule 3's extrapolation limit (px at 640 across), the background bias outside the view, and how much nearer
+#: than the nearest known depth a surface there may run.
 _BORDER_EXTEND_PX = 64.0
 BORDER_BIAS = 4.0
+BORDER_NEARER = 1.1
 #: Rule 6's order among equally near pixels: (dy, dx) signs of up, left, down, right.
 _LOST_TIE_ORDER = [(-1, 0), (0, -1), (1, 0), (0, 1)]
 
@@ -131,7 +138,9 @@ def color_support(color, known, c_p, qy, qx, uy, ux, n_samples, sigma) -> float:
 
 
 def _idw(cands) -> float:
-    return sum(c["iv"] / c["r"] for c in cands) / sum(1.0 / c["r"] for c in cands)
+    """Rule 4's IDW on 1/z; on the past values (rule 3) when every candidate has one."""
+    key = "past" if all(c.get("past") is not None for c in cands) else "iv"
+    return sum(c[key] / c["r"] for c in cands) / sum(1.0 / c["r"] for c in cands)
 
 
 def _surfaces(cands, edge_ratio):
@@ -268,11 +277,13 @@ def despeckle(out, holes, edge_ratio) -> None:
 
 
 def _hole_inv(depth, known, color, planes, y, x, rules):
-    """(1/z or None for a lost hole, distance to the nearest candidate, 0 for border and lost) of hole (y, x)."""
+    """(1/z or None for a lost hole, distance to the nearest candidate, 0 for border and lost, and whether it
+    lies outside the view) of hole (y, x)."""
     kind, inv, r_border = border_inv(known, planes, y, x, rules["inv_lo"], rules["inv_hi"], rules["border"],
                                      rules["border_px"])
-    if kind != "inside" and rules["border"] != "candidates":
-        return inv, r_border
+    outside = kind != "inside"
+    if outside and rules["border"] != "candidates":
+        return inv, r_border, outside
     bias = rules["bias"] if kind == "inside" else BORDER_BIAS
     cands = []
     for k, (dx, dy) in enumerate(_DIRS):
@@ -283,13 +294,18 @@ def _hole_inv(depth, known, color, planes, y, x, rules):
         ddx, ddy = float(x - q[1]), float(y - q[0])
         r = math.hypot(ddx, ddy)
         f = 1.0 if r <= rules["extrapolate_px"] else rules["extrapolate_px"] / r
-        iv = min(max(a + f * (gx * ddx + gy * ddy), rules["inv_lo"]), rules["inv_hi"])
-        cands.append({"iv": iv, "r": r, "k": k, "q": q})
+        raw = a + f * (gx * ddx + gy * ddy)
+        past = None
+        if outside and raw > rules["inv_hi"]:
+            past = min(raw, rules["border_inv_hi"])
+        elif outside and raw < rules["inv_lo"]:
+            past = min(max(a, rules["inv_lo"]), rules["inv_hi"])
+        cands.append({"iv": min(max(raw, rules["inv_lo"]), rules["inv_hi"]), "r": r, "k": k, "q": q, "past": past})
     if not cands:  # outside the view, no line reaches it (with "candidates")
-        return None, 0.0
+        return None, 0.0, outside
     inv = _choose(cands, color, known, y, x, rules["use_color"], rules["edge_ratio"], rules["sigma"], bias,
                   rules["support_px"], rules["gap_px"], rules["step"])
-    return inv, min(c["r"] for c in cands)
+    return inv, min(c["r"] for c in cands), outside
 
 
 def fill_directional(depth_m, color=None, *, use_color: bool = True, edge_ratio: float = DEFAULT_EDGE_RATIO,
@@ -319,19 +335,20 @@ def fill_directional(depth_m, color=None, *, use_color: bool = True, edge_ratio:
     rules = {"use_color": use_color, "edge_ratio": edge_ratio, "sigma": sigma_color, "bias": background_bias,
              "extrapolate_px": 64.0 * max(scale, 1.0), "support_px": 20.0 * scale, "gap_px": 48.0 * scale,
              "step": step, "inv_lo": 1.0 / zmax, "inv_hi": 1.0 / zmin, "border": border,
-             "border_px": _BORDER_EXTEND_PX * max(scale, 1.0)}
+             "border_px": _BORDER_EXTEND_PX * max(scale, 1.0), "border_inv_hi": BORDER_NEARER / zmin}
     planes = {(y, x): fit_plane(depth, y, x, 5 * step, step, edge_ratio) for y, x in zip(*np.nonzero(known))}
     out = depth.copy()
     holes = [(int(y), int(x)) for y, x in zip(*np.nonzero(~known))]
     lost = np.zeros((H, W), bool)
     r_near = []
     for y, x in holes:
-        inv, r = _hole_inv(depth, known, color, planes, y, x, rules)
+        inv, r, outside = _hole_inv(depth, known, color, planes, y, x, rules)
         r_near.append(r)
         if inv is None:
             lost[y, x] = True
         else:
-            out[y, x] = np.float32(min(max(1.0 / inv, zmin), zmax))
+            lo = zmin / BORDER_NEARER if outside and border == "candidates" else zmin
+            out[y, x] = np.float32(min(max(1.0 / inv, lo), zmax))
     pick = nearest_not_lost if border == "hold" else blend_not_lost
     lost_values = [(y, x, pick(out, lost, y, x)) for y, x in zip(*np.nonzero(lost))]
     for y, x, v in lost_values:

@@ -38,13 +38,20 @@ def color_sim(color, depth, c0, c1, c2, qy, qx, uy, ux, n_samples, inv_two_sigma
 
 
 @njit(cache=True, inline="always")
-def _extrapolate(bnd, q, px, py, cap_px, rules):
-    """(1/z, distance) of boundary pixel *q*'s plane at (px, py); the offset stops growing past *cap_px*."""
+def _plane_at(bnd, q, px, py, cap_px):
+    """(1/z, distance) of boundary pixel *q*'s plane at (px, py), not clamped; the offset stops growing past
+    *cap_px*."""
     ddx = float(px - bnd.x[q])
     ddy = float(py - bnd.y[q])
     rq = math.sqrt(ddx * ddx + ddy * ddy)
     f = 1.0 if rq <= cap_px else cap_px / rq
-    ivq = bnd.plane[q, 0] + f * (bnd.plane[q, 1] * ddx + bnd.plane[q, 2] * ddy)
+    return bnd.plane[q, 0] + f * (bnd.plane[q, 1] * ddx + bnd.plane[q, 2] * ddy), rq
+
+
+@njit(cache=True, inline="always")
+def _extrapolate(bnd, q, px, py, cap_px, rules):
+    """(1/z, distance) of boundary pixel *q*'s plane at (px, py), clamped to the known 1/z range."""
+    ivq, rq = _plane_at(bnd, q, px, py, cap_px)
     return min(max(ivq, rules.inv_lo), rules.inv_hi), rq
 
 
@@ -104,15 +111,26 @@ def gap_depth(slot, iv, r, far_min_z, gap_px):
 
 
 @njit(cache=True, inline="always")
-def collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot):
-    """Collect hole *h*'s candidates into the slot arrays (step 1); returns how many."""
+def collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot, past, outside):
+    """Collect hole *h*'s candidates into the slot arrays (step 1); returns how many.
+
+    past[m]: -1, or for a hole *outside* the view whose candidate's plane runs past the known 1/z range, the
+    1/z it gives when its whole surface does (:func:`_interpolate`): nearer than the range, the plane itself
+    down to ``rules.border_inv_hi``; farther, the candidate's own 1/z (its measured depth held).
+    """
     m = 0
     for k in range(holes.cand.shape[0]):
         slot[k] = -1
         q = holes.cand[k, h]
         if q < 0:
             continue
-        iv[m], r[m] = _extrapolate(bnd, q, holes.x[h], holes.y[h], rules.extrapolate_px, rules)
+        ivq, r[m] = _plane_at(bnd, q, holes.x[h], holes.y[h], rules.extrapolate_px)
+        iv[m] = min(max(ivq, rules.inv_lo), rules.inv_hi)
+        past[m] = -1.0
+        if outside and ivq > rules.inv_hi:
+            past[m] = min(ivq, rules.border_inv_hi)
+        elif outside and ivq < rules.inv_lo:
+            past[m] = min(max(bnd.plane[q, 0], rules.inv_lo), rules.inv_hi)
         kq[m] = k
         qs[m] = q
         slot[k] = m
@@ -141,15 +159,28 @@ def _surface_end(z, start, m, edge_ratio):
 
 
 @njit(cache=True, inline="always")
-def _interpolate(iv, r, order, start, end):
-    """1/z of the surface order[start:end] at the hole: inverse-distance weights 1/r on 1/z (step 4)."""
+def _interpolate(iv, r, order, start, end, past):
+    """1/z of the surface order[start:end] at the hole: inverse-distance weights 1/r on 1/z (step 4); on the
+    candidates' *past* values when every one of them runs past the known range (outside the view: else the
+    whole area would take the range's end, one value)."""
+    all_past = True
+    for i in range(start, end):
+        all_past = all_past and past[order[i]] >= 0.0
     sw = 0.0
     swi = 0.0
     for i in range(start, end):
         j = order[i]
         sw += 1.0 / r[j]
-        swi += iv[j] / r[j]
+        swi += (past[j] if all_past else iv[j]) / r[j]
     return swi / sw
+
+
+@njit(cache=True, inline="always")
+def interpolate_all(iv, r, m, past, order):
+    """:func:`_interpolate` over all *m* candidates, in slot order (*order*: scratch, overwritten)."""
+    for i in range(m):
+        order[i] = i
+    return _interpolate(iv, r, order, 0, m, past)
 
 
 @njit(cache=True, inline="always")
@@ -191,15 +222,16 @@ def sort_far_to_near(iv, m, zu, z, order):
 
 @njit(cache=True, inline="always")
 def choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, zu, z, order, ends, bounds,
-                   bias0):
-    """(1/z, kind) of a hole whose candidates span several surfaces (steps 2-4); *bias0*: the background bias."""
+                   bias0, past):
+    """(1/z, kind) of a hole whose candidates span several surfaces (steps 2-4); *bias0*: the background bias;
+    *past*: as :func:`collect_candidates` gives it."""
     sort_far_to_near(iv, m, zu, z, order)
     end0 = _surface_end(z, 0, m, rules.edge_ratio)
     # in a narrow gap the foreground around it needs bias**2 times the support (not bias times) of
     # the surface behind: a gap whose colour is ambiguous takes that surface throughout, not per pixel
     kind = GAP if rules.use_color and gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
     if not rules.use_color:
-        return _interpolate(iv, r, order, 0, end0), kind  # the farthest surface
+        return _interpolate(iv, r, order, 0, end0, past), kind  # the farthest surface
     bias = bias0 * bias0 if kind == GAP else bias0
     # the nearer surfaces and the most each can score (every colour similarity 1), divided by the bias
     n_near = 0
@@ -220,7 +252,7 @@ def choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slo
     score = _color_score(depth, color, bnd, dirs, rules, c0, c1, c2, r, kq, qs, order, 0, end0,
                          near_max if rules.inv_two_sigma2 < np.inf else np.inf)
     if score >= near_max:
-        return _interpolate(iv, r, order, 0, end0), kind
+        return _interpolate(iv, r, order, 0, end0, past), kind
     best_score = -1.0
     best_start = 0
     best_end = 0
@@ -238,4 +270,4 @@ def choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slo
                 best_start = start
                 best_end = end
         start = end
-    return (_interpolate(iv, r, order, best_start, best_end) if best_end > 0 else 0.0), kind
+    return (_interpolate(iv, r, order, best_start, best_end, past) if best_end > 0 else 0.0), kind

@@ -12,7 +12,7 @@ STAMP  := $(VENV)/.installed
 SHELL  := /bin/bash
 .SHELLFLAGS := -o pipefail -c
 
-.PHONY: demo demo-batch test test-slow bench stress setup sysdeps chromium docs clean
+.PHONY: demo demo-batch test test-slow bench stress setup sysdeps chromium docs clean clean-kernels
 
 # $(call timed,WHAT,COMMAND): run COMMAND between a line saying what it does and one saying how long it took
 timed = t0=$$(date +%s); echo "==> $(1)"; $(2) && echo "==> done in $$(( $$(date +%s) - t0 )) s"
@@ -92,3 +92,8 @@ docs:
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
+
+# numba's on-disk cache is keyed on each kernel's own source file: after editing a helper that a kernel of
+# another module inlines, the cached kernel still holds the old helper until this clears it
+clean-kernels:
+	find src -name '*.nbi' -delete -o -name '*.nbc' -delete

@@ -191,6 +191,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
         coc, radius, layer, keys, counts, r_maxes, boxes = classify.classify_layers(
             np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX, LAYER_EDGES_PX)
         tiles = _tiles_for(coc, tiles, plan)
+        del coc  # the layers read the radius and the layer ids: the cleaned CoC is not kept through them
         render_aperture = RenderAperture(shape.symmetric, cached_aperture_table(shape))
         frame = RenderFrame(lin, radius, layer, tiles, plan, render_aperture, extend_behind)
         canvas = Canvas.start(lin.shape, tiles, plan.copy_tiles)

@@ -266,6 +266,37 @@ def test_colour_codes():
 
 
 @sim_only
+def test_a_phone_rigs_depth_edges_are_opened_as_on_the_cpu():
+    # the depth map in the photo's own camera on a 4x coarser grid (a phone): the register stage clears a band
+    # around its depth edges for the colour-guided fill, on the GPU as on the CPU
+    from pcdof.camera import Intrinsics, RGBDFrame, Rig
+    from pcdof.gpu.api import run
+    from pcdof.lens import ThinLens
+    from pcdof.options import RenderOptions
+    from pcdof.stages.register import open_coarse_edges, register_depth
+    from pcdof.stages.register.guided import coarse_depth_scale
+
+    s = 4
+    depth_cam = Intrinsics(8, 6, 7.0, 7.0, 3.5, 2.5)
+    color_cam = Intrinsics(8 * s, 6 * s, 7.0 * s, 7.0 * s, (3.5 + 0.5) * s - 0.5, (2.5 + 0.5) * s - 0.5)
+    rig = Rig(color_cam, depth_cam)
+    assert coarse_depth_scale(rig) == pytest.approx(s)
+    depth = np.full((6, 8), 3.0, np.float32)
+    depth[2:4, 3:6] = 1.0
+    yy, xx = np.mgrid[0:6 * s, 0:8 * s]
+    color = np.stack([xx * 5, yy * 7, 120 + 0 * xx], axis=-1).astype(np.uint8)
+    frame = RGBDFrame(color, depth, rig)
+    result = run(frame, RenderOptions(ThinLens(50.0, 1.4, 2.0), highlights="off"))
+    want, edges = open_coarse_edges(register_depth(frame), rig)
+    assert edges["opened"] > 0
+    got = result.depth_registered_m
+    np.testing.assert_array_equal(got > 0, want > 0)
+    np.testing.assert_allclose(got[want > 0], want[want > 0], rtol=REL_REGISTER)
+    register = next(t for t in result.trace if t.name == "register")
+    assert register.detail["edges"]["opened"] == edges["opened"]
+
+
+@sim_only
 def test_pipeline_on_the_gpu_matches_the_references_chained():
     from pcdof.color import to_float
     from pcdof.gpu.api import run

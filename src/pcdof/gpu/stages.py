@@ -50,7 +50,8 @@ class _Stage:
 
 
 def _register(frame: RGBDFrame, depth_dev, trace, stream, sync):
-    from ..stages.register import needs_registration
+    from ..stages.register import needs_registration, open_coarse_edges
+    from ..stages.register.guided import coarse_depth_scale
 
     with _Stage(trace, "register", stream, sync) as rec:
         needed, reason = needs_registration(frame.rig)
@@ -58,7 +59,15 @@ def _register(frame: RGBDFrame, depth_dev, trace, stream, sync):
         if not needed:
             rec["skipped"] = True
             return depth_dev
-        return register_depth(depth_dev, frame.rig, stream=stream)
+        registered = register_depth(depth_dev, frame.rig, stream=stream)
+        if coarse_depth_scale(frame.rig) is None:
+            return registered
+        # a phone's coarse depth grid: its edges are opened on the host, as the CPU's register stage does, and
+        # the fill redraws them where the colour changes
+        opened, edges = open_coarse_edges(registered.copy_to_host(stream=stream), frame.rig)
+        rec["reason"] += f"; {edges['opened']} px at depth edges left to the colour-guided fill"
+        rec["detail"]["edges"] = edges
+        return to_device(opened, stream=stream)
 
 
 def _fill(registered, frame: RGBDFrame, color_dev, opts, trace, stream, sync):

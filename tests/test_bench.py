@@ -354,6 +354,21 @@ def test_wide_spec_default_lens_is_focused_on_the_subject():
         assert spec.focus_m["near"] < spec.focus_m["mid"] < spec.focus_m["far"]
 
 
+def test_wide_fence_scene_puts_its_poles_at_the_near_focus():
+    import numpy as np
+
+    from pcdof.synth.wide import WIDE_SCENES
+
+    for seed in (100, 101, 5):
+        spec = WIDE_SCENES["fence"](np.random.default_rng([seed, 7]))
+        poles = [mesh for mesh, group in zip(spec.scene.meshes, spec.object_groups) if group == "foreground"]
+        assert 6 <= len(poles) <= 10  # 5-9 upright poles and a rail
+        for mesh in poles:
+            assert mesh.bounds[0][2] <= spec.focus_m["near"] + 0.05 and mesh.bounds[1][2] >= spec.focus_m["near"] - 0.05
+        widths = sorted(float(m.extents[0]) for m in poles)[:-1]  # the rail spans the view
+        assert max(widths) <= 0.031  # thin: at most 30 mm across
+
+
 def test_speed_part_reports_spread_threads_and_start_up(quick_report):
     out, report = quick_report
     for row in report["speed"]:

@@ -1,7 +1,8 @@
 """Procedural scenes for the wide benchmark: random layouts over wide ranges, three focus positions.
 
 Unlike :data:`pcdof.synth.SCENES` (one hand-made layout per scene, jittered), every scene type here
-draws its whole layout from the seed: room depth, subject, a foreground occluder near the camera,
+draws its whole layout from the seed: room depth, subject, a foreground occluder near the camera (in the
+``fence`` scene, a fence of thin poles: in focus at ``near``, over a blurred room),
 thin structures (wires, branches, rods), emitters and specular glints. Emitter and glint radiance
 is drawn log-uniform over :data:`RADIANCE_RANGE` times diffuse white, so the 8-bit sRGB colour
 image clips them (the frame keeps the unclipped linear radiance for the ground truth).
@@ -122,6 +123,17 @@ def _thin(rng, count: int, z_range: tuple) -> list:
     return objs
 
 
+def _fence(rng, z: float) -> list:
+    """A fence at depth *z*: 5-9 upright poles (8-30 mm across) spread over the view, and one rail across."""
+    mat = random_textured(rng, scale=(0.005, 0.02))
+    count = int(rng.integers(5, 10))
+    xs = np.linspace(-0.55, 0.55, count) * z + rng.uniform(-0.03, 0.03, count) * z
+    objs = [(cylinder((x, -3.0, z), (x, 3.0, z), rng.uniform(0.004, 0.015), sections=10), mat, False) for x in xs]
+    y = rng.uniform(-0.3, 0.3) * z
+    objs.append((cylinder((-3.0, y, z + 0.02), (3.0, y, z + 0.02), rng.uniform(0.004, 0.01), sections=10), mat, False))
+    return objs
+
+
 def _lights(rng, count: int, z_range: tuple, levels: list) -> list:
     """Small emitters (spheres 0.8-4 cm) and lamp panels (5-20 cm) at random depths."""
     objs = []
@@ -161,7 +173,8 @@ def _build(rng, *, dark: bool, n_thin: int, n_lights: int, kind: str) -> WideSpe
     # drawn in this order (room, subject, foreground, thin, lights, glints): a new part goes last
     room_objs = _room(rng, back_z, dark)
     subject = _subject(rng, z_subject)
-    parts = (("room", room_objs), ("subject", subject), ("foreground", _foreground(rng, z_fg)),
+    front = _fence(rng, z_fg) if kind == "fence" else _foreground(rng, z_fg)
+    parts = (("room", room_objs), ("subject", subject), ("foreground", front),
              ("thin", _thin(rng, n_thin, (z_fg, back_z - 0.3))),
              ("light", _lights(rng, n_lights, (z_subject + 0.3, back_z - 0.1), levels)),
              ("glint", _glints(rng, int(rng.integers(1, 4)), subject, levels)))
@@ -192,8 +205,13 @@ def night_scene(rng: np.random.Generator) -> WideSpec:
     return _build(rng, dark=True, n_thin=int(rng.integers(0, 3)), n_lights=int(rng.integers(12, 30)), kind="night")
 
 
+def fence_scene(rng: np.random.Generator) -> WideSpec:
+    """A fence of thin poles near the camera (its "near" focus: in focus over a blurred room behind it)."""
+    return _build(rng, dark=False, n_thin=int(rng.integers(0, 3)), n_lights=int(rng.integers(1, 4)), kind="fence")
+
+
 #: wide-benchmark scene type -> builder(rng) -> WideSpec
-WIDE_SCENES = {"room": room_scene, "thin": thin_scene, "night": night_scene}
+WIDE_SCENES = {"room": room_scene, "thin": thin_scene, "night": night_scene, "fence": fence_scene}
 
 
 def lens_for_blur(depth_m: np.ndarray, fx: float, focus_m: float, max_coc_px: float, *,

@@ -111,7 +111,7 @@ def exit_soon(code: int = EXIT_INTERRUPTED, grace_s: float = EXIT_GRACE_S) -> No
     threading.Thread(target=watchdog, name="pcdof-exit-watchdog", daemon=True).start()
 
 
-def in_machinery(frame) -> bool:
+def _in_machinery(frame) -> bool:
     """Whether *frame* or one of its callers runs the import machinery or numba's compiler."""
     while frame is not None:
         name = frame.f_code.co_filename
@@ -122,7 +122,7 @@ def in_machinery(frame) -> bool:
 
 
 def _on_sigint(signum, frame) -> None:
-    if _STATE["raising"] and not in_machinery(frame):
+    if _STATE["raising"] and not _in_machinery(frame):
         raise KeyboardInterrupt
     exit_now()
 

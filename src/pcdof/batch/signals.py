@@ -3,11 +3,8 @@
 from __future__ import annotations
 
 import contextlib
-import os
 import signal
 import threading
-
-from ..interrupts import in_machinery
 
 
 class Terminated(KeyboardInterrupt):
@@ -19,28 +16,12 @@ class Terminated(KeyboardInterrupt):
 _SIGNALS = {"held": 0, "pending": None}
 
 
-#: seconds after which a signal that arrived inside numba's compiler or an import is delivered again
-REDELIVER_S = 0.1
-
-
 def _on_signal(signum, frame) -> None:
     error = Terminated("SIGTERM") if signum == signal.SIGTERM else KeyboardInterrupt()
     if _SIGNALS["held"]:
         _SIGNALS["pending"] = _SIGNALS["pending"] or error
-    elif in_machinery(frame):
-        # raised there, the exception would be swallowed by a callback of LLVM (the batch would go on and exit 0)
-        # or break an import halfway: the signal comes again shortly, until it lands in the batch's own code,
-        # which then stops as it does for any Ctrl-C or SIGTERM (report written, exit 130 or 143)
-        redeliver(signum)
     else:
         raise error
-
-
-def redeliver(signum: int, delay_s: float = REDELIVER_S) -> None:
-    """Send *signum* to this process again after *delay_s* seconds (from a daemon timer thread)."""
-    timer = threading.Timer(delay_s, os.kill, (os.getpid(), signum))
-    timer.daemon = True
-    timer.start()
 
 
 @contextlib.contextmanager

@@ -148,13 +148,10 @@ def refocus_threads(*, size=(1920, 1080), blur_px: float = 64.0, depth_size=(512
                     repeats: int = 7, progress: bool = True) -> list[dict]:
     """Median ms of a refocus (background blur *blur_px*) on 1, 2, 4, ... up to every thread numba has,
     alternated; one row per thread count with the speed-up over one thread (median of per-repeat ratios)."""
-    import math
-
-    import numba
     from tqdm.auto import tqdm
 
     from ..pipeline import render_from_depth, run
-    from .speed import quartiles, threads
+    from .speed import quartiles, thread_counts, threads
 
     repeats = check_repeats(repeats)
     check_scenes([scene], "scene")
@@ -162,8 +159,7 @@ def refocus_threads(*, size=(1920, 1080), blur_px: float = 64.0, depth_size=(512
     fx = sf.rig.color.fx
     filled = run(sf.frame, sf.default_lens).depth_filled_m
     lens = lens_for_background_blur(filled, fx, sf.default_lens.focus_distance_m, blur_px)
-    top = int(numba.config.NUMBA_NUM_THREADS)
-    counts = sorted({min(2 ** k, top) for k in range(int(math.log2(top)) + 1)} | {top})
+    counts = thread_counts()
     samples = {n: [] for n in counts}
     for n in counts:
         with threads(n):

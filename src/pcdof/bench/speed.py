@@ -117,6 +117,14 @@ def threads(n: int):
     return fixed_threads(n)
 
 
+def thread_counts() -> list[int]:
+    """1, 2, 4, ... up to every thread numba has, and that count itself: the thread counts the scaling rows time."""
+    import numba
+
+    top = int(numba.config.NUMBA_NUM_THREADS)
+    return sorted({min(2 ** k, top) for k in range(int(math.log2(top)) + 1)} | {top})
+
+
 def thread_scaling(*, size=(640, 480), depth_size=(512, 424), scene="portrait", repeats: int = 7,
                    progress: bool = True) -> list[dict]:
     """Median ms of the full pipeline (defaults) on 1, 2, 4, ... up to every thread numba has, alternated.
@@ -128,15 +136,12 @@ def thread_scaling(*, size=(640, 480), depth_size=(512, 424), scene="portrait", 
 
     repeats = check_repeats(repeats)
     check_scenes([scene], "scene")
-    import numba
-
     from ..pipeline import run
     from ..synth import generate_scene
 
     sf = generate_scene(scene, color_size=tuple(size), depth_size=tuple(depth_size), seed=0)
     lens = sf.default_lens
-    top = int(numba.config.NUMBA_NUM_THREADS)
-    counts = sorted({min(2 ** k, top) for k in range(int(math.log2(top)) + 1)} | {top})
+    counts = thread_counts()
     samples = {n: [] for n in counts}
     for n in counts:
         with threads(n):

@@ -176,8 +176,8 @@ def test_border_bands_are_held(seed, sides, width):
         assert abs(out[y, x] / ref - 1) < EDGE_RATIO, (y, x, out[y, x], ref)
 
 
-@pytest.mark.xfail(strict=False, reason="known limitation: in a gap the bars' spatial support can still "
-                   "exceed bias**2 times the wall's, so some gap pixels take the bars' depth")
+@pytest.mark.xfail(strict=False, reason="known limitation: with one colour everywhere the bars' spatial support "
+                   "can exceed background_bias times the wall's, so some gap pixels take the bars' depth")
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31 - 1), gap=st.integers(2, 10), thick=st.integers(3, 12))
 def test_narrow_gap_is_one_surface(seed, gap, thick):

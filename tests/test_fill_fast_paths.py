@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-import math
 
 import numba
 import numpy as np
@@ -24,14 +23,14 @@ from pcdof.camera import as_depth_m
 from pcdof.runtime.kernels import read_only
 from pcdof.runtime.threads import numba_threads
 from pcdof.stages.fill import (BORDER, BORDER_RULES, DEFAULT_BACKGROUND_BIAS, DEFAULT_BORDER, DEFAULT_EDGE_RATIO,
-                               DEFAULT_SIGMA_COLOR, GAP, LOST, SURFACE)
+                               DEFAULT_SIGMA_COLOR, LOST, SURFACE)
 from pcdof.stages.fill.boundary import fit_boundary, sweep
 from pcdof.stages.fill.cleanup import despeckle
 from pcdof.stages.fill.combine import combine
 from pcdof.stages.fill.index import index_depth
 from pcdof.stages.fill.inputs import color_for_kernel, prepare
 from pcdof.stages.fill.rules import DIRS, FIT_RADIUS_STEPS, HALF, HOLE, Boundary, Holes, kernel_rules
-from pcdof.stages.fill.surfaces import border_inv, collect_candidates, gap_depth, sort_far_to_near, support_bound
+from pcdof.stages.fill.surfaces import border_inv, collect_candidates, sort_far_to_near, support_bound
 from pcdof.stages.fill.surfaces import color_sim  # the similarity itself is unchanged
 
 # ---------------------------------------------------------------------------------------------
@@ -55,7 +54,7 @@ def _plain_idw(iv, r, past, order, start, end):
 
 
 @njit
-def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, z, order, bias0, past):
+def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, z, order, bias, past):
     for j in range(m):  # insertion sort, far to near
         zq = 1.0 / iv[j]
         i = j
@@ -65,11 +64,6 @@ def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, 
             i -= 1
         z[i] = zq
         order[i] = j
-    end0 = 1
-    while end0 < m and z[end0 - 1] - z[end0] <= rules.edge_ratio * z[end0 - 1]:
-        end0 += 1
-    kind = GAP if rules.use_color and gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
-    bias = bias0 * bias0 if kind == GAP else bias0
     c0 = float(color[py, px, 0]) if rules.use_color else 0.0
     c1 = float(color[py, px, 1]) if rules.use_color else 0.0
     c2 = float(color[py, px, 2]) if rules.use_color else 0.0
@@ -102,7 +96,7 @@ def _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, 
         if not rules.use_color:
             break
         start = end
-    return best_inv, kind
+    return best_inv
 
 
 @njit
@@ -112,7 +106,6 @@ def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
     r = np.empty(K)
     kq = np.empty(K, dtype=np.int64)
     qs = np.empty(K, dtype=np.int64)
-    slot = np.empty(K, dtype=np.int64)
     z = np.empty(K)
     order = np.empty(K, dtype=np.int64)
     past = np.empty(K)
@@ -129,7 +122,7 @@ def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
             if rules.border_median:
                 r_near[h] = r_border
         else:
-            m = collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot, past, outside)
+            m = collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, past, outside)
             if m == 0:
                 kind[h] = LOST
                 continue
@@ -140,8 +133,9 @@ def _plain_combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
                 inv = _plain_idw(iv, r, past, np.arange(m), 0, m)
                 kind[h] = SURFACE
             else:
-                inv, kind[h] = _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot,
-                                                     z, order, rules.border_bias if outside else rules.bias, past)
+                inv = _plain_choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs,
+                                            z, order, rules.border_bias if outside else rules.bias, past)
+                kind[h] = SURFACE
             if outside:
                 kind[h] = BORDER
         if kind[h] != LOST:

@@ -2,9 +2,9 @@
 
 The rules are those of :mod:`pcdof.stages.fill.reference` (``"joint-bilateral"``, and ``"nearest-background"`` without
 colour), numbered as there: one kernel finds each hole's 16 candidates, fits each candidate's plane of 1/z
-(rule 2, by Cramer's rule on the 3 x 3 normal equations, in float64) and chooses its depth (rules 3 to 5); then
-one kernel gives the lost holes their nearest value (rule 6), two Jacobi passes take medians far from the
-candidates (rule 7) and one the speckles' medians (rule 8), each reading a copy of the map, as the reference does.
+(rule 2, by Cramer's rule on the 3 x 3 normal equations, in float64) and chooses its depth (rules 3 and 4); then
+one kernel gives the lost holes their nearest value (rule 5), two Jacobi passes take medians far from the
+candidates (rule 6) and one the speckles' medians (rule 7), each reading a copy of the map, as the reference does.
 """
 
 from __future__ import annotations
@@ -20,11 +20,8 @@ from .launch import grid_2d, on_device, to_device, zeros
 
 _DX = np.array([1, 1, 0, -1, -1, -1, 0, 1, 2, 1, -1, -2, -2, -1, 1, 2], np.int64)
 _DY = np.array([0, 1, 1, 1, 0, -1, -1, -1, 1, 2, 2, 1, -1, -2, -2, -1], np.int64)
-_PAIR_A = np.array([0, 1, 2, 3, 8, 9, 10, 11], np.int64)
-_PAIR_B = np.array([4, 5, 6, 7, 12, 13, 14, 15], np.int64)
-_GAP_MIN_PAIRS = 4
 _N_SAMPLES = 11
-#: Kinds of hole the first kernel finds (``kind`` array): inside, on the border (rule 3), lost (rule 6).
+#: Kinds of hole the first kernel finds (``kind`` array): inside, on the border (rule 3), lost (rule 5).
 INSIDE, BORDER, LOST, KNOWN = 0, 1, 2, 3
 
 
@@ -128,7 +125,7 @@ def _border(depth, y, x):
 
 @cuda.jit
 def _holes(depth, color, use_color, zrange, p, out, kind, r_near):
-    """Rules 1 to 5 for every hole; *p*: (edge_ratio, sigma, bias, extrapolate_px, support_px, gap_px, step)."""
+    """Rules 1 to 4 for every hole; *p*: (edge_ratio, sigma, bias, extrapolate_px, support_px, step)."""
     y, x = cuda.grid(2)
     H, W = depth.shape
     if y >= H or x >= W:
@@ -138,8 +135,8 @@ def _holes(depth, color, use_color, zrange, p, out, kind, r_near):
         kind[y, x] = KNOWN
         out[y, x] = depth[y, x]
         return
-    edge_ratio, sigma, bias, extrapolate, support_px, gap_px = p[0], p[1], p[2], p[3], p[4], p[5]
-    step = int(p[6])
+    edge_ratio, sigma, bias, extrapolate, support_px = p[0], p[1], p[2], p[3], p[4]
+    step = int(p[5])
     zmin, zmax = np.float64(zrange[0]), np.float64(zrange[1])
     inv_lo, inv_hi = 1.0 / zmax, 1.0 / zmin
     k, qy, qx = _border(depth, y, x)
@@ -180,7 +177,7 @@ def _holes(depth, color, use_color, zrange, p, out, kind, r_near):
         inv = _idw(iv, rr, order, 0, n)
     else:
         inv = _choose(depth, color, use_color, y, x, iv, rr, cqy, cqx, order, n, edge_ratio, sigma, bias,
-                      support_px, gap_px, step)
+                      support_px, step)
     out[y, x] = np.float32(min(max(1.0 / inv, zmin), zmax))
 
 
@@ -194,9 +191,8 @@ def _idw(iv, rr, order, a, b):
 
 
 @cuda.jit(device=True)
-def _choose(depth, color, use_color, y, x, iv, rr, cqy, cqx, order, n, edge_ratio, sigma, bias, support_px, gap_px,
-            step):
-    """Rules 4 and 5: 1/z of the hole from candidates order[:n] holding several surfaces."""
+def _choose(depth, color, use_color, y, x, iv, rr, cqy, cqx, order, n, edge_ratio, sigma, bias, support_px, step):
+    """Rule 4: 1/z of the hole from candidates order[:n] holding several surfaces."""
     for t in range(1, n):  # stable insertion sort, far to near
         kk = order[t]
         s = t - 1
@@ -209,17 +205,6 @@ def _choose(depth, color, use_color, y, x, iv, rr, cqy, cqx, order, n, edge_rati
         g0_end += 1
     if not use_color:
         return _idw(iv, rr, order, 0, g0_end)
-    far_min_z = math.inf
-    for t in range(g0_end):
-        far_min_z = min(far_min_z, 1.0 / iv[order[t]])
-    pairs = 0
-    for t in range(8):
-        ka, kb = _PAIR_A[t], _PAIR_B[t]
-        if cqy[ka] >= 0 and cqy[kb] >= 0 and rr[ka] + rr[kb] <= gap_px:
-            if 1.0 / iv[ka] < far_min_z and 1.0 / iv[kb] < far_min_z:
-                pairs += 1
-    if pairs >= _GAP_MIN_PAIRS:
-        bias = bias * bias
     best, best_iv = -1.0, 0.0
     start = 0
     g = 0
@@ -243,7 +228,7 @@ def _choose(depth, color, use_color, y, x, iv, rr, cqy, cqx, order, n, edge_rati
 
 @cuda.jit
 def _lost(kind, src, out):
-    """Rule 6: a lost hole takes the value of the nearest pixel not lost straight up, left, down or right."""
+    """Rule 5: a lost hole takes the value of the nearest pixel not lost straight up, left, down or right."""
     y, x = cuda.grid(2)
     H, W = kind.shape
     if y >= H or x >= W or kind[y, x] != LOST:
@@ -261,7 +246,7 @@ def _lost(kind, src, out):
 
 @cuda.jit
 def _median_far(kind, r_near, min_r, step, edge_ratio, src, out):
-    """Rule 7, one Jacobi pass: a hole far from its candidates takes its 5 x 5 median when the range is wide."""
+    """Rule 6, one Jacobi pass: a hole far from its candidates takes its 5 x 5 median when the range is wide."""
     y, x = cuda.grid(2)
     H, W = src.shape
     if y >= H or x >= W:
@@ -286,7 +271,7 @@ def _median_far(kind, r_near, min_r, step, edge_ratio, src, out):
 
 @cuda.jit
 def _despeckle(kind, edge_ratio, src, out):
-    """Rule 8, one Jacobi pass over every hole: unlike all its neighbours, it takes their lower median."""
+    """Rule 7, one Jacobi pass over every hole: unlike all its neighbours, it takes their lower median."""
     y, x = cuda.grid(2)
     H, W = src.shape
     if y >= H or x >= W:
@@ -384,7 +369,7 @@ def fill_depth(depth_m, color=None, *, use_color: bool = True, edge_ratio: float
     scale = max(H, W) / 640.0
     step = max(1, int(round(scale)))
     p = to_device(np.array([edge_ratio, sigma_color, background_bias, 64.0 * max(scale, 1.0), 20.0 * scale,
-                            48.0 * scale, step], np.float64), stream)
+                            step], np.float64), stream)
     out = cuda.device_array((H, W), np.float32, stream=stream)
     tmp = cuda.device_array((H, W), np.float32, stream=stream)
     kind = cuda.device_array((H, W), np.uint8, stream=stream)

@@ -31,7 +31,7 @@ The default method, ``"joint-bilateral"``, handles both with one rule per hole p
    across), where the lines of neighbouring pixels pass different boundary corners and leave
    thin streaks: a 5 x 5 median, twice.
 
-Three rules come before and after these steps:
+Two rules come before and after these steps:
 
 * **Outside the view.** A hole is outside the depth camera's field of view when neither its row
   nor its column has known pixels on both sides (a colour camera wider than the depth camera leaves
@@ -49,11 +49,6 @@ Three rules come before and after these steps:
   (the rule of earlier releases: constant strips, and triangles in the corners). The choice was
   made on the benchmark of real rigs (:mod:`pcdof.bench.fill_rigs`, tuning seeds; docs/fill.md):
   mean error at outside-view holes 179 mm (candidates), 211 (extend), 306 (hold).
-* **Narrow gaps.** When at least 4 of the 8 opposite pairs of candidates are both on surfaces
-  nearer than the farthest one and at most 48 pixels apart (at 640 across), the hole lies in a
-  narrow gap between foreground parts: a nearer surface needs ``background_bias ** 2`` times the
-  farthest one's support (not ``background_bias``), so the gap takes the background throughout
-  unless its colour clearly belongs to the foreground.
 * **Speckles.** A filled pixel whose depth differs from all 8 neighbours by more than
   ``edge_ratio`` takes their median (one pass, after step 5).
 
@@ -91,12 +86,12 @@ from .directional import check_border, fill_joint_bilateral, fill_nearest_backgr
 from .methods import FILL_METHODS, check_fill_method, fill_depth, warmup
 from .plan import FillPlan, needs_fill, plan_fill
 from .rules import (BORDER, BORDER_ASSUMPTIONS, BORDER_RULES, DEFAULT_BACKGROUND_BIAS, DEFAULT_BORDER,
-                    DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_COLOR, DEFAULT_TELEA_RADIUS_PX, GAP, LOST, SURFACE)
+                    DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_COLOR, DEFAULT_TELEA_RADIUS_PX, LOST, SURFACE)
 from .telea import fill_telea
 
 __all__ = [
     "BORDER", "BORDER_ASSUMPTIONS", "BORDER_RULES", "DEFAULT_BACKGROUND_BIAS", "DEFAULT_BORDER", "DEFAULT_EDGE_RATIO",
-    "DEFAULT_SIGMA_COLOR", "DEFAULT_TELEA_RADIUS_PX", "FILL_METHODS", "FillPlan", "GAP", "LOST", "SURFACE",
+    "DEFAULT_SIGMA_COLOR", "DEFAULT_TELEA_RADIUS_PX", "FILL_METHODS", "FillPlan", "LOST", "SURFACE",
     "check_border", "check_fill_method", "fill_depth", "fill_joint_bilateral", "fill_nearest_background",
     "fill_telea", "needs_fill", "plan_fill", "warmup",
 ]

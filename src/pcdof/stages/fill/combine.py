@@ -22,7 +22,6 @@ def combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
         r = np.empty(K)
         kq = np.empty(K, dtype=np.int64)
         qs = np.empty(K, dtype=np.int64)
-        slot = np.empty(K, dtype=np.int64)  # per direction: its slot, -1 for none
         zu = np.empty(K)  # per candidate slot: z
         z = np.empty(K)  # z and slot, sorted far to near
         order = np.empty(K, dtype=np.int64)
@@ -43,7 +42,7 @@ def combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
                 if rules.border_median:
                     r_near[h] = r_border  # deep in a strip, the median cleans what one row's pixel puts there
             else:
-                m = collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot, past, outside)
+                m = collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, past, outside)
                 if m == 0:
                     kind[h] = LOST
                     continue
@@ -61,9 +60,10 @@ def combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
                     inv = interpolate_all(iv, r, m, past, order)
                     kind[h] = SURFACE
                 else:
-                    inv, kind[h] = choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot,
-                                                  zu, z, order, ends, bounds,
-                                                  rules.border_bias if outside else rules.bias, past)
+                    inv = choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs,
+                                         zu, z, order, ends, bounds,
+                                         rules.border_bias if outside else rules.bias, past)
+                    kind[h] = SURFACE
                 if outside:
                     kind[h] = BORDER
             if kind[h] != LOST:

@@ -22,7 +22,7 @@ from .rules import (BORDER_RULES, DEFAULT_BACKGROUND_BIAS, DEFAULT_BORDER, DEFAU
 
 def _fill_kernels(depth, guide, unit, *, use_color, edge_ratio, sigma_color, background_bias, border=DEFAULT_BORDER,
                   out=None):
-    """Filled depth and each hole's kind (``SURFACE``, ``BORDER``, ``GAP``, ``LOST``), by hole index; *out*: a
+    """Filled depth and each hole's kind (``SURFACE``, ``BORDER``, ``LOST``), by hole index; *out*: a
     copy of *depth* to fill (made here when None)."""
     depth, guide = read_only(depth), read_only(guide)  # one kernel type whatever the caller's flags
     code, hole_y, hole_x, b_y, b_x, row_start, zmin, zmax = index_depth(depth)

@@ -13,17 +13,17 @@ step = max(1, round(scale))):
    the plane extrapolated by at most 64 px (x max(1, scale)), clamped to the known 1/z range.
 3. Outside the view (border): the candidates along the row (directions (1, 0), (-1, 0)) and the
    column ((0, 1), (0, -1)). If neither line has a candidate on both sides, the hole is outside the
-   view. ``"candidates"`` (the default): it goes through rules 4 and 5 as any hole, with nearer
+   view. ``"candidates"`` (the default): it goes through rule 4 as any hole, with nearer
    surfaces' scores divided by 4 (``BORDER_BIAS``) instead of ``background_bias``; with no candidate on
-   any line it is *lost* (rule 6). A candidate whose plane at the hole (rule 2, before the clamp) lies
+   any line it is *lost* (rule 5). A candidate whose plane at the hole (rule 2, before the clamp) lies
    past the known 1/z range has a *past* value: above it (nearer than the nearest known depth), that
    1/z, at most 1.1 (``BORDER_NEARER``) / min known; below it (farther than the farthest), its plane's
    own 1/z (a) clamped to the range. Where every candidate of the surface that gives the depth in rule 4
    (all of them when they span one surface) has a past value, the IDW is over the past values. ``"extend"`` and ``"hold"``: if one of the lines has a candidate on one
    side, it takes the plane of the nearer of those one-sided candidates (ties: the row's), clamped to
-   the known 1/z range, and skips rules 4 and 5: ``"extend"`` the plane extrapolated to the hole as in
+   the known 1/z range, and skips rule 4: ``"extend"`` the plane extrapolated to the hole as in
    rule 2 but for at most 64 px x max(1, scale), ``"hold"`` the plane's own 1/z (a); if neither line
-   has any candidate (a corner) it is *lost* (rule 6).
+   has any candidate (a corner) it is *lost* (rule 5).
 4. If the candidate depths span at most ``edge_ratio`` of the farthest: inverse-distance weights 1/r
    on 1/z over all of them. Otherwise sort them far to near (stable), split where neighbours differ
    by more than ``edge_ratio`` (relative to the farther) and score each surface by its colour support
@@ -31,25 +31,20 @@ step = max(1, round(scale))):
    from the candidate, one step apart, onward in its direction), nearer surfaces' scores divided by
    ``background_bias``; the first best-scoring surface (ties: the farther) gives the IDW depth.
    Without colour, the farthest surface.
-5. Narrow gap (with colour, several surfaces): of the 8 opposite pairs of directions (the 4 king
-   pairs (k, k + 4), the 4 knight pairs (2, 1)/(-2, -1), (1, 2)/(-1, -2), (-1, 2)/(1, -2), (-2, 1)/(2, -1)),
-   count those whose two candidates both exist, are at most 48 px x scale apart (r_a + r_b), and
-   both lie strictly nearer than the farthest surface (depth below its nearest member). With at least
-   4 such pairs, nearer surfaces' scores are divided by ``background_bias ** 2`` instead.
-6. Clamp to [min known, max known] (outside the view with ``"candidates"``: [min known / 1.1, max known]).
+5. Clamp to [min known, max known] (outside the view with ``"candidates"``: [min known / 1.1, max known]).
    A lost hole (no known pixel on its row nor on its column; a hole
-   with no candidate on any of the 16 lines is one of these) is filled, after rules 3-5, from the
+   with no candidate on any of the 16 lines is one of these) is filled, after rules 3-4, from the
    nearest pixels that are not lost straight up, left, down and right of it (the pixels that are not
    lost are whole rows and whole columns). ``"candidates"`` and ``"extend"``: inverse-distance weights 1/d
    on 1/z over those that exist. ``"hold"``: the value of the nearest; among equally near ones the first in
    the order up, left, down, right (:mod:`pcdof.stages.fill` searches the four directions itself, so the rule
    does not hang on a library's scan order).
-7. Holes farther than 3 steps from their nearest candidate: twice (Jacobi), the median of their
+6. Holes farther than 3 steps from their nearest candidate: twice (Jacobi), the median of their
    5 x 5 neighbourhood (taps one step apart, clamped at the border) when its range exceeds
    ``edge_ratio`` relative; otherwise unchanged. A border hole's distance is that to its nearest
    candidate with ``"candidates"``, to the candidate it took with ``"extend"``, 0 (never far) with
    ``"hold"``; lost holes are never far.
-8. Speckles, after rule 7, over every hole (border and lost ones too), one Jacobi pass: a hole whose
+7. Speckles, after rule 6, over every hole (border and lost ones too), one Jacobi pass: a hole whose
    depth differs from each of its neighbours inside the image (8, fewer at the frame border) by more
    than ``edge_ratio`` (max > (1 + edge_ratio) min) takes their lower median (the ((n - 1) // 2)-th
    smallest of n).
@@ -65,15 +60,12 @@ from .rules import DEFAULT_BACKGROUND_BIAS, DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_CO
 
 _DIRS = [(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1),
          (2, 1), (1, 2), (-1, 2), (-2, 1), (-2, -1), (-1, -2), (1, -2), (2, -1)]
-#: Opposite pairs of directions (as indices into _DIRS) that rule 5 counts.
-_PAIRS = [(0, 4), (1, 5), (2, 6), (3, 7), (8, 12), (9, 13), (10, 14), (11, 15)]
-_GAP_MIN_PAIRS = 4
 #: Rule 3's extrapolation limit (px at 640 across), the background bias outside the view, and how much nearer
 #: than the nearest known depth a surface there may run.
 _BORDER_EXTEND_PX = 64.0
 BORDER_BIAS = 4.0
 BORDER_NEARER = 1.1
-#: Rule 6's order among equally near pixels: (dy, dx) signs of up, left, down, right.
+#: Rule 5's order among equally near pixels: (dy, dx) signs of up, left, down, right.
 _LOST_TIE_ORDER = [(-1, 0), (0, -1), (1, 0), (0, 1)]
 
 
@@ -158,30 +150,14 @@ def _surfaces(cands, edge_ratio):
     return groups
 
 
-def in_narrow_gap(cands, far_min_z: float, gap_px: float) -> bool:
-    """Rule 5: at least 4 opposite pairs of candidates, both nearer than *far_min_z*, at most *gap_px* apart."""
-    by_dir = {c["k"]: c for c in cands}
-    n = 0
-    for ka, kb in _PAIRS:
-        a, b = by_dir.get(ka), by_dir.get(kb)
-        if a is None or b is None or a["r"] + b["r"] > gap_px:
-            continue
-        if 1.0 / a["iv"] < far_min_z and 1.0 / b["iv"] < far_min_z:
-            n += 1
-    return n >= _GAP_MIN_PAIRS
-
-
-def _choose(cands, color, known, y, x, use_color, edge_ratio, sigma, bias, support_px, gap_px, step) -> float:
-    """1/z of hole (y, x) from its candidates (rules 4 and 5)."""
+def _choose(cands, color, known, y, x, use_color, edge_ratio, sigma, bias, support_px, step) -> float:
+    """1/z of hole (y, x) from its candidates (rule 4)."""
     z = [1.0 / c["iv"] for c in cands]
     if max(z) - min(z) <= edge_ratio * max(z):
         return _idw(cands)
     groups = _surfaces(cands, edge_ratio)
     if not use_color:
         return _idw(groups[0])
-    far_min_z = min(1.0 / c["iv"] for c in groups[0])
-    if in_narrow_gap(cands, far_min_z, gap_px):
-        bias = bias * bias
     best, best_iv = -1.0, 0.0
     for g, group in enumerate(groups):
         score = 0.0
@@ -224,7 +200,7 @@ def border_inv(known, planes, y, x, inv_lo, inv_hi, border="extend", cap_px=_BOR
 
 
 def blend_not_lost(out, lost, y, x) -> float:
-    """Rule 6 with ``"candidates"`` and ``"extend"``: 1/d weights on 1/z of the nearest pixels that are not lost
+    """Rule 5 with ``"candidates"`` and ``"extend"``: 1/d weights on 1/z of the nearest pixels that are not lost
     up, left, down and right."""
     H, W = out.shape
     sw = swi = 0.0
@@ -239,7 +215,7 @@ def blend_not_lost(out, lost, y, x) -> float:
 
 
 def nearest_not_lost(out, lost, y, x) -> float:
-    """Rule 6: the value of the nearest pixel that is not lost (ties: up, left, down, right)."""
+    """Rule 5: the value of the nearest pixel that is not lost (ties: up, left, down, right)."""
     ny, nx = np.nonzero(~lost)
     d2 = (ny - y) ** 2 + (nx - x) ** 2
     tied = np.flatnonzero(d2 == d2.min())
@@ -249,7 +225,7 @@ def nearest_not_lost(out, lost, y, x) -> float:
 
 
 def _median_far(out, holes, r_near, min_r, step, edge_ratio) -> None:
-    """Rule 7, in place."""
+    """Rule 6, in place."""
     H, W = out.shape
     far = [(y, x) for (y, x), r in zip(holes, r_near) if r > min_r]
     for _ in range(2):
@@ -263,7 +239,7 @@ def _median_far(out, holes, r_near, min_r, step, edge_ratio) -> None:
 
 
 def despeckle(out, holes, edge_ratio) -> None:
-    """Rule 8, in place."""
+    """Rule 7, in place."""
     H, W = out.shape
     new = []
     for y, x in holes:
@@ -304,7 +280,7 @@ def _hole_inv(depth, known, color, planes, y, x, rules):
     if not cands:  # outside the view, no line reaches it (with "candidates")
         return None, 0.0, outside
     inv = _choose(cands, color, known, y, x, rules["use_color"], rules["edge_ratio"], rules["sigma"], bias,
-                  rules["support_px"], rules["gap_px"], rules["step"])
+                  rules["support_px"], rules["step"])
     return inv, min(c["r"] for c in cands), outside
 
 
@@ -333,7 +309,7 @@ def fill_directional(depth_m, color=None, *, use_color: bool = True, edge_ratio:
     step = max(1, int(round(scale)))
     zmin, zmax = float(depth[known].min()), float(depth[known].max())
     rules = {"use_color": use_color, "edge_ratio": edge_ratio, "sigma": sigma_color, "bias": background_bias,
-             "extrapolate_px": 64.0 * max(scale, 1.0), "support_px": 20.0 * scale, "gap_px": 48.0 * scale,
+             "extrapolate_px": 64.0 * max(scale, 1.0), "support_px": 20.0 * scale,
              "step": step, "inv_lo": 1.0 / zmax, "inv_hi": 1.0 / zmin, "border": border,
              "border_px": _BORDER_EXTEND_PX * max(scale, 1.0), "border_inv_hi": BORDER_NEARER / zmin}
     planes = {(y, x): fit_plane(depth, y, x, 5 * step, step, edge_ratio) for y, x in zip(*np.nonzero(known))}

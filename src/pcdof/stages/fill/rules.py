@@ -67,11 +67,6 @@ COLOR_SAMPLES = 11
 # the pixels next to known depth (and so the depth edges there) as they are.
 MEDIAN_MIN_R_STEPS = 3.0
 MEDIAN_ITERATIONS = 2
-# A hole with foreground on both sides of it (an opposite pair of candidates, both nearer than the
-# farthest surface it sees) at most this far apart (pixels, summed) is a narrow gap: it takes the
-# farthest surface without a colour vote, so the gap does not alternate between the two.
-GAP_PX = 48.0
-GAP_MIN_PAIRS = 4
 
 #: Sweep directions (dx, dy) and the Bresenham half step checked between two knight steps.
 DIRS = np.array([
@@ -93,15 +88,15 @@ HOLE, INSIDE = -2, -1
 # arguments instead of a long positional list.
 Holes = namedtuple("Holes", "y x cand")
 Boundary = namedtuple("Boundary", "y x plane")
-Rules = namedtuple("Rules", "use_color inv_two_sigma2 edge_ratio bias extrapolate_px support_px gap_px "
+Rules = namedtuple("Rules", "use_color inv_two_sigma2 edge_ratio bias extrapolate_px support_px "
                              "n_samples step inv_lo inv_hi zmin zmax border border_px border_median border_bias "
                              "border_inv_hi border_zmin")
 #: The border rules' codes in Rules.border (the order of BORDER_RULES).
 CANDIDATES, EXTEND, HOLD = 0, 1, 2
 
 #: Kinds of hole, as the combine kernel classifies them: inside or between surfaces, outside the
-#: depth camera's view, in a narrow gap, and with nothing to take a depth from (filled afterwards).
-SURFACE, BORDER, GAP, LOST = 0, 1, 2, 3
+#: depth camera's view, and with nothing to take a depth from (filled afterwards).
+SURFACE, BORDER, LOST = 0, 1, 2
 
 
 def kernel_rules(shape, *, use_color, unit, edge_ratio, sigma_color, background_bias, zmin, zmax,
@@ -111,7 +106,7 @@ def kernel_rules(shape, *, use_color, unit, edge_ratio, sigma_color, background_
     return Rules(
         use_color=bool(use_color), inv_two_sigma2=unit * unit / (2.0 * sigma_color * sigma_color),
         edge_ratio=float(edge_ratio), bias=float(background_bias), extrapolate_px=EXTRAPOLATE_PX * max(scale, 1.0),
-        support_px=SUPPORT_PX * scale, gap_px=GAP_PX * scale,
+        support_px=SUPPORT_PX * scale,
         n_samples=COLOR_SAMPLES, step=max(1, int(round(scale))), inv_lo=1.0 / zmax, inv_hi=1.0 / zmin,
         zmin=zmin, zmax=zmax, border=BORDER_RULES.index(border), border_px=BORDER_EXTEND_PX * max(scale, 1.0),
         border_median=bool(BORDER_MEDIAN and border == "extend"), border_bias=float(BORDER_BIAS),

@@ -1,5 +1,5 @@
 """The per-hole rules of the combine kernel (steps 1-4 of :mod:`pcdof.stages.fill`): candidates extrapolated
-along their planes, outside the depth camera's view, narrow gaps, surfaces split and scored by their colour support.
+along their planes, outside the depth camera's view, surfaces split and scored by their colour support.
 
 The helpers are inlined (inline="always") into :func:`pcdof.stages.fill.combine.combine`: as plain calls they
 compile it in about a quarter less time but make the fill 5-10 % slower.
@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .rules import EXTEND, GAP, GAP_MIN_PAIRS, SURFACE
+from .rules import EXTEND
 
 
 @njit(cache=True, inline="always")
@@ -86,32 +86,7 @@ def border_inv(holes, bnd, h, rules):
 
 
 @njit(cache=True, inline="always")
-def gap_depth(slot, iv, r, far_min_z, gap_px):
-    """Depth of the foreground around a hole in a narrow gap, else 0.
-
-    A narrow gap has foreground on both sides: at least GAP_MIN_PAIRS opposite pairs of
-    candidates, both nearer than the farthest surface (depth below *far_min_z*), each pair at most
-    *gap_px* apart (summed). A channel qualifies along the pairs across it; a corner of a wider
-    hole only along the few that cut the corner. Returns the largest depth among those pairs.
-    """
-    n = 0
-    z_fg = 0.0
-    for p in range(8):
-        ka = p if p < 4 else p + 4  # king pairs (k, k + 4) for k < 4, knight pairs for 8 <= k < 12
-        sa = slot[ka]
-        sb = slot[ka + 4]
-        if sa < 0 or sb < 0 or r[sa] + r[sb] > gap_px:
-            continue
-        za = 1.0 / iv[sa]
-        zb = 1.0 / iv[sb]
-        if za < far_min_z and zb < far_min_z:
-            n += 1
-            z_fg = max(z_fg, za, zb)
-    return z_fg if n >= GAP_MIN_PAIRS else 0.0
-
-
-@njit(cache=True, inline="always")
-def collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot, past, outside):
+def collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, past, outside):
     """Collect hole *h*'s candidates into the slot arrays (step 1); returns how many.
 
     past[m]: -1, or for a hole *outside* the view whose candidate's plane runs past the known 1/z range, the
@@ -120,7 +95,6 @@ def collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot, past, outside)
     """
     m = 0
     for k in range(holes.cand.shape[0]):
-        slot[k] = -1
         q = holes.cand[k, h]
         if q < 0:
             continue
@@ -133,7 +107,6 @@ def collect_candidates(holes, bnd, h, rules, iv, r, kq, qs, slot, past, outside)
             past[m] = min(max(bnd.plane[q, 0], rules.inv_lo), rules.inv_hi)
         kq[m] = k
         qs[m] = q
-        slot[k] = m
         m += 1
     return m
 
@@ -221,18 +194,14 @@ def sort_far_to_near(iv, m, zu, z, order):
 
 
 @njit(cache=True, inline="always")
-def choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slot, zu, z, order, ends, bounds,
-                   bias0, past):
-    """(1/z, kind) of a hole whose candidates span several surfaces (steps 2-4); *bias0*: the background bias;
+def choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, zu, z, order, ends, bounds,
+                   bias, past):
+    """1/z of a hole whose candidates span several surfaces (steps 2-4); *bias*: the background bias;
     *past*: as :func:`collect_candidates` gives it."""
     sort_far_to_near(iv, m, zu, z, order)
     end0 = _surface_end(z, 0, m, rules.edge_ratio)
-    # in a narrow gap the foreground around it needs bias**2 times the support (not bias times) of
-    # the surface behind: a gap whose colour is ambiguous takes that surface throughout, not per pixel
-    kind = GAP if rules.use_color and gap_depth(slot, iv, r, z[end0 - 1], rules.gap_px) > 0.0 else SURFACE
     if not rules.use_color:
-        return _interpolate(iv, r, order, 0, end0, past), kind  # the farthest surface
-    bias = bias0 * bias0 if kind == GAP else bias0
+        return _interpolate(iv, r, order, 0, end0, past)  # the farthest surface
     # the nearer surfaces and the most each can score (every colour similarity 1), divided by the bias
     n_near = 0
     near_max = -np.inf
@@ -252,7 +221,7 @@ def choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slo
     score = _color_score(depth, color, bnd, dirs, rules, c0, c1, c2, r, kq, qs, order, 0, end0,
                          near_max if rules.inv_two_sigma2 < np.inf else np.inf)
     if score >= near_max:
-        return _interpolate(iv, r, order, 0, end0, past), kind
+        return _interpolate(iv, r, order, 0, end0, past)
     best_score = -1.0
     best_start = 0
     best_end = 0
@@ -270,4 +239,4 @@ def choose_surface(depth, color, bnd, dirs, rules, py, px, m, iv, r, kq, qs, slo
                 best_start = start
                 best_end = end
         start = end
-    return (_interpolate(iv, r, order, best_start, best_end, past) if best_end > 0 else 0.0), kind
+    return _interpolate(iv, r, order, best_start, best_end, past) if best_end > 0 else 0.0

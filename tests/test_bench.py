@@ -68,6 +68,31 @@ def test_refocus_rows_alternate_the_paper_method_at_each_blur(quick_report):
     assert [r["threads"] for r in report["refocus_threads"]][0] == 1
     (memory,) = report["memory"]
     assert memory["color_size"] == "160x120" and memory["peak_mb"] >= memory["baseline_mb"] > 0
+    assert memory["marginal_bytes_per_pixel"] is None  # one size: no growth to measure
+
+
+def test_peak_memory_separates_the_cost_per_pixel_from_fixed_costs(monkeypatch):
+    """Children whose peak is a fixed 80 MB plus 50 bytes per pixel: 50 bytes per added pixel, whatever the
+    fixed part adds to the bytes per pixel of each size."""
+    import json
+    import subprocess
+    import types
+
+    import numpy as np
+
+    from pcdof.bench import refocus
+
+    def fake_child(cmd, **kwargs):
+        color = np.load(cmd[-1] + "/color.npy", mmap_mode="r")
+        pixels = color.shape[0] * color.shape[1]
+        out = {"baseline": 100_000_000, "peak": 100_000_000 + 80_000_000 + 50 * pixels, "peak_reset": True}
+        return types.SimpleNamespace(returncode=0, stdout=json.dumps(out) + "\n", stderr="")
+
+    monkeypatch.setattr(subprocess, "run", fake_child)
+    rows = refocus.peak_memory(sizes=((160, 120), (320, 240), (320, 240)), progress=False)
+    assert rows[0]["marginal_bytes_per_pixel"] is None and rows[2]["marginal_bytes_per_pixel"] is None
+    assert rows[1]["marginal_bytes_per_pixel"] == 50.0
+    assert rows[0]["bytes_per_pixel"] > 4000  # the fixed 80 MB over 19200 pixels
 
 
 def test_lens_for_background_blur_blurs_the_background_by_the_pixels_asked():

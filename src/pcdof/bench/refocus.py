@@ -223,7 +223,10 @@ def peak_memory(*, sizes=((640, 480), (1920, 1080), (3840, 2160)), depth_size=(5
     """Peak resident memory of the full pipeline (defaults, the scene's default lens), per colour size, in a
     fresh process tuned as the ``pcdof`` command tunes it (:func:`pcdof.runtime.process.tune_process`): its resident memory with the frame loaded and the kernels in the cache is the baseline,
     and the peak is measured from there (Linux; elsewhere the process's lifetime peak, an upper bound).
-    Returns one row per size: megapixels, baseline and peak MB, and bytes per pixel above the baseline."""
+    Returns one row per size: megapixels, baseline and peak MB, bytes per pixel above the baseline, and
+    ``marginal_bytes_per_pixel``: the growth of the peak above the baseline from the previous size to this one per
+    added pixel (None for the first size and for a size no larger), the cost of a pixel without the fixed costs
+    (the kernels' machine code, thread pools) that dominate small frames."""
     from tqdm.auto import tqdm
 
     check_scenes([scene], "scene")
@@ -247,5 +250,11 @@ def peak_memory(*, sizes=((640, 480), (1920, 1080), (3840, 2160)), depth_size=(5
         pixels = size[0] * size[1]
         rows.append({"color_size": f"{size[0]}x{size[1]}", "megapixels": pixels / 1e6,
                      "baseline_mb": got["baseline"] / 1e6, "peak_mb": got["peak"] / 1e6,
-                     "bytes_per_pixel": (got["peak"] - got["baseline"]) / pixels, "peak_reset": got["peak_reset"]})
+                     "bytes_per_pixel": (got["peak"] - got["baseline"]) / pixels, "peak_reset": got["peak_reset"],
+                     "marginal_bytes_per_pixel": None, "_above": got["peak"] - got["baseline"], "_pixels": pixels})
+    for before, row in zip(rows, rows[1:]):
+        if row["_pixels"] > before["_pixels"]:
+            row["marginal_bytes_per_pixel"] = (row["_above"] - before["_above"]) / (row["_pixels"] - before["_pixels"])
+    for row in rows:
+        del row["_above"], row["_pixels"]
     return rows

@@ -241,9 +241,11 @@ def _refocus_lines(rows, scaling, memory) -> list[str]:
                                 "speed-up over 1 thread"), (
         (str(r["threads"]), r["color_size"], f"{r['background_blur_px']:.0f}", f"{r['ms']:.1f}",
          q(r["ms_quartiles"]), f"{r['speedup']:.2f}") for r in scaling))]
-    lines += ["", *table_lines(("colour", "megapixels", "baseline MB", "peak MB", "bytes per pixel above baseline"), (
+    lines += ["", *table_lines(("colour", "megapixels", "baseline MB", "peak MB", "bytes per pixel above baseline",
+                                "bytes per added pixel (from the size above)"), (
         (r["color_size"], f"{r['megapixels']:.2f}", f"{r['baseline_mb']:.0f}", f"{r['peak_mb']:.0f}",
-         f"{r['bytes_per_pixel']:.0f}") for r in memory))]
+         f"{r['bytes_per_pixel']:.0f}",
+         "-" if r.get("marginal_bytes_per_pixel") is None else f"{r['marginal_bytes_per_pixel']:.0f}") for r in memory))]
     return lines
 
 

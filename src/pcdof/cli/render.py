@@ -31,9 +31,13 @@ MAP_NAMES = ("depth_registered.npy", "depth_registered.png", "depth_registered_p
 @device_option
 @click.option("--save-maps", type=click.Path(readable=False), default=None,
               help="Also write registered depth, filled depth and the CoC map into this folder.")
+@click.option("--crop-to-depth-view", "crop", is_flag=True,
+              help="Cut the render (and --save-maps) to the largest upright rectangle that the depth camera sees "
+                   "at every measured depth, leaving out the border strips whose depth the fill guessed.")
 @click.option("--explain", is_flag=True, help="Print each stage's time and what was skipped.")
 @handle_errors
-def command(color, depth, calib, depth_scale, frame_index, time_s, output, render_flags, device, save_maps, explain):
+def command(color, depth, calib, depth_scale, frame_index, time_s, output, render_flags, device, save_maps, crop,
+            explain):
     """Render one frame with a shallow depth of field into the file named by -o.
 
     INPUT is a colour image followed by its DEPTH image (with --calib), or alone a recording
@@ -67,6 +71,9 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
     with pipeline.stage_progress((lambda line: click.echo(f"pcdof: {line}", err=True)) if big else None):
         result = pipeline.run(frame, options)
     details = f"{options.method} method"
+    if crop:
+        result, note = cropped_to_depth_view(result, frame.rig)
+        details += f", {note}"
     if encode:
         result, note = encoded_for_screen(result, suffix, linear=options.linear)
         details += f", {note}"
@@ -85,6 +92,22 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, rende
                     focus_source=focus_source(render_flags),
                     max_blur_px=float(result.coc_px.max()) if result.coc_px is not None and result.coc_px.size
                     else None, details=details)
+
+
+def cropped_to_depth_view(result, rig):
+    """(*result* cut to what the depth camera sees over the measured depth range, the note that says so)."""
+    from ..depth_view import crop_result, depth_view_box, measured_range_m
+
+    h, w = result.image.shape[:2]
+    depth_range = measured_range_m(result.depth_registered_m)
+    box = depth_view_box(rig, *depth_range) if depth_range else None
+    if box is None:
+        raise InputError("--crop-to-depth-view: the depth camera sees none of the colour image at every measured "
+                         "depth; render without it")
+    if (box.width, box.height) == (w, h):
+        return result, "the depth camera sees the whole colour image (nothing cropped)"
+    return crop_result(result, box), (f"cropped to the depth camera's view: {box.width}x{box.height} at "
+                                      f"({box.x0}, {box.y0}) of {w}x{h}")
 
 
 def encoded_for_screen(result, suffix: str, *, linear: bool):

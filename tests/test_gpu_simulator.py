@@ -206,14 +206,35 @@ def test_fill_matches_reference():
     color = to_float(frame.color[:20, :24])
     for use_color in (True, False):
         got = fill_depth(depth, color, use_color=use_color).copy_to_host()
-        # the kernel's rule for holes with a one-sided candidate is the "hold" rule; frames with holes at their
-        # edge are filled on the CPU with the default rule (pcdof.gpu.stages)
-        ref = fill_directional(depth, color.astype(np.float64) if use_color else None, use_color=use_color,
-                               border="hold")
+        # the default rule outside the depth camera's view ("candidates"), corners blended
+        ref = fill_directional(depth, color.astype(np.float64) if use_color else None, use_color=use_color)
         assert np.all(got > 0)
         rel = np.abs(got - ref) / ref
         assert np.count_nonzero(rel > REL_FILL) <= 1, (use_color, rel.max())
         np.testing.assert_array_equal(got[depth > 0], depth[depth > 0])  # known pixels unchanged
+
+
+@sim_only
+def test_fill_outside_the_view_continues_past_the_measured_range_as_the_reference():
+    """A slanted wall whose nearest part is cut off at the left and top: outside the view its planes run nearer
+    than any measured depth, down to BORDER_NEARER times nearer, on the device as in the reference."""
+    from pcdof.gpu.fill import fill_depth
+    from pcdof.stages.fill.reference import fill_directional
+    from pcdof.stages.fill.rules import BORDER_NEARER
+
+    h, w = 14, 18
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    truth = (1.0 / (0.2 + 0.012 * xx + 0.008 * yy)).astype(np.float32)  # nearest at the bottom right
+    truth = truth[::-1, ::-1].copy()  # nearest at the top left
+    depth = truth.copy()
+    depth[:, :3] = 0.0
+    depth[:2, :] = 0.0
+    color = np.full((h, w, 3), 0.5, np.float32)
+    got = fill_depth(depth, color).copy_to_host()
+    ref = fill_directional(depth, color.astype(np.float64))
+    zmin = float(depth[depth > 0].min())
+    assert ref.min() < zmin and ref.min() >= zmin / BORDER_NEARER * (1 - 1e-6)  # the rule is exercised
+    np.testing.assert_allclose(got, ref, rtol=REL_FILL)
 
 
 def _layers(h, w, rng):

@@ -2,9 +2,10 @@
 
 The rules are those of :mod:`pcdof.stages.fill.reference` (``"joint-bilateral"``, and ``"nearest-background"`` without
 colour), numbered as there: one kernel finds each hole's 16 candidates, fits each candidate's plane of 1/z
-(rule 2, by Cramer's rule on the 3 x 3 normal equations, in float64) and chooses its depth (rules 3 and 4); then
-one kernel gives the lost holes their nearest value (rule 5), two Jacobi passes take medians far from the
-candidates (rule 6) and one the speckles' medians (rule 7), each reading a copy of the map, as the reference does.
+(rule 2, by Cramer's rule on the 3 x 3 normal equations, in float64) and chooses its depth (rules 3 and 4, with
+the default rule outside the depth camera's view, ``"candidates"``); then one kernel blends the nearest values
+around the lost holes (rule 5), two Jacobi passes take medians far from the candidates (rule 6) and one the
+speckles' medians (rule 7), each reading a copy of the map, as the reference does.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ import numpy as np
 from numba import cuda
 
 from ..errors import InputError
-from ..stages.fill.rules import DEFAULT_BACKGROUND_BIAS, DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_COLOR
+from ..stages.fill.rules import (BORDER_BIAS, BORDER_NEARER, DEFAULT_BACKGROUND_BIAS, DEFAULT_EDGE_RATIO,
+                                 DEFAULT_SIGMA_COLOR)
 from .launch import grid_2d, on_device, to_device, zeros
 
 _DX = np.array([1, 1, 0, -1, -1, -1, 0, 1, 2, 1, -1, -2, -2, -1, 1, 2], np.int64)
@@ -104,23 +106,14 @@ def _support(color, depth, cy, cx, qy, qx, uy, ux, sigma):
 
 
 @cuda.jit(device=True)
-def _border(depth, y, x):
-    """Rule 3: (kind, row, col) of hole (y, x): INSIDE, or BORDER with the nearer one-sided candidate, or LOST."""
-    best_r, by, bx = -1, -1, -1
+def _outside(depth, y, x):
+    """Rule 3: whether hole (y, x) lies outside the depth camera's view (neither its row nor its column has a
+    candidate on both sides)."""
     for axis in range(2):
         ax, ay = (1, 0) if axis == 0 else (0, 1)
-        ay1, ax1 = _candidate(depth, y, x, ax, ay)
-        ay2, ax2 = _candidate(depth, y, x, -ax, -ay)
-        if ay1 >= 0 and ay2 >= 0:
-            return INSIDE, -1, -1
-        qy, qx = (ay1, ax1) if ay1 >= 0 else (ay2, ax2)
-        if qy >= 0:
-            r = abs(qy - y) + abs(qx - x)
-            if best_r < 0 or r < best_r:
-                best_r, by, bx = r, qy, qx
-    if best_r < 0:
-        return LOST, -1, -1
-    return BORDER, by, bx
+        if _candidate(depth, y, x, ax, ay)[0] >= 0 and _candidate(depth, y, x, -ax, -ay)[0] >= 0:
+            return False
+    return True
 
 
 @cuda.jit
@@ -139,17 +132,9 @@ def _holes(depth, color, use_color, zrange, p, out, kind, r_near):
     step = int(p[5])
     zmin, zmax = np.float64(zrange[0]), np.float64(zrange[1])
     inv_lo, inv_hi = 1.0 / zmax, 1.0 / zmin
-    k, qy, qx = _border(depth, y, x)
-    kind[y, x] = k
-    if k == LOST:
-        out[y, x] = 0.0
-        return
-    if k == BORDER:
-        a, _, _ = _plane(depth, qy, qx, 5 * step, step, edge_ratio)
-        inv = min(max(a, inv_lo), inv_hi)
-        out[y, x] = np.float32(min(max(1.0 / inv, zmin), zmax))
-        return
+    outside = _outside(depth, y, x)
     iv = cuda.local.array(16, np.float64)
+    pv = cuda.local.array(16, np.float64)  # outside the view: a candidate's 1/z past the known range, else -1
     rr = cuda.local.array(16, np.float64)
     cqy = cuda.local.array(16, np.int64)
     cqx = cuda.local.array(16, np.int64)
@@ -164,34 +149,52 @@ def _holes(depth, color, use_color, zrange, p, out, kind, r_near):
         ddx, ddy = np.float64(x - ax), np.float64(y - ay)
         r = math.hypot(ddx, ddy)
         f = 1.0 if r <= extrapolate else extrapolate / r
-        iv[kk] = min(max(a + f * (gx * ddx + gy * ddy), inv_lo), inv_hi)
+        raw = a + f * (gx * ddx + gy * ddy)
+        iv[kk] = min(max(raw, inv_lo), inv_hi)
+        pv[kk] = -1.0
+        if outside and raw > inv_hi:
+            pv[kk] = min(raw, BORDER_NEARER * inv_hi)
+        elif outside and raw < inv_lo:
+            pv[kk] = min(max(a, inv_lo), inv_hi)
         rr[kk] = r
         order[n] = kk
         n += 1
+    if n == 0:  # no line reaches it: filled from its neighbours afterwards
+        kind[y, x] = LOST
+        out[y, x] = 0.0
+        return
+    kind[y, x] = BORDER if outside else INSIDE
     zlo, zhi, rmin = math.inf, 0.0, math.inf
     for t in range(n):
         z = 1.0 / iv[order[t]]
         zlo, zhi, rmin = min(zlo, z), max(zhi, z), min(rmin, rr[order[t]])
     r_near[y, x] = rmin
     if zhi - zlo <= edge_ratio * zhi:
-        inv = _idw(iv, rr, order, 0, n)
+        inv = _idw(iv, pv, rr, order, 0, n)
     else:
-        inv = _choose(depth, color, use_color, y, x, iv, rr, cqy, cqx, order, n, edge_ratio, sigma, bias,
-                      support_px, step)
-    out[y, x] = np.float32(min(max(1.0 / inv, zmin), zmax))
+        inv = _choose(depth, color, use_color, y, x, iv, pv, rr, cqy, cqx, order, n, edge_ratio, sigma,
+                      BORDER_BIAS if outside else bias, support_px, step)
+    lo = zmin / BORDER_NEARER if outside else zmin
+    out[y, x] = np.float32(min(max(1.0 / inv, lo), zmax))
 
 
 @cuda.jit(device=True)
-def _idw(iv, rr, order, a, b):
+def _idw(iv, pv, rr, order, a, b):
+    """Rule 4's IDW on 1/z of candidates order[a:b]; on their past values (rule 3) when every one has one."""
+    past = True
+    for t in range(a, b):
+        if pv[order[t]] < 0.0:
+            past = False
     num = den = 0.0
     for t in range(a, b):
-        num += iv[order[t]] / rr[order[t]]
+        num += (pv[order[t]] if past else iv[order[t]]) / rr[order[t]]
         den += 1.0 / rr[order[t]]
     return num / den
 
 
 @cuda.jit(device=True)
-def _choose(depth, color, use_color, y, x, iv, rr, cqy, cqx, order, n, edge_ratio, sigma, bias, support_px, step):
+def _choose(depth, color, use_color, y, x, iv, pv, rr, cqy, cqx, order, n, edge_ratio, sigma, bias, support_px,
+            step):
     """Rule 4: 1/z of the hole from candidates order[:n] holding several surfaces."""
     for t in range(1, n):  # stable insertion sort, far to near
         kk = order[t]
@@ -204,7 +207,7 @@ def _choose(depth, color, use_color, y, x, iv, rr, cqy, cqx, order, n, edge_rati
     while g0_end < n and 1.0 / iv[order[g0_end - 1]] - 1.0 / iv[order[g0_end]] <= edge_ratio / iv[order[g0_end - 1]]:
         g0_end += 1
     if not use_color:
-        return _idw(iv, rr, order, 0, g0_end)
+        return _idw(iv, pv, rr, order, 0, g0_end)
     best, best_iv = -1.0, 0.0
     start = 0
     g = 0
@@ -220,7 +223,7 @@ def _choose(depth, color, use_color, y, x, iv, rr, cqy, cqx, order, n, edge_rati
         if g > 0:
             score /= bias
         if score > best:
-            best, best_iv = score, _idw(iv, rr, order, start, end)
+            best, best_iv = score, _idw(iv, pv, rr, order, start, end)
         start = end
         g += 1
     return best_iv
@@ -228,20 +231,22 @@ def _choose(depth, color, use_color, y, x, iv, rr, cqy, cqx, order, n, edge_rati
 
 @cuda.jit
 def _lost(kind, src, out):
-    """Rule 5: a lost hole takes the value of the nearest pixel not lost straight up, left, down or right."""
+    """Rule 5: a lost hole blends the nearest pixels not lost straight up, left, down and right (1/d weights on
+    1/z)."""
     y, x = cuda.grid(2)
     H, W = kind.shape
     if y >= H or x >= W or kind[y, x] != LOST:
         return
-    best, value = H + W, np.float32(0.0)
+    sw = swi = 0.0
     for t in range(4):
         dy, dx = (-1, 0) if t == 0 else (0, -1) if t == 1 else (1, 0) if t == 2 else (0, 1)
         d, qy, qx = 1, y + dy, x + dx
         while 0 <= qy < H and 0 <= qx < W and kind[qy, qx] == LOST:
             d, qy, qx = d + 1, qy + dy, qx + dx
-        if 0 <= qy < H and 0 <= qx < W and d < best:
-            best, value = d, src[qy, qx]
-    out[y, x] = value
+        if 0 <= qy < H and 0 <= qx < W:
+            sw += 1.0 / d
+            swi += 1.0 / (d * np.float64(src[qy, qx]))
+    out[y, x] = np.float32(sw / swi)
 
 
 @cuda.jit
@@ -252,7 +257,7 @@ def _median_far(kind, r_near, min_r, step, edge_ratio, src, out):
     if y >= H or x >= W:
         return
     out[y, x] = src[y, x]
-    if kind[y, x] != INSIDE or not r_near[y, x] > min_r:
+    if (kind[y, x] != INSIDE and kind[y, x] != BORDER) or not r_near[y, x] > min_r:
         return
     win = cuda.local.array(25, np.float32)
     n = 0

@@ -84,13 +84,9 @@ def _fill(registered, frame: RGBDFrame, color_dev, opts, trace, stream, sync):
         if holes == registered.size:
             raise InputError("depth has no known pixel: nothing to fill from")
         rec["reason"] = f"{holes} holes ({opts.fill_method})"
-        host = None
-        if opts.fill_method != "telea":  # holes at the frame's edge take the CPU's border rule ("candidates")
-            host = registered.copy_to_host(stream=stream)
-            edge_holes = not (host[0].all() and host[-1].all() and host[:, 0].all() and host[:, -1].all())
-        if opts.fill_method == "telea" or edge_holes:
+        if opts.fill_method == "telea":  # OpenCV's inpainting: on the CPU
             rec["detail"]["device"] = "cpu"
-            host = registered.copy_to_host(stream=stream) if host is None else host
+            host = registered.copy_to_host(stream=stream)
             return to_device(cpu_fill(host, frame.color, method=opts.fill_method), stream)
         guide = decode(color_dev, linear=True, stream=stream)
         return fill_depth(registered, guide, use_color=opts.fill_method == "joint-bilateral", prepared=prepared,

@@ -122,7 +122,7 @@ class TestStages:
             groups = kernels._compile_groups(three, workers)
             assert sorted(s for g in groups for s in g) == sorted(three) and len(groups) == min(workers, 3)
         longest = max(three, key=cpu.get)
-        assert [longest] in kernels._compile_groups(three, 2)  # the renderer alone, the two others together
+        assert [longest] in kernels._compile_groups(three, 2)  # the longest alone, the two others together
         assert kernels._compile_groups(["fill"], 4) == [["fill"]]
 
     def test_compile_apart_reports_each_stage_as_it_ends(self, monkeypatch):

@@ -102,8 +102,8 @@ def _coc_maps(z, scale, inv_focus, signed, size):
     how many sizes are >= 1): per chunk of pixels, then over the chunks (exact whatever the order)."""
     n = z.size
     n_chunks = max(1, min(n, 256))
-    top = np.zeros(n_chunks, np.float32)
-    count = np.zeros(n_chunks, np.int64)
+    top = np.empty(n_chunks, np.float32)  # every chunk writes its own (np.zeros would be a parallel loop more)
+    count = np.empty(n_chunks, np.int64)
     for c in prange(n_chunks):
         m = np.float32(0.0)
         k = 0

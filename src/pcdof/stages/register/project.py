@@ -130,14 +130,18 @@ def _prepare(counter, n_tasks, depth, rays, t, cam, d, tilt, has_dist, r2_max, f
         r0, r1 = next_rows(counter, n_tasks, chunk, h)
         if r0 < 0:
             break
-        for i in range(r0, r1):
+        # the chunk's rows, then the next chunk's first row into the scratch rows: one loop, so that the
+        # inlined projection (with the lens model) is compiled once, not twice
+        for i in range(r0, min(r1 + 1, h)):
+            own = i < r1
+            u_row = U[i] if own else su
+            v_row = V[i] if own else sv
+            iz_row = IZ[i] if own else siz
             lo, hi = _project_row(depth[i], rays[0, i], rays[1, i], rays[2, i], t, cam, d, tilt, has_dist, r2_max,
-                                  foot_v, U[i], V[i], IZ[i])
-            row_lo[i] = lo
-            row_hi[i] = hi
-        if r1 < h:
-            _project_row(depth[r1], rays[0, r1], rays[1, r1], rays[2, r1], t, cam, d, tilt, has_dist, r2_max, foot_v,
-                         su, sv, siz)
+                                  foot_v, u_row, v_row, iz_row)
+            if own:
+                row_lo[i] = lo
+                row_hi[i] = hi
         for i in range(r0, min(r1, h - 1)):
             _code_row(IZ[i], IZ[i + 1] if i + 1 < r1 else siz, ratio, codes[i + 1, 1:])
 

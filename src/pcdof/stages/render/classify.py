@@ -60,12 +60,15 @@ def classify_layers(raw, max_coc, edges):
     radius = np.empty((h, w), np.float32)
     layer = np.empty((h, w), np.int32)
     n_bands = min(h, 64)
-    count = np.zeros((n_bands, n_keys), np.int64)
-    r_max = np.zeros((n_bands, n_keys), np.float32)
+    # np.empty, set by plain loops: each np.zeros in a parallel kernel is a parallel loop more to compile
+    count = np.empty((n_bands, n_keys), np.int64)
+    r_max = np.empty((n_bands, n_keys), np.float32)
     box = np.empty((n_bands, n_keys, 4), np.int64)
     lim = np.float32(max_coc)
     for b in prange(n_bands):
         for k in range(n_keys):
+            count[b, k] = 0
+            r_max[b, k] = 0.0
             box[b, k, 0] = h
             box[b, k, 1] = -1
             box[b, k, 2] = w
@@ -93,17 +96,18 @@ def classify_layers(raw, max_coc, edges):
             if run_k >= 0:
                 _note_run(count[b], r_max[b], box[b], run_k, y, run_x, w - 1, run_r)
     # plain loops, not count.sum(axis=0): numba's axis reductions cost seconds of compiling
-    present = np.zeros(n_keys, np.bool_)
+    present = np.empty(n_keys, np.bool_)
     n_layers = 0
     for k in range(n_keys):
+        present[k] = False
         for b in range(n_bands):
             if count[b, k] > 0:
                 present[k] = True
         n_layers += int(present[k])
     lookup = np.full(n_keys, -1, np.int32)
     keys = np.empty(n_layers, np.int64)
-    total = np.zeros(n_layers, np.int64)
-    r_all = np.zeros(n_layers, np.float32)
+    total = np.empty(n_layers, np.int64)
+    r_all = np.empty(n_layers, np.float32)
     box_all = np.empty((n_layers, 4), np.int64)
     i = 0
     for k in range(n_keys):  # ascending signed CoC = near to far (c is monotone in z)
@@ -115,6 +119,8 @@ def classify_layers(raw, max_coc, edges):
         box_all[i, 1] = -1
         box_all[i, 2] = w
         box_all[i, 3] = -1
+        total[i] = 0
+        r_all[i] = 0.0
         for b in range(n_bands):
             total[i] += count[b, k]
             r_all[i] = max(r_all[i], r_max[b, k])

@@ -43,38 +43,37 @@ stage = sys.argv[1]
 rows = {}        # (module, qualname) -> {"sigs": [...], "self": s, "incl": s}
 passes = {}      # pass name -> self seconds
 pass_kernels = {}  # (pass name, module, qualname) -> self seconds
-cstack, pstack = [], []
 
 
-class Compiles(ev.Listener):
+class Nested(ev.Listener):
+    """Times nested events: each one's CPU seconds in all and without the events nested in it."""
+
+    def __init__(self):
+        self.stack = []
+
     def on_start(self, event):
-        cstack.append([time.process_time(), 0.0])
+        self.stack.append([time.process_time(), 0.0])
 
     def on_end(self, event):
-        t0, child = cstack.pop()
+        t0, child = self.stack.pop()
         total = time.process_time() - t0
-        if cstack:
-            cstack[-1][1] += total
-        d = event.data["dispatcher"]
-        fn = d.py_func
-        key = (fn.__module__ or "?", fn.__qualname__)
-        row = rows.setdefault(key, {"sigs": [], "self": 0.0, "incl": 0.0})
+        if self.stack:
+            self.stack[-1][1] += total
+        self.record(event, total - child, total)
+
+
+class Compiles(Nested):
+    def record(self, event, own, total):
+        fn = event.data["dispatcher"].py_func
+        row = rows.setdefault((fn.__module__ or "?", fn.__qualname__), {"sigs": [], "self": 0.0, "incl": 0.0})
         row["sigs"].append(", ".join(str(a) for a in event.data["args"]))
-        row["self"] += total - child
+        row["self"] += own
         row["incl"] += total
 
 
-class Passes(ev.Listener):
-    def on_start(self, event):
-        pstack.append([time.process_time(), 0.0])
-
-    def on_end(self, event):
-        t0, child = pstack.pop()
-        total = time.process_time() - t0
-        if pstack:
-            pstack[-1][1] += total
+class Passes(Nested):
+    def record(self, event, own, total):
         name = event.data["name"].split(" [", 1)[0]
-        own = total - child
         passes[name] = passes.get(name, 0.0) + own
         k = (name, event.data["module"] or "?", event.data["qualname"])
         pass_kernels[k] = pass_kernels.get(k, 0.0) + own

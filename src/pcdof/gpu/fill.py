@@ -105,17 +105,6 @@ def _support(color, depth, cy, cx, qy, qx, uy, ux, sigma):
     return math.exp(-best / (2.0 * sigma * sigma))
 
 
-@cuda.jit(device=True)
-def _outside(depth, y, x):
-    """Rule 3: whether hole (y, x) lies outside the depth camera's view (neither its row nor its column has a
-    candidate on both sides)."""
-    for axis in range(2):
-        ax, ay = (1, 0) if axis == 0 else (0, 1)
-        if _candidate(depth, y, x, ax, ay)[0] >= 0 and _candidate(depth, y, x, -ax, -ay)[0] >= 0:
-            return False
-    return True
-
-
 @cuda.jit
 def _holes(depth, color, use_color, zrange, p, out, kind, r_near):
     """Rules 1 to 4 for every hole; *p*: (edge_ratio, sigma, bias, extrapolate_px, support_px, step)."""
@@ -132,17 +121,20 @@ def _holes(depth, color, use_color, zrange, p, out, kind, r_near):
     step = int(p[5])
     zmin, zmax = np.float64(zrange[0]), np.float64(zrange[1])
     inv_lo, inv_hi = 1.0 / zmax, 1.0 / zmin
-    outside = _outside(depth, y, x)
     iv = cuda.local.array(16, np.float64)
     pv = cuda.local.array(16, np.float64)  # outside the view: a candidate's 1/z past the known range, else -1
     rr = cuda.local.array(16, np.float64)
     cqy = cuda.local.array(16, np.int64)
     cqx = cuda.local.array(16, np.int64)
     order = cuda.local.array(16, np.int64)
+    for kk in range(16):
+        cqy[kk], cqx[kk] = _candidate(depth, y, x, _DX[kk], _DY[kk])
+    # rule 3: outside the view when neither the row (directions 0, 4) nor the column (2, 6) has a candidate on
+    # both sides
+    outside = not ((cqy[0] >= 0 and cqy[4] >= 0) or (cqy[2] >= 0 and cqy[6] >= 0))
     n = 0
     for kk in range(16):
-        ay, ax = _candidate(depth, y, x, _DX[kk], _DY[kk])
-        cqy[kk], cqx[kk] = ay, ax
+        ay, ax = cqy[kk], cqx[kk]
         if ay < 0:
             continue
         a, gx, gy = _plane(depth, ay, ax, 5 * step, step, edge_ratio)

@@ -163,3 +163,20 @@ def test_render_crop_to_depth_view(tmp_path):
     box = depth_view_box(sf.rig, *measured_range_m(full_registered))
     assert np.array_equal(registered, full_registered[box.slices])
     assert os.path.exists(tmp_path / "maps" / "trace.json")
+
+
+def test_crop_refuses_a_rig_whose_depth_camera_sees_none_of_the_colour_image():
+    from pcdof.cli.render import cropped_to_depth_view
+    from pcdof.pipeline import RenderResult
+
+    rig = kinect_v2_like()
+    T = np.diag([-1.0, 1.0, -1.0, 1.0])  # the depth camera turned to face backwards
+    away = Rig(rig.color, rig.depth, T)
+    assert not depth_view_mask(away, 0.5, 5.0).any()
+    h, w = rig.color.height, rig.color.width
+    result = RenderResult(np.zeros((h, w, 3), np.uint8), np.full((h, w), 2.0, np.float32),
+                          np.full((h, w), 2.0, np.float32), None, None, [])
+    with pytest.raises(InputError, match="--crop-to-depth-view"):
+        cropped_to_depth_view(result, away)
+    kept, note = cropped_to_depth_view(result, Rig.registered(rig.color))
+    assert kept is result and "nothing cropped" in note

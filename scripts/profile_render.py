@@ -19,6 +19,7 @@ import time
 #: (module of pcdof.stages.render, the name it calls the function by) -> the pass its time counts in (nested calls
 #: count in the outermost)
 PASSES = {("physical", "continued_pixels"): "hidden", ("grids", "extended_layer"): "extend",
+          ("grids", "found_behind"): "extend",
           ("grids", "reduce_cells"): "reduce", ("physical", "convolved_cells"): "plan",
           ("physical", "scatter_sources"): "scatter", ("physical", "convolve_uniform"): "convolve",
           ("physical", "upsample_cells"): "upsample", ("composite", "composite_under"): "composite",

@@ -190,3 +190,31 @@ class TestConvolveRuns:
         assert outs[0][ya:yb, xa:xb].any()
         for buf in outs[1:]:
             np.testing.assert_array_equal(buf, outs[0])
+
+
+class TestReduceCellsInPlace:
+    """The reduction of a box of the frame with the extension read through source indices equals the reduction
+    of the extended copy, bit for bit (what :func:`reduced_grid` relies on to copy nothing)."""
+
+    @pytest.mark.parametrize("s", [2, 4])
+    def test_source_indices_read_as_the_extended_copy(self, s):
+        rng = np.random.default_rng(s)
+        h, w, nc = 45, 61, 3
+        lin = rng.random((h, w, nc)).astype(np.float32) * 3
+        radius = rng.random((h, w)).astype(np.float32) * 10
+        box = (slice(6, 39), slice(9, 52))  # cells cut by the box's border
+        member = rng.random((33, 43)) < 0.4
+        hidden = ~member & (rng.random(member.shape) < 0.5)
+        dst, src = renderer.extend.behind_sources(member, hidden, 6.0)
+        assert dst.size > 50
+        source = np.full(member.shape, -1, np.int32)
+        source.ravel()[dst] = src
+        want = renderer.grids.reduce_cells(*renderer.extend.extend_layer_behind(
+            np.ascontiguousarray(lin[box]), np.ascontiguousarray(radius[box]), member,
+            renderer.extend.Behind(dst, src), 6.0), s)
+        got = renderer.grids.reduce_cells(lin, radius, member, s, source, (box[0].start, box[1].start))
+        for g, e in zip(got, want):
+            np.testing.assert_array_equal(g, e)
+        # and without the extension the copied pixels are not counted
+        bare = renderer.grids.reduce_cells(lin, radius, member, s, None, (box[0].start, box[1].start))
+        assert bare[2].sum() < got[2].sum()

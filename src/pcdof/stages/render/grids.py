@@ -10,17 +10,35 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
+from ...runtime.kernels import read_only
 from . import serial
-from .extend import extended_layer
+from .extend import Behind, extend_layer_behind, extended_layer, found_behind
+
+
+#: no copied pixels: the *source* of :func:`reduce_cells` for a layer that is not extended
+NO_SOURCE = read_only(np.zeros((0, 0), np.int32))
+
+
+def reduce_cells(lin, radius, member, s, source=None, origin=(0, 0)):
+    """Block means over s x s cells (zero-padded) of the box *member* (hb, wb) bool at *origin* (row, column) of
+    *lin* (H, W, C) float32 and *radius* (H, W) float32: member-weighted colour and radius, and member share.
+    Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s) as float32, hs = ceil(hb / s), ws = ceil(wb / s).
+
+    *source* (hb, wb) int32 or None: a pixel that is not a member but has source >= 0 counts as a member with
+    the colour and radius of the box's pixel at that flat index (the layer extended behind nearer layers,
+    :func:`pcdof.stages.render.extend.extend_layer_behind`, read in place instead of copied).
+
+    Rows of cells run in parallel; each cell is summed in scalar accumulators, its pixels in raster order."""
+    return _reduce_cells(lin, radius, member, s, NO_SOURCE if source is None else source, int(origin[0]),
+                         int(origin[1]))
 
 
 @njit(parallel=True, cache=True)
-def reduce_cells(lin, radius, member, s):
-    """Block means over s x s cells (zero-padded): member-weighted colour and radius, and member share.
-    Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s) as float32.
-
-    Rows of cells run in parallel; each cell is summed in scalar accumulators, its pixels in raster order."""
-    h, w, nc = lin.shape
+def _reduce_cells(lin, radius, member, s, source, oy, ox):
+    """:func:`reduce_cells`, *source* (0, 0) for none."""
+    h, w = member.shape
+    nc = lin.shape[2]
+    copies = source.shape[0] > 0
     hs, ws = (h + s - 1) // s, (w + s - 1) // s
     # zeroed row by row below: np.zeros would be three parallel loops more to compile
     lin_s = np.empty((hs, ws, nc), np.float32)
@@ -41,14 +59,18 @@ def reduce_cells(lin, radius, member, s):
             a0 = a1 = a2 = np.float32(0.0)
             for y in range(y0, y1):
                 for x in range(x0, x1):
-                    if member[y, x]:
-                        m += np.float32(1.0)
-                        r += radius[y, x]
-                        a0 += lin[y, x, 0]
-                        if nc > 1:
-                            a1 += lin[y, x, 1]
-                        if nc > 2:
-                            a2 += lin[y, x, 2]
+                    sy, sx = oy + y, ox + x
+                    if not member[y, x]:
+                        if not copies or source[y, x] < 0:
+                            continue
+                        sy, sx = oy + source[y, x] // w, ox + source[y, x] % w
+                    m += np.float32(1.0)
+                    r += radius[sy, sx]
+                    a0 += lin[sy, sx, 0]
+                    if nc > 1:
+                        a1 += lin[sy, sx, 1]
+                    if nc > 2:
+                        a2 += lin[sy, sx, 2]
             if m > 0:
                 inv = 1.0 / m
                 r_s[cy, cx] = r * inv
@@ -74,30 +96,51 @@ class Grid:
     extended: bool
 
 
-def full_grid(lin, radius, member, hidden, reach_px) -> Grid:
-    """The layer's sources at full resolution, extended behind *hidden* (or None) up to *reach_px*."""
-    lin, radius, member, extended = extended_layer(lin, radius, member, hidden, reach_px)
+def full_grid(lin, radius, member, hidden, reach_px, origin=(0, 0)) -> Grid:
+    """The layer's sources at full resolution, extended behind *hidden* (or None) up to *reach_px*: the box
+    *member* (hb, wb) bool at *origin* (row, column) of *lin* (H, W, C) and *radius* (H, W)."""
+    box = _box_at(member, origin)
+    lin, radius, member, extended = extended_layer(lin[box], radius[box], member, hidden, reach_px)
     return Grid(np.ascontiguousarray(lin, np.float32), np.ascontiguousarray(radius, np.float32),
                 np.ascontiguousarray(member), member.astype(np.float32), extended)
 
 
-def reduced_grid(lin, radius, member, hidden, reach_px, s) -> Grid:
+def reduced_grid(lin, radius, member, hidden, reach_px, s, origin=(0, 0)) -> Grid:
     """The layer's sources as s x s cell means (s^2 times less work to scatter), extended behind *hidden*
-    (or None) first, at full resolution, with the footprint radius narrowed for the spread of the reduction.
+    (or None) first, at full resolution, with the footprint radius narrowed for the spread of the reduction:
+    the box *member* (hb, wb) bool at *origin* (row, column) of *lin* (H, W, C) float32 and *radius* (H, W)
+    float32, read in place (C-contiguous, read only: the whole frame, one compiled type).
 
     The extension is decided pixel by pixel, as at full resolution: continued cell by cell, a hidden cell took
     the mean of the layer's pixels in its nearest cell, which lost the layer's light behind a small bright
     source next to it (a lamp beside a wall, behind a blurred foreground; 0.17 dB against exact on such a
-    wide-benchmark case, 0.03 dB extended per pixel)."""
-    lin, radius, member, extended = extended_layer(lin, radius, member, hidden, reach_px)
+    wide-benchmark case, 0.03 dB extended per pixel). The reduction reads each added pixel's colour where it
+    is, through its source's flat index (4 bytes a pixel of the box), not from a copy of the layer (17)."""
+    found = found_behind(member, hidden, reach_px)
+    source = None
+    if found is not None and member.size < 2 ** 31:
+        source = np.full(member.shape, -1, np.int32)
+        source.ravel()[found[0]] = found[1]
+    elif found is not None:  # too many pixels to index with 32 bits: the box extended as a copy
+        box = _box_at(member, origin)
+        lin, radius, member = extend_layer_behind(lin[box], radius[box], member, Behind(*found), reach_px)
+        origin = (0, 0)
     with serial.serial_if(member.size < serial.SERIAL_BELOW_PX):
-        lin_s, r, m_s = reduce_cells(np.ascontiguousarray(lin, np.float32),
-                                     np.ascontiguousarray(radius, np.float32), np.ascontiguousarray(member), s)
+        lin_s, r, m_s = reduce_cells(read_only(np.ascontiguousarray(lin, np.float32)),
+                                     read_only(np.ascontiguousarray(radius, np.float32)),
+                                     read_only(np.ascontiguousarray(member)), s,
+                                     None if source is None else read_only(source), origin)
     # the block mean and the upsampling widen the blur by resample_variance_px2(s) per axis; a disc of
     # radius r has r^2 / 4: take it off the radius (at most down to half of it)
     r_s = (np.sqrt(np.maximum(r * r - 4 * resample_variance_px2(s), 0.25 * r * r)) / s).astype(np.float32)
     return Grid(np.ascontiguousarray(lin_s, np.float32), r_s, np.ascontiguousarray(m_s > 0),
-                np.ascontiguousarray(m_s, np.float32), extended)
+                np.ascontiguousarray(m_s, np.float32), found is not None)
+
+
+def _box_at(member, origin):
+    """The slices of the box of *member*'s shape at *origin* (row, column)."""
+    (hb, wb), (oy, ox) = member.shape, origin
+    return slice(oy, oy + hb), slice(ox, ox + wb)
 
 
 def resample_variance_px2(s: int) -> float:

@@ -54,8 +54,9 @@ def _layer_window(frame: RenderFrame, li: int, r_max: float, r_front: float, bbo
 
 
 def scatter_layer(lin, radius, member, s, aperture: RenderAperture, hidden=None, reach_px=0, fast=None,
-                  upsample=True):
-    """Scatter the pixels of *member* at 1/s resolution.
+                  upsample=True, origin=(0, 0)):
+    """Scatter the pixels of *member* (hb, wb) bool, the box at *origin* (row, column) of *lin* (H, W, C)
+    float32 and *radius* (H, W) float32, at 1/s resolution.
 
     Returns their (H, W, C+1) buffer at full size (premultiplied colour, coverage; with *upsample* False
     and s > 1, on the 1/s grid, for :func:`pcdof.stages.render.grids.upsampled_strips`), whether the
@@ -67,9 +68,9 @@ def scatter_layer(lin, radius, member, s, aperture: RenderAperture, hidden=None,
     uniform tiles (:meth:`pcdof.stages.render.tiles.TileMap.uniform`): there the layer is computed as a convolution
     (:func:`convolve_uniform`), and only the sources whose footprint reaches another pixel are scattered.
     """
-    h, w, nc = lin.shape
-    grid = (full_grid(lin, radius, member, hidden, reach_px) if s == 1
-            else reduced_grid(lin, radius, member, hidden, reach_px, s))
+    (h, w), nc = member.shape, lin.shape[2]
+    grid = (full_grid(lin, radius, member, hidden, reach_px, origin) if s == 1
+            else reduced_grid(lin, radius, member, hidden, reach_px, s, origin))
     hs, ws = grid.member.shape
     buf = np.zeros((hs, ws, 4), np.float32)
     bins, groups, scattered = convolved_cells(grid, fast, s)
@@ -108,8 +109,9 @@ def _blur_layer(frame: RenderFrame, canvas: Canvas, li: int, key: int, n_members
     if plan.convolve_uniform and lo / (2 * s) >= plan.uniform_min_radius_px:
         uniform = frame.tiles.uniform(lo, hi, 1 if key > 0 else -1, r_max + 2 * s + 2)
     fast = UniformTiles(uniform, frame.tiles, box) if uniform.any() else None
-    buf, extended, n_kernels, n_scattered = scatter_layer(frame.lin[box], frame.radius[box], m, s, frame.aperture,
-                                                          hidden, ext_reach, fast, upsample=False)
+    buf, extended, n_kernels, n_scattered = scatter_layer(frame.lin, frame.radius, m, s, frame.aperture, hidden,
+                                                          ext_reach, fast, upsample=False,
+                                                          origin=(box[0].start, box[1].start))
     h, w = m.shape
     # a reduced layer is upsampled and composited a strip at a time: the full-size layer is never in memory
     strips = [(0, buf)] if s == 1 else upsampled_strips(buf, s, h, w)

@@ -1,7 +1,8 @@
 """Partial occlusion: a layer continued behind a blurred foreground is continued by what is seen beside it.
 
 A small bright layer (a lamp or glint between a blurred foreground and a sharp background) must not be
-copied over the whole width the foreground hides: the light it adds would come from nothing.
+copied over the whole width the foreground hides: the light it adds would come from nothing. A slanted
+surface, cut into many thin layers, must be continued as deep as one layer of it would be.
 """
 
 from __future__ import annotations
@@ -42,9 +43,39 @@ def test_small_layer_is_not_copied_behind_a_blurred_foreground(renderer, radianc
     assert float(out.sum()) <= 1.01 * float(lin.sum())
 
 
-def _owned_whole(layer, li, box, bbox, hidden, reach_px, cell_px=1, threads=1):
+def _plane_behind_foreground(slanted):
+    """A bright plane over the top half (its CoC from 2.9 px down to 0.6 px over 20 rows when *slanted*: layer
+    edges every 2 to 5 rows; else 2.5 px, one layer) and a dark foreground blurred by 16 px below it."""
+    h, w = 40, 48
+    lin = np.full((h, w, 3), 0.9, np.float32)
+    coc = np.repeat((2.9 - 0.12 * np.arange(h, dtype=np.float32) if slanted else np.full(h, 2.5, np.float32))
+                    [:, None], w, axis=1)
+    lin[20:] = 0.05
+    coc[20:] = -16.0
+    return lin, coc
+
+
+@pytest.mark.parametrize("renderer", ["fast", "reference"])
+def test_slanted_surface_is_continued_as_deep_as_one_layer_behind_a_blurred_foreground(renderer):
+    """Each thin layer of the slanted plane used to be continued behind the foreground only as deep as the
+    layer is wide (the next layer of the same plane counted as the end of it): three rows in, the plane's
+    light stopped and the foreground's soft edge had a hard step (0.19 -> 0.05 at row 24). The surface
+    ends at a depth jump, not at a layer edge: the render matches the plane as one layer."""
+    def render(lin, coc):
+        if renderer == "fast":
+            return render_layers_linear(lin, coc, quality="exact")[0]
+        return ref.render_layers_linear(lin, coc).astype(np.float32)
+    slanted, flat = render(*_plane_behind_foreground(True)), render(*_plane_behind_foreground(False))
+    # the foreground's first rows, away from the frame's sides: its soft edge lets the plane behind it through
+    inside = (slice(20, 28), slice(8, 40))
+    assert float(flat[24:26, 8:40, 0].min()) > 0.07  # the plane's light reaches there
+    np.testing.assert_allclose(slanted[inside], flat[inside], atol=0.01)
+
+
+def _owned_whole(layer, li, box, bbox, hidden, reach_px, cell_px=1, threads=1, across=None):
     """The ownership rule stated plainly: both transforms on the box widened by twice the reach (every
-    pixel that can compete for it), answered for every pixel of the box."""
+    pixel that can compete for it), answered for every pixel of the box; the surface ends where *across*
+    says (every farther layer's pixel when None)."""
     h, w = layer.shape
     pad = 2 * int(np.ceil(reach_px)) + 2
     y0, x0 = max(0, box[0].start - pad), max(0, box[1].start - pad)
@@ -54,6 +85,8 @@ def _owned_whole(layer, li, box, bbox, hidden, reach_px, cell_px=1, threads=1):
                                                    labelType=cv2.DIST_LABEL_PIXEL)
     nearest = np.flatnonzero(behind.ravel())[labels.ravel() - 1]
     farther = big > li
+    if across is not None:
+        farther &= across[y0:y0 + big.shape[0], x0:x0 + big.shape[1]] >= li
     width = (cv2.distanceTransform((~farther).astype(np.uint8), cv2.DIST_L2, 5).ravel()[nearest] if farther.any()
              else np.full(nearest.shape, np.inf, np.float32))
     own = ((big.ravel()[nearest] == li) & (dist.ravel() <= np.maximum(width, 1.0))).reshape(big.shape)

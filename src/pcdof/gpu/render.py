@@ -6,8 +6,9 @@ footprint; no tiles, no reduced resolution, no convolution), with the aperture's
 
 1. one thread per pixel decides whether it is a source of the layer: a member, or a hidden pixel the layer
    continues (rule 4: its nearest pixel of this or a farther layer, found by a search in growing square rings,
-   ties to the first in raster order, is a member within reach, and no farther layer is nearer to that member
-   than the hidden pixel is). An in-focus source is composited at once (an opaque copy); a blurred one adds,
+   ties to the first in raster order, is a member within reach, and no pixel that ends its surface -- of a
+   farther layer, across a depth jump from this or a farther layer -- is nearer to that member than the hidden
+   pixel is). An in-focus source is composited at once (an opaque copy); a blurred one adds,
    per footprint row, the four end weights of its interval to a row-difference buffer (atomic adds);
 2. one thread per row and channel sums the row (the coverage of every pixel by every interval, exactly);
 3. one thread per pixel composites the layer behind what is in front (rule 5).
@@ -26,6 +27,7 @@ from ..apertures import Aperture
 from ..errors import InputError
 from ..lens import MAX_COC_PX
 from ..stages.render import LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, aperture_table
+from ..stages.render.classify import JUMP_COC_PX
 from .launch import grid_1d, grid_2d, on_device, to_device, zeros
 
 _N_EDGES = len(LAYER_EDGES_PX)
@@ -94,8 +96,38 @@ def _nearest_behind(rank, li, y, x, reach):
 
 
 @cuda.jit(device=True)
-def _farther_within(rank, li, y, x, d2):
-    """Whether a pixel of rank > li lies at squared distance < d2 from (y, x)."""
+def _clean(c, max_coc):
+    """The signed CoC as the classification cleans it: NaN as 0, clipped to +-max_coc (float32)."""
+    c = np.float32(c)
+    if c != c:
+        return np.float32(0.0)
+    return np.float32(min(max(c, np.float32(-max_coc)), np.float32(max_coc)))
+
+
+@cuda.jit
+def _across_jumps(coc_in, max_coc, rank, across):
+    """Per pixel, the largest rank among its four neighbours whose cleaned signed CoC (NaN as 0, clipped) is
+    smaller than its own by more than JUMP_COC_PX, or -1 (:func:`pcdof.stages.render.classify.across_jumps`)."""
+    y, x = cuda.grid(2)
+    H, W = rank.shape
+    if y >= H or x >= W:
+        return
+    best = -1
+    c = _clean(coc_in[y, x], max_coc)
+    for k in range(4):
+        ny, nx = y, x
+        if k < 2:
+            ny = y - 1 if k == 0 else y + 1
+        else:
+            nx = x - 1 if k == 2 else x + 1
+        if 0 <= ny < H and 0 <= nx < W and np.float32(c - _clean(coc_in[ny, nx], max_coc)) > JUMP_COC_PX:
+            best = max(best, rank[ny, nx])
+    across[y, x] = best
+
+
+@cuda.jit(device=True)
+def _farther_within(rank, across, li, y, x, d2):
+    """Whether a pixel that ends the surface (rank > li, across >= li) lies at squared distance < d2 from (y, x)."""
     H, W = rank.shape
     k_max = int(math.ceil(math.sqrt(np.float64(d2))))
     for dy in range(-k_max, k_max + 1):
@@ -104,7 +136,7 @@ def _farther_within(rank, li, y, x, d2):
             continue
         for dx in range(-k_max, k_max + 1):
             qx = x + dx
-            if 0 <= qx < W and dy * dy + dx * dx < d2 and rank[qy, qx] > li:
+            if 0 <= qx < W and dy * dy + dx * dx < d2 and rank[qy, qx] > li and across[qy, qx] >= li:
                 return True
     return False
 
@@ -165,7 +197,7 @@ def _scatter_source(diff, lin, table, unit_area, y, x, sy, sx, r):
 
 
 @cuda.jit
-def _layer_sources(rank, li, in_focus, lin, radius, trans, reach, table, unit_area, diff, acc, acc_a):
+def _layer_sources(rank, across, li, in_focus, lin, radius, trans, reach, table, unit_area, diff, acc, acc_a):
     """Each pixel that is a source of layer *li* (a member, or a hidden pixel it continues when *reach* >= 0):
     composited at once when *in_focus*, else scattered into *diff*."""
     y, x = cuda.grid(2)
@@ -180,7 +212,7 @@ def _layer_sources(rank, li, in_focus, lin, radius, trans, reach, table, unit_ar
         d2, sy, sx = _nearest_behind(rank, li, y, x, reach)
         if d2 < 0 or d2 > reach * reach or rank[sy, sx] != li:
             return
-        if d2 > 1 and _farther_within(rank, li, sy, sx, d2):
+        if d2 > 1 and _farther_within(rank, across, li, sy, sx, d2):
             return
     if in_focus:
         t = trans[y, x]
@@ -305,6 +337,10 @@ def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: 
     rank = cuda.device_array((H, W), np.int32, stream=stream)
     blocks, threads = grid_2d(H, W)
     _ranks[blocks, threads, stream](key_bin, to_device(rank_of_bin, stream), rank)
+    across = cuda.device_array((H, W), np.int32, stream=stream)
+    _across_jumps[blocks, threads, stream](signed_coc if on_device(signed_coc) else
+                                           to_device(np.asarray(signed_coc, np.float32), stream),
+                                           MAX_COC_PX, rank, across)
     acc = zeros((H, W, C), np.float32, stream)
     acc_a = zeros((H, W), np.float32, stream)
     trans = cuda.device_array((H, W), np.float32, stream=stream)
@@ -320,7 +356,7 @@ def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: 
         reach = int(math.ceil(r_front + rm + 1)) if extend_behind and li > 0 and r_front > 0 else -1
         if key != 0:
             fill_value(diff.reshape(diff.size), 0.0, stream)
-        _layer_sources[blocks, threads, stream](rank, li, key == 0, lin, radius, trans, reach, ap.table, ap.unit_area,
+        _layer_sources[blocks, threads, stream](rank, across, li, key == 0, lin, radius, trans, reach, ap.table, ap.unit_area,
                                                 diff, acc, acc_a)
         if key != 0:
             rblocks, rthreads = grid_1d(H * (C + 1))

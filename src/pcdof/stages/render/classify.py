@@ -18,6 +18,11 @@ SHARP_COC_PX = 1.0
 #: 1 / (pi r^2) finite for the pixels around a layer whose circle of confusion is tiny.
 MIN_SOURCE_RADIUS_PX = 0.5
 
+#: Two side-by-side pixels whose circles of confusion differ by more than this (pixels) lie on different
+#: surfaces (a depth jump); less, on one surface, even when they fall in different layers: a slanted
+#: surface crosses a layer edge every few pixels, and a depth map's steps on it stay well below this.
+JUMP_COC_PX = 2.0
+
 
 @njit(cache=True, inline="always")
 def _note_run(count, r_max, box, k, y, x0, x1, r):
@@ -133,3 +138,23 @@ def classify_layers(raw, max_coc, edges):
         for x in range(w):
             layer[y, x] = lookup[layer[y, x]]
     return coc, radius, layer, keys, total, r_all, box_all
+
+
+def across_jumps(coc: np.ndarray, layer: np.ndarray, jump_px: float = JUMP_COC_PX) -> np.ndarray:
+    """Per pixel, the largest layer id among its four neighbours that are nearer than it by more than *jump_px*
+    (signed CoC: ``coc[pixel] - coc[neighbour] > jump_px``), or -1 when none is: (H, W) int8.
+
+    A pixel of a layer farther than layer *li* with ``across >= li`` lies across a depth jump from a pixel of
+    layer *li* or farther: it is where the surfaces seen beside a hidden pixel end (the extension behind
+    nearer layers reaches no farther than that); a farther layer that merely continues the same surface does
+    not end it. *coc* (H, W) float32 is the cleaned signed CoC, *layer* (H, W) the layer ids (at most 127)."""
+    h, w = layer.shape
+    out = np.full((h, w), -1, np.int8)
+    lay = layer.astype(np.int8)
+    for here, there in (((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
+                        ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+                        ((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
+                        ((slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+        jump = coc[here] - coc[there] > jump_px
+        np.maximum(out[here], np.where(jump, lay[there], np.int8(-1)), out=out[here])
+    return out

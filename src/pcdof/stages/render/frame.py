@@ -15,7 +15,9 @@ from .tiles import TileMap
 @dataclass(frozen=True)
 class RenderFrame:
     """What every layer of a render reads: linear colour (H, W, C) float32, footprint radius (H, W),
-    layer ids (H, W) int32, the tile map, the plan, the aperture and whether layers extend behind."""
+    layer ids (H, W) int32, the tile map, the plan, the aperture, whether layers extend behind, and where
+    surfaces end (:func:`pcdof.stages.render.classify.across_jumps`: (H, W) int8, or None when nothing is
+    extended)."""
 
     lin: np.ndarray
     radius: np.ndarray
@@ -24,6 +26,7 @@ class RenderFrame:
     plan: RenderPlan
     aperture: RenderAperture
     extend_behind: bool
+    across: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

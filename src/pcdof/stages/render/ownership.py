@@ -21,10 +21,10 @@ def widened_span(lo: int, hi: int, margin: int, bound: slice) -> slice:
 
 
 def owned_mask(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: float, cell_px: int = 1,
-               threads: int = 1):
+               threads: int = 1, across=None):
     """The *hidden* pixels of *box* that layer *li* continues (:func:`owners_of_hidden`) as a mask: (H_box, W_box) bool,
     a subset of *hidden*."""
-    found = owners_of_hidden(layer, li, box, bbox, hidden, reach_px, cell_px, threads)
+    found = owners_of_hidden(layer, li, box, bbox, hidden, reach_px, cell_px, threads, across)
     if isinstance(found, np.ndarray):
         return found
     out = np.zeros(hidden.shape, bool)
@@ -34,11 +34,14 @@ def owned_mask(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_
 
 
 def owners_of_hidden(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, reach_px: float, cell_px: int = 1,
-                     threads: int = 1):
+                     threads: int = 1, across=None):
     """The *hidden* pixels of *box* that layer *li* continues: those whose nearest pixel of layer *li* or
     a farther layer (OpenCV's 5x5 chamfer distance, ties in its scan order) is one of layer *li*'s, no
-    farther from it than the distance from that pixel to the nearest pixel of a farther layer (at
-    least 1 px). Returns (dst, src, dist): those pixels and each one's nearest candidate, the pixel of
+    farther from it than the distance from that pixel to the nearest pixel of a farther layer that ends
+    the surface (at least 1 px): with *across* (:func:`pcdof.stages.render.classify.across_jumps` of the
+    frame, (H, W) int8), a pixel of a farther layer across a depth jump from a pixel of layer *li* or farther
+    (``across >= li``); with None, every pixel of a farther layer. A slanted surface crosses many thin
+    layers, each continued behind the foreground from the same surface, as deep as the surface reaches. Returns (dst, src, dist): those pixels and each one's nearest candidate, the pixel of
     layer *li* the extension copies ((N,) int64 flat indices into the box; *src* inside the box when it
     holds the layer's bounding box, as the renderer's does), and their distance ((N,) float32); None when
     there is none; or, when no farther layer is near, the hidden pixels layer *li* is the only candidate
@@ -101,7 +104,7 @@ def owners_of_hidden(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, 
 
     def strip(sy0, sy1, sx0, sx1):
         win = (widened_span(sy0, sy1, rd, whole[0]), widened_span(sx0, sx1, rd, whole[1]))
-        return _owned_in(layer, li, win, hidden, (by, bx), (sy0, sy1, sx0, sx1), rd, whole)
+        return _owned_in(layer, li, win, hidden, (by, bx), (sy0, sy1, sx0, sx1), rd, whole, across)
 
     others = [_in_thread(lambda box=box: strip(*box)) for box in strips[1:]]
     parts = [strip(*strips[0])] + [done() for done in others]
@@ -205,12 +208,13 @@ def _keep_owned(py, px, qy, qx, d, width, wy0, wx0):
     return out_py, out_px, out_qy, out_qx, out_d
 
 
-def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part, rd: int, bound):
+def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part, rd: int, bound, across=None):
     """:func:`owners_of_hidden` on the window *win* of *layer*: the hidden pixels (*hidden*: the box at *origin*
     (row, column)) of *part* (y0, y1, x0, x1 inclusive, frame coordinates) that layer *li* continues, deciding
     those within *rd* of their nearest candidate, those candidates ((py, px, qy, qx) int64 frame
     coordinates) and their distance (d, float32). The farther layers' transform looks beyond *win*, within
-    *bound*. Each transform runs on its window cut to its seeds and the pixels it decides (:func:`cut_window`)."""
+    *bound*; with *across*, only those that end the surface (:func:`owners_of_hidden`). Each transform runs on its
+    window cut to its seeds and the pixels it decides (:func:`cut_window`)."""
     layer = read_only(layer)
     box = tuple(int(v) for s in win for v in (s.start, s.stop))
     found = cut_to_seeds(layer[win] >= li, box, part)
@@ -228,7 +232,10 @@ def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part,
     # the farther layers' transform, exact up to the largest distance tested
     far = int(math.ceil(float(tested[4])))
     win = (widened_span(tested[0], tested[1], far, bound[0]), widened_span(tested[2], tested[3], far, bound[1]))
-    farther = cut_to_seeds(layer[win] > li, tuple(int(v) for s in win for v in (s.start, s.stop)), tested[:4])
+    ends = layer[win] > li
+    if across is not None:
+        ends &= across[win] >= li
+    farther = cut_to_seeds(ends, tuple(int(v) for s in win for v in (s.start, s.stop)), tested[:4])
     if farther is None:  # no farther layer there: each candidate's width is unbounded, every pixel kept
         return found
     (y0, _, x0, _), seeds = farther
@@ -266,7 +273,7 @@ def continued_pixels(frame: RenderFrame, canvas: Canvas, li: int, box, bbox, rea
         return None
     # a second thread pays for itself from about 0.2 Mpx
     threads = frame.plan.threads if hidden.size >= 200_000 else 1
-    found = owners_of_hidden(frame.layer, li, box, bbox, hidden, reach_px, cell_px, threads)
+    found = owners_of_hidden(frame.layer, li, box, bbox, hidden, reach_px, cell_px, threads, frame.across)
     if isinstance(found, np.ndarray):  # their nearest pixels of the layer still to be found
         found = behind_sources(frame.layer[box] == li, found, reach_px)
         return None if found is None else Behind(*found)

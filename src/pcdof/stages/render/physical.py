@@ -30,7 +30,7 @@ from ...plans import RenderPlan, as_dict, check_quality, check_render_plan, plan
 from ...runtime.threads import threads_for
 from . import classify, composite, serial
 from .aperture import RenderAperture, cached_aperture_table
-from .classify import LAYER_EDGES_PX, SHARP_COC_PX
+from .classify import LAYER_EDGES_PX, SHARP_COC_PX, across_jumps
 from .composite import copy_tiles
 from .extend import NO_PIXELS
 from .frame import Canvas, RenderFrame, as_channels
@@ -172,7 +172,9 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     blades, rotation_deg : aperture polygon (0 = disc), as :class:`pcdof.lens.ThinLens` has them
     aperture : a :class:`pcdof.apertures.Aperture` instead of *blades* and *rotation_deg* (any shape)
     quality : a key of :data:`QUALITIES`; sets the plan when *plan* is None
-    extend_behind : continue each layer behind the soft edges of nearer blurred layers (partial occlusion)
+    extend_behind : continue each layer behind the soft edges of nearer blurred layers (partial occlusion);
+        a hidden pixel is continued from the surface seen next to it, no farther than that surface reaches
+        (to a depth jump, :data:`pcdof.stages.render.classify.JUMP_COC_PX`), whichever layers it spans
     tiles : :func:`pcdof.stages.render.tiles.classify_tiles` of *signed_coc*, if the caller has it (else computed here);
         its copy tiles are left out of every layer and come out as the input, exactly
     plan : :class:`pcdof.plans.RenderPlan` or None (:func:`pcdof.plans.plan_render` of *quality*):
@@ -193,9 +195,11 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
         coc, radius, layer, keys, counts, r_maxes, boxes = classify.classify_layers(
             np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX, LAYER_EDGES_PX)
         tiles = _tiles_for(coc, tiles, plan)
+        # where surfaces end, for the extension behind nearer layers (an int8 map, a quarter of the CoC's size)
+        across = across_jumps(coc, layer) if extend_behind and keys.size > 1 else None
         del coc  # the layers read the radius and the layer ids: the cleaned CoC is not kept through them
         render_aperture = RenderAperture(shape.symmetric, cached_aperture_table(shape))
-        frame = RenderFrame(lin, radius, layer, tiles, plan, render_aperture, extend_behind)
+        frame = RenderFrame(lin, radius, layer, tiles, plan, render_aperture, extend_behind, across)
         canvas = Canvas.start(lin.shape, tiles, plan.copy_tiles)
         layers_run = _composite_layers(frame, canvas, keys, counts, r_maxes, boxes)
         out = canvas.acc  # normalised in place: no other full-size image

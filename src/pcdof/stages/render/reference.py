@@ -18,9 +18,12 @@ Physical renderer, the rules stated here (those of :func:`pcdof.stages.render.re
    radius of the blurred layers composited so far; nothing is extended in front of the first layer
    or while r_front is 0. A hidden pixel is continued by one layer only (:func:`owned`): the layer of
    its nearest pixel among this and the farther layers, and only as far from that pixel as the pixel
-   is from the nearest farther layer (at least 1 px): a small layer seen beside a blurred foreground
-   (a lamp, a glint, a rod) reaches behind it no farther than its own width, instead of being copied
-   over everything the foreground hides.
+   is from the nearest pixel that ends its surface (at least 1 px): a pixel of a farther layer with a
+   4-neighbour of this or a farther layer nearer than it by more than ``JUMP_COC_PX`` (a depth jump,
+   :func:`surface_ends`). So a small layer seen beside a blurred foreground (a lamp, a glint, a rod)
+   reaches behind it no farther than its own width, instead of being copied over everything the
+   foreground hides, while a slanted surface, cut into many thin layers, is continued as deep as it
+   reaches whichever of its layers is seen next to the hidden pixel.
 5. Compositing front to back: a blurred layer with coverage a at a pixel of transmittance t adds
    t * alpha / a times its premultiplied colour, alpha = min(1, a) (1 from a >= 1 - 1e-4; nothing below
    a = 1e-6); the in-focus layer is an opaque copy. The output is the accumulated colour over the
@@ -42,7 +45,7 @@ from ...apertures import Aperture, aperture_from_blades, as_aperture
 from ...color import decode_to_linear, encode_from_linear, to_float
 from ...lens import MAX_COC_PX, aperture_for
 from ..coc.reference import paper_alpha, signed_coc_px
-from .classify import LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, SHARP_COC_PX
+from .classify import JUMP_COC_PX, LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, SHARP_COC_PX
 
 
 # ----------------------------------------------------------------------------- aperture footprint
@@ -137,14 +140,30 @@ def extend_behind(lin, radius, member, hidden, reach_px):
     return lin, radius, member
 
 
-def owned(rank: np.ndarray, li: int) -> np.ndarray:
+def surface_ends(coc: np.ndarray, rank: np.ndarray, li: int) -> np.ndarray:
+    """The pixels of layers farther than *li* that end the surfaces seen from layer *li*: those with a 4-neighbour
+    of layer *li* or farther whose signed CoC is smaller than theirs by more than ``JUMP_COC_PX`` (a depth
+    jump). (H, W) bool."""
+    h, w = rank.shape
+    out = np.zeros((h, w), bool)
+    for y in range(h):
+        for x in range(w):
+            if rank[y, x] <= li:
+                continue
+            for ny, nx in ((y - 1, x), (y + 1, x), (y, x - 1), (y, x + 1)):
+                if 0 <= ny < h and 0 <= nx < w and rank[ny, nx] >= li and coc[y, x] - coc[ny, nx] > JUMP_COC_PX:
+                    out[y, x] = True
+    return out
+
+
+def owned(rank: np.ndarray, li: int, ends: np.ndarray | None = None) -> np.ndarray:
     """The pixels that layer *li* continues when hidden: their nearest pixel of layer *li* or a farther
     layer (Euclidean; ties: the first in raster order) is one of layer *li*'s, and they are no farther
-    from it than it is from the nearest pixel of a farther layer (at least 1 px; unlimited where no
-    farther layer exists). (H, W) bool.
+    from it than it is from the nearest pixel that ends its surface (*ends*, :func:`surface_ends`; None:
+    every pixel of a farther layer) (at least 1 px; unlimited where there is none). (H, W) bool.
     """
     behind = np.flatnonzero(rank.ravel() >= li)
-    farther = np.flatnonzero(rank.ravel() > li)
+    farther = np.flatnonzero((rank > li).ravel() if ends is None else ends.ravel())
     h, w = rank.shape
     by, bx = np.divmod(behind, w)
     fy, fx = np.divmod(farther, w)
@@ -208,7 +227,7 @@ def render_layers_linear(lin, signed_coc, *, blades: int = 0, rotation_deg: floa
         src, src_r = lin, radius
         hidden = (rank < li) & (trans > 0)
         if extend_behind_layers and li > 0 and r_front > 0 and hidden.any():
-            hidden &= owned(rank, li)
+            hidden &= owned(rank, li, surface_ends(coc, rank, li))
             src, src_r, member = extend_behind(lin, radius, member, hidden, math.ceil(r_front + r_max + 1))
         if key == 0:  # in focus: an opaque copy
             sel = member & (trans > 0)

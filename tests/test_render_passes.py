@@ -218,3 +218,27 @@ class TestReduceCellsInPlace:
         # and without the extension the copied pixels are not counted
         bare = renderer.grids.reduce_cells(lin, radius, member, s, None, (box[0].start, box[1].start))
         assert bare[2].sum() < got[2].sum()
+
+
+def _across_plainly(coc, layer, jump_px):
+    h, w = layer.shape
+    out = np.full((h, w), -1, np.int8)
+    for y in range(h):
+        for x in range(w):
+            for ny, nx in ((y - 1, x), (y + 1, x), (y, x - 1), (y, x + 1)):
+                if 0 <= ny < h and 0 <= nx < w and np.float32(coc[y, x] - coc[ny, nx]) > jump_px:
+                    out[y, x] = max(out[y, x], layer[ny, nx])
+    return out
+
+
+class TestAcrossJumps:
+    @pytest.mark.parametrize("seed", [0, 1, 2])
+    def test_matches_the_definition(self, seed):
+        rng = np.random.default_rng(seed)
+        h, w = 23, 31
+        coc = (rng.integers(-12, 13, (h, w)) * 0.5).astype(np.float32)  # differences of exactly 2 px: not a jump
+        layer = rng.integers(0, 35, (h, w)).astype(np.int32)
+        got = renderer.classify.across_jumps(coc, layer)
+        assert got.dtype == np.int8
+        np.testing.assert_array_equal(got, _across_plainly(coc, layer, 2.0))
+        assert (got >= 0).any() and (got < 0).any()

@@ -142,19 +142,33 @@ def classify_layers(raw, max_coc, edges):
 
 def across_jumps(coc: np.ndarray, layer: np.ndarray, jump_px: float = JUMP_COC_PX) -> np.ndarray:
     """Per pixel, the largest layer id among its four neighbours that are nearer than it by more than *jump_px*
-    (signed CoC: ``coc[pixel] - coc[neighbour] > jump_px``), or -1 when none is: (H, W) int8.
+    (signed CoC: ``coc[pixel] - coc[neighbour] > jump_px``, the difference in float32), or -1 when none is:
+    (H, W) int8.
 
     A pixel of a layer farther than layer *li* with ``across >= li`` lies across a depth jump from a pixel of
     layer *li* or farther: it is where the surfaces seen beside a hidden pixel end (the extension behind
     nearer layers reaches no farther than that); a farther layer that merely continues the same surface does
-    not end it. *coc* (H, W) float32 is the cleaned signed CoC, *layer* (H, W) the layer ids (at most 127)."""
+    not end it. *coc* (H, W) float32 is the cleaned signed CoC, *layer* (H, W) int32 the layer ids (at most
+    127). Rows run in parallel."""
+    return _across_jumps(coc, layer, np.float32(jump_px))
+
+
+@njit(parallel=True, cache=True)
+def _across_jumps(coc, layer, jump_px):
+    """:func:`across_jumps`."""
     h, w = layer.shape
-    out = np.full((h, w), -1, np.int8)
-    lay = layer.astype(np.int8)
-    for here, there in (((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
-                        ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
-                        ((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
-                        ((slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
-        jump = coc[here] - coc[there] > jump_px
-        np.maximum(out[here], np.where(jump, lay[there], np.int8(-1)), out=out[here])
+    out = np.empty((h, w), np.int8)
+    for y in prange(h):
+        for x in range(w):
+            c = coc[y, x]
+            best = -1
+            if y > 0 and c - coc[y - 1, x] > jump_px:
+                best = max(best, layer[y - 1, x])
+            if y + 1 < h and c - coc[y + 1, x] > jump_px:
+                best = max(best, layer[y + 1, x])
+            if x > 0 and c - coc[y, x - 1] > jump_px:
+                best = max(best, layer[y, x - 1])
+            if x + 1 < w and c - coc[y, x + 1] > jump_px:
+                best = max(best, layer[y, x + 1])
+            out[y, x] = best
     return out

@@ -44,7 +44,7 @@ def _classify_plainly(raw):
     j = np.searchsorted(edges, a.astype(np.float64), side="right")  # edges[j-1] <= |c| < edges[j]
     key = np.where(coc < 0, -j, j)
     keys = np.unique(key)
-    layer = np.searchsorted(keys, key).astype(np.int32)
+    layer = np.searchsorted(keys, key).astype(np.int8)
     count = np.array([np.count_nonzero(key == k) for k in keys], np.int64)
     r_max = np.array([a[key == k].max() * np.float32(0.5) for k in keys], np.float32)
     boxes = []

@@ -47,7 +47,8 @@ def classify_layers(raw, max_coc, edges):
     equal keys along a row, not per pixel); the bands are merged exactly (counts, maxima and bounds do not
     depend on the order), then the keys are replaced by layer ids in a second parallel pass.
 
-    Returns (coc, radius) float32 (H, W), layer (H, W) int32, keys (L,) int64 ascending, and per
+    Returns (coc, radius) float32 (H, W), layer (H, W) int8 (at most 2 len(edges) + 1 layers), keys (L,) int64
+    ascending, and per
     layer: count (L,) int64, largest radius (L,) float32, box (L, 4) int64 (row0, row1, col0, col1; inclusive).
     """
     h, w = raw.shape
@@ -63,7 +64,7 @@ def classify_layers(raw, max_coc, edges):
         by_half[i] = j
     coc = np.empty((h, w), np.float32)
     radius = np.empty((h, w), np.float32)
-    layer = np.empty((h, w), np.int32)
+    layer = np.empty((h, w), np.int8)  # 1 byte a pixel: at most 37 keys
     n_bands = min(h, 64)
     # np.empty, set by plain loops: each np.zeros in a parallel kernel is a parallel loop more to compile
     count = np.empty((n_bands, n_keys), np.int64)
@@ -109,7 +110,7 @@ def classify_layers(raw, max_coc, edges):
             if count[b, k] > 0:
                 present[k] = True
         n_layers += int(present[k])
-    lookup = np.full(n_keys, -1, np.int32)
+    lookup = np.full(n_keys, -1, np.int8)
     keys = np.empty(n_layers, np.int64)
     total = np.empty(n_layers, np.int64)
     r_all = np.empty(n_layers, np.float32)
@@ -148,7 +149,7 @@ def across_jumps(coc: np.ndarray, layer: np.ndarray, jump_px: float = JUMP_COC_P
     A pixel of a layer farther than layer *li* with ``across >= li`` lies across a depth jump from a pixel of
     layer *li* or farther: it is where the surfaces seen beside a hidden pixel end (the extension behind
     nearer layers reaches no farther than that); a farther layer that merely continues the same surface does
-    not end it. *coc* (H, W) float32 is the cleaned signed CoC, *layer* (H, W) int32 the layer ids (at most
+    not end it. *coc* (H, W) float32 is the cleaned signed CoC, *layer* (H, W) int8 the layer ids (at most
     127). Rows run in parallel."""
     return _across_jumps(coc, layer, np.float32(jump_px))
 

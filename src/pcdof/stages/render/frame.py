@@ -15,7 +15,7 @@ from .tiles import TileMap
 @dataclass(frozen=True)
 class RenderFrame:
     """What every layer of a render reads: linear colour (H, W, C) float32, footprint radius (H, W),
-    layer ids (H, W) int32, the tile map, the plan, the aperture, whether layers extend behind, and where
+    layer ids (H, W) int8, the tile map, the plan, the aperture, whether layers extend behind, and where
     surfaces end (:func:`pcdof.stages.render.classify.across_jumps`: (H, W) int8, or None when nothing is
     extended)."""
 

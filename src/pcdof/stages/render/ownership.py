@@ -71,7 +71,7 @@ def owners_of_hidden(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, 
     path from the pixel to q lies in the rectangle they span, inside both windows, so every comparison
     along it picks as before (tests/test_extend_behind.py checks it on random layers).
     """
-    layer, hidden = np.ascontiguousarray(layer, np.int32), np.ascontiguousarray(hidden, bool)
+    layer, hidden = np.ascontiguousarray(layer, np.int8), np.ascontiguousarray(hidden, bool)
     h, w = layer.shape
     (by, ey), (bx, ex) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
     reach_cells = int(math.ceil(reach_px / cell_px))
@@ -145,7 +145,7 @@ def cut_to_seeds(seeds, win, keep):
 @njit(cache=True, nogil=True)
 def _nearest_candidates(layer, li, pos, wy0, wx0, dist, labels, hidden, by, bx, part, rd):
     """The hidden pixels of *part* (y0, y1, x0, x1 inclusive, frame coordinates) within *rd* of their nearest
-    candidate (a pixel of layer *li* or farther) when that candidate is of layer *li* (*layer* (H, W) int32:
+    candidate (a pixel of layer *li* or farther) when that candidate is of layer *li* (*layer* (H, W) int8:
     the frame's layer ids).
 
     *hidden* (hb, wb) bool is the box at (by, bx); *dist* and *labels* OpenCV's transform of the window at

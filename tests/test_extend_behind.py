@@ -175,20 +175,18 @@ def test_in_focus_layer_composited_in_place_is_the_extended_copy(seed):
     h, w = layer.shape
     lin = rng.random((h, w, 3), dtype=np.float32)
     member = layer[box] == li
-    trans = np.where(rng.random((h, w)) < 0.3, 0.0, rng.random((h, w))).astype(np.float32)
+    opacity = np.where(rng.random((h, w)) < 0.3, 1.0, rng.random((h, w))).astype(np.float32)
     acc = rng.random((h, w, 3), dtype=np.float32)
-    acc_a = rng.random((h, w), dtype=np.float32)
     found = renderer.extend.behind_sources(member, hidden, reach)
     dst, src = found if found is not None else (renderer.extend.NO_PIXELS, renderer.extend.NO_PIXELS)
-    got = (acc.copy(), acc_a.copy(), trans.copy())
+    got = (acc.copy(), opacity.copy())
     renderer.composite.composite_sharp(lin, member, box[0].start, box[1].start, dst, src, *got)
     ext, _, m = _extend_plain(lin[box], np.zeros(member.shape, np.float32), member, hidden, reach)
-    want = (acc.copy(), acc_a.copy(), trans.copy())
-    t = want[2][box]
-    on = m & (t > 0)
-    want[0][box][on] += t[on][:, None] * ext[on]
-    want[1][box][on] += t[on]
-    t[on] = 0.0
+    want = (acc.copy(), opacity.copy())
+    a = want[1][box]
+    on = m & (a < 1)
+    want[0][box][on] += (np.float32(1.0) - a[on])[:, None] * ext[on]
+    a[on] = 1.0
     for g, x in zip(got, want):
         np.testing.assert_array_equal(g, x)
 

@@ -299,27 +299,62 @@ class TestCompositeUnder:
     @given(seed=st.integers(0, 2 ** 32 - 1), nc=st.integers(1, 3))
     def test_front_to_back_over_operator(self, seed, nc):
         """The layer (placed at row 3, column 2) goes behind the canvas: where the canvas is not yet opaque and
-        the layer covers more than 1e-6, colour / coverage times min(coverage, 1) times the transmittance is
-        added and the transmittance falls by that opacity; nothing changes elsewhere."""
+        the layer covers more than 1e-6, colour / coverage times min(coverage, 1) times the transmittance
+        (1 - opacity) is added, and so is that opacity; a full cover makes the pixel opaque (1) exactly;
+        nothing changes elsewhere."""
         rng = np.random.default_rng(seed)
         h, w, hb, wb = 12, 15, 7, 9
         layer = rng.random((hb, wb, nc + 1)).astype(np.float32)
         cover = rng.choice([0.0, 1e-7, 0.3, 0.99995, 1.0, 1.7], size=(hb, wb)) * rng.uniform(0.9, 1.0, (hb, wb))
+        cover[0, :3] = (1.0, 1.7, 0.99995)  # full covers, whatever the draw
         layer[:, :, nc] = cover
         acc = rng.random((h, w, nc)).astype(np.float32)
-        acc_a = rng.random((h, w)).astype(np.float32)
-        trans = np.where(rng.random((h, w)) < 0.3, 0.0, rng.random((h, w))).astype(np.float32)
-        want_acc, want_a, want_t = acc.astype(np.float64), acc_a.astype(np.float64), trans.astype(np.float64)
+        opacity = np.where(rng.random((h, w)) < 0.3, 1.0, rng.random((h, w))).astype(np.float32)
+        opacity[3, 2:5] = 0.25  # not opaque under the full covers
+        want_acc, want_a = acc.astype(np.float64), opacity.astype(np.float64)
         win = (slice(3, 3 + hb), slice(2, 2 + wb))
-        t = want_t[win]
+        t = 1.0 - want_a[win]
         c = layer[:, :, nc].astype(np.float64)
         on = (t > 0) & (c > 1e-6)
         alpha = np.where(c >= 1.0 - 1e-4, 1.0, c)
         f = np.where(on, t * alpha / np.where(on, c, 1.0), 0.0)
         want_acc[win] += f[:, :, None] * layer[:, :, :nc]
         want_a[win] += np.where(on, t * alpha, 0.0)
-        want_t[win] = np.where(on, t * (1.0 - alpha), t)
-        renderer.composite.composite_under(layer, 3, 2, acc, acc_a, trans)
+        renderer.composite.composite_under(layer, 3, 2, acc, opacity)
         np.testing.assert_allclose(acc, want_acc, rtol=1e-6, atol=1e-7)
-        np.testing.assert_allclose(acc_a, want_a, rtol=1e-6, atol=1e-7)
-        np.testing.assert_allclose(trans, want_t, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(opacity, want_a, rtol=1e-6, atol=1e-7)
+        full = np.zeros((h, w), bool)
+        full[win] = on & (alpha == 1.0)
+        assert full[3, 2:5].all() and (opacity[full] == 1.0).all()
+
+
+class TestNormalise:
+    @pytest.mark.parametrize("nc", [1, 3])
+    def test_colour_over_the_opacity_composited(self, nc):
+        """out = acc / opacity where more than 1e-6 of opacity was composited, else the input pixel."""
+        rng = np.random.default_rng(nc)
+        h, w = 9, 11
+        acc = rng.random((h, w, nc)).astype(np.float32)
+        opacity = rng.choice([0.0, 1e-7, 0.003, 0.75, 1.0], size=(h, w)).astype(np.float32)
+        lin = rng.random((h, w, nc)).astype(np.float32)
+        out = np.empty_like(acc)
+        renderer.composite.normalise(acc, opacity, lin, out)
+        a = opacity.astype(np.float64)
+        want = np.where((a > 1e-6)[:, :, None], acc / np.where(a > 1e-6, a, 1.0)[:, :, None], lin)
+        np.testing.assert_allclose(out, want, rtol=1e-6)
+        assert np.array_equal(out[a <= 1e-6], lin[a <= 1e-6])
+
+    def test_copy_tiles_come_out_as_the_input(self):
+        """A canvas started with copy tiles is opaque there with the input's colour: normalised, exactly the input."""
+        rng = np.random.default_rng(5)
+        lin = rng.random((40, 56, 3)).astype(np.float32)
+        coc = np.full((40, 56), 9.0, np.float32)
+        coc[:, 28:] = 0.0  # in focus, far from the blur: copy tiles
+        tiles = renderer.classify_tiles(coc, tile_px=8, sharp_px=1.0)
+        assert tiles.copy.any()
+        canvas = renderer.frame.Canvas.start(lin, tiles, True)
+        out = np.empty_like(lin)
+        renderer.composite.normalise(canvas.acc, canvas.opacity, lin, out)
+        copied = tiles.pixel_mask(tiles.copy)
+        assert np.array_equal(out[copied], lin[copied])
+        assert (canvas.opacity[~copied] == 0.0).all() and (canvas.acc[~copied] == 0.0).all()

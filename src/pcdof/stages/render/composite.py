@@ -10,11 +10,14 @@ from .tiles import TileMap
 
 
 @njit(parallel=True, cache=True)
-def composite_under(layer_buf, y0, x0, acc, acc_a, trans):
+def composite_under(layer_buf, y0, x0, acc, opacity):
     """Composite a scattered layer (placed at row y0, column x0) behind what is already there.
 
     Front-to-back "over": the layer's coverage is its opacity, clipped to 1; its colour is
-    normalised by its coverage, so overlapping sources within a layer average.
+    normalised by its coverage, so overlapping sources within a layer average. *acc* (H, W, C) is the
+    premultiplied colour, *opacity* (H, W) the opacity composited so far (the transmittance is 1 - opacity;
+    colour and opacity add the same weights, so their ratio is a convex combination of the layers' colours
+    whatever the rounding of 1 - opacity). A pixel covered fully is opaque (1) exactly.
     """
     hb, wb, nc1 = layer_buf.shape
     nc = nc1 - 1
@@ -22,26 +25,27 @@ def composite_under(layer_buf, y0, x0, acc, acc_a, trans):
         y = y0 + yy
         for xx in range(wb):
             x = x0 + xx
-            t = trans[y, x]
-            if not t > 0.0:
+            a = opacity[y, x]
+            if not a < 1.0:
                 continue  # opaque already: the layer's pixel is not even read
             cover = layer_buf[yy, xx, nc]
             if cover > 1e-6:
+                t = np.float32(1.0) - a
                 alpha = 1.0 if cover >= 1.0 - 1e-4 else cover
                 f = t * alpha / cover
                 for c in range(nc):
                     acc[y, x, c] += f * layer_buf[yy, xx, c]
-                acc_a[y, x] += t * alpha
-                trans[y, x] = t * (1.0 - alpha)
+                opacity[y, x] = 1.0 if alpha == 1.0 else a + t * alpha
 
 
 @njit(cache=True)
-def composite_sharp(lin, member, y0, x0, dst, src, acc, acc_a, trans):
+def composite_sharp(lin, member, y0, x0, dst, src, acc, opacity):
     """Composite in-focus pixels as opaque copies behind what is already there.
 
     *lin* is the whole frame (H, W, C); *member* (hb, wb) bool marks the layer's pixels in the box placed at
     row y0, column x0; *dst* and *src* (N,) int64 are flat indices into that box of the pixels the layer is
-    extended into and of the pixels they copy (:func:`behind_sources`; none of *dst* is a member).
+    extended into and of the pixels they copy (:func:`behind_sources`; none of *dst* is a member). *acc* and
+    *opacity* as :func:`composite_under` has them.
     """
     hb, wb = member.shape
     nc = lin.shape[2]
@@ -49,21 +53,21 @@ def composite_sharp(lin, member, y0, x0, dst, src, acc, acc_a, trans):
         y = y0 + yy
         for xx in range(wb):
             x = x0 + xx
-            t = trans[y, x]
-            if member[yy, xx] and t > 0.0:
+            a = opacity[y, x]
+            if member[yy, xx] and a < 1.0:
+                t = np.float32(1.0) - a
                 for c in range(nc):
                     acc[y, x, c] += t * lin[y, x, c]
-                acc_a[y, x] += t
-                trans[y, x] = 0.0
+                opacity[y, x] = 1.0
     for i in range(dst.size):
         y, x = y0 + dst[i] // wb, x0 + dst[i] % wb
         sy, sx = y0 + src[i] // wb, x0 + src[i] % wb
-        t = trans[y, x]
-        if t > 0.0:
+        a = opacity[y, x]
+        if a < 1.0:
+            t = np.float32(1.0) - a
             for c in range(nc):
                 acc[y, x, c] += t * lin[sy, sx, c]
-            acc_a[y, x] += t
-            trans[y, x] = 0.0
+            opacity[y, x] = 1.0
 
 
 @njit(cache=True)
@@ -88,13 +92,13 @@ def copy_tiles(src: np.ndarray, tiles: TileMap, out: np.ndarray) -> None:
 
 
 @njit(parallel=True, cache=True)
-def normalise(acc, acc_a, lin, out):
-    """out = acc / acc_a where some light arrived (acc_a > 1e-6), else the input pixel (*out* may be *acc*:
+def normalise(acc, opacity, lin, out):
+    """out = acc / opacity where some light arrived (opacity > 1e-6), else the input pixel (*out* may be *acc*:
     each pixel is read before it is written)."""
     h, w, nc = acc.shape
     for y in prange(h):
         for x in range(w):
-            a = acc_a[y, x]
+            a = opacity[y, x]
             if a > 1e-6:
                 inv = 1.0 / a
                 for c in range(nc):

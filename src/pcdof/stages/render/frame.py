@@ -31,21 +31,25 @@ class RenderFrame:
 
 @dataclass(frozen=True)
 class Canvas:
-    """Front-to-back compositing state, (H, W, C) premultiplied colour, (H, W) opacity and transmittance."""
+    """Front-to-back compositing state: (H, W, C) premultiplied colour and (H, W) opacity composited so far
+    (the transmittance left is 1 - opacity)."""
 
     acc: np.ndarray
-    acc_a: np.ndarray
-    trans: np.ndarray
+    opacity: np.ndarray
 
     @classmethod
-    def start(cls, shape, tiles: TileMap, copy_tiles: bool) -> "Canvas":
-        h, w, nc = shape
-        trans = np.ones((h, w), np.float32)
-        # copy tiles: in focus and out of every foreground's reach, so opaque from the start; nothing
-        # is composited there and the normalisation returns the input (acc_a stays 0)
+    def start(cls, lin: np.ndarray, tiles: TileMap, copy_tiles: bool) -> "Canvas":
+        """The canvas before any layer of the render of *lin* (H, W, C) float32: nothing composited, except the
+        copy tiles (in focus and out of every foreground's reach), opaque from the start with the input's
+        colour, so nothing is composited there and the normalisation returns the input."""
+        h, w, nc = lin.shape
+        acc = np.zeros((h, w, nc), np.float32)
+        opacity = np.zeros((h, w), np.float32)
         if copy_tiles and tiles.copy.any():
-            trans[tiles.pixel_mask(tiles.copy)] = 0.0
-        return cls(np.zeros((h, w, nc), np.float32), np.zeros((h, w), np.float32), trans)
+            copied = tiles.pixel_mask(tiles.copy)
+            opacity[copied] = 1.0
+            acc[copied] = lin[copied]
+        return cls(acc, opacity)
 
 
 def as_channels(color: np.ndarray) -> np.ndarray:

@@ -268,7 +268,7 @@ def _in_thread(fn):
 def continued_pixels(frame: RenderFrame, canvas: Canvas, li: int, box, bbox, reach_px: float, cell_px: int = 1):
     """The pixels of nearer layers that are not yet opaque and that this layer continues, and the pixel of the
     layer each one copies (:func:`owners_of_hidden`): a :class:`Behind` with flat indices into *box*, or None."""
-    hidden = (frame.layer[box] < li) & (canvas.trans[box] > 0)
+    hidden = (frame.layer[box] < li) & (canvas.opacity[box] < 1)
     if not hidden.any():
         return None
     # a second thread pays for itself from about 0.2 Mpx

@@ -91,8 +91,8 @@ def _sharp_layer(frame: RenderFrame, canvas: Canvas, li: int, n_members: int, r_
     box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
     found = continued_pixels(frame, canvas, li, box, bbox, ext_reach) if extend else None
     dst, src = (found.dst, found.src) if found is not None else (NO_PIXELS, NO_PIXELS)
-    composite.composite_sharp(read_only(frame.lin), m, box[0].start, box[1].start, dst, src, canvas.acc, canvas.acc_a,
-                              canvas.trans)
+    composite.composite_sharp(read_only(frame.lin), m, box[0].start, box[1].start, dst, src, canvas.acc,
+                              canvas.opacity)
     return {"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1}
 
 
@@ -117,7 +117,7 @@ def _blur_layer(frame: RenderFrame, canvas: Canvas, li: int, key: int, n_members
     strips = [(0, buf)] if s == 1 else upsampled_strips(buf, s, h, w)
     for y0, strip in strips:
         with serial.serial_if(strip.shape[0] * strip.shape[1] < serial.SERIAL_BELOW_PX):
-            composite.composite_under(strip, box[0].start + y0, box[1].start, canvas.acc, canvas.acc_a, canvas.trans)
+            composite.composite_under(strip, box[0].start + y0, box[1].start, canvas.acc, canvas.opacity)
     return {"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
             "side": "front" if key < 0 else "back", "scale": s, "extended": extended,
             "uniform_tiles": int(uniform.sum()), "kernels": n_kernels, "sources_scattered": n_scattered}
@@ -200,10 +200,10 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
         del coc  # the layers read the radius and the layer ids: the cleaned CoC is not kept through them
         render_aperture = RenderAperture(shape.symmetric, cached_aperture_table(shape))
         frame = RenderFrame(lin, radius, layer, tiles, plan, render_aperture, extend_behind, across)
-        canvas = Canvas.start(lin.shape, tiles, plan.copy_tiles)
+        canvas = Canvas.start(lin, tiles, plan.copy_tiles)
         layers_run = _composite_layers(frame, canvas, keys, counts, r_maxes, boxes)
         out = canvas.acc  # normalised in place: no other full-size image
-        composite.normalise(canvas.acc, canvas.acc_a, lin, out)
+        composite.normalise(canvas.acc, canvas.opacity, lin, out)
     in_focus = sum(l["pixels"] for l in layers_run if not l["blurred"])
     info = {"layers": layers_run, "foreground_pass": bool((keys < 0).any()), "blurred_pixels": h * w - in_focus,
             "quality": quality, "tiles": tiles.summary(), "plan": as_dict(plan)}

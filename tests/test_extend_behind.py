@@ -154,6 +154,21 @@ def test_extension_is_the_plain_rule_bit_for_bit(seed):
 
 @settings(max_examples=300, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
+def test_extension_in_strips_is_the_whole_windows(seed):
+    """Cut into the smallest strips of rows (four reaches each), the nearest pixels found are the whole
+    window's: the same pixels, the same sources (ties included), in the same order."""
+    _, layer, li, box, hidden, reach = _layer_case(seed)
+    member = layer[box] == li
+    whole = renderer.extend.behind_sources(member, hidden, reach, strip_px=1 << 40)
+    strips = renderer.extend.behind_sources(member, hidden, reach, strip_px=1)
+    assert (whole is None) == (strips is None)
+    if whole is not None:
+        for g, x in zip(strips, whole):
+            np.testing.assert_array_equal(g, x)
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
 def test_ownership_is_the_plain_rule_bit_for_bit(seed):
     """The ownership kernel (candidates read from OpenCV's labels in place) against the same windows'
     rule written with numpy masks, on random layers with every layer id behind and in front."""

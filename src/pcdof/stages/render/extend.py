@@ -36,11 +36,11 @@ class Behind:
 
 
 @njit(cache=True, nogil=True)
-def _nearest_members(member, hidden, y0, x0, dist, labels, n_members, reach_px):
-    """The hidden, non-member pixels of the window at (y0, x0) (the shape of *dist*) of the box arrays
-    *member* and *hidden* (H, W) bool within *reach_px* of their nearest member pixel (*dist*, *labels*:
-    OpenCV's transform of the window, its labels numbering its *n_members* member pixels in raster order),
-    and those nearest pixels: (dst, src) int64 flat indices into the box."""
+def _nearest_members(member, hidden, y0, x0, dist, labels, n_members, reach_px, rows):
+    """The hidden, non-member pixels of rows rows[0]:rows[1] (box rows) of the window at (y0, x0) (the shape of
+    *dist*) of the box arrays *member* and *hidden* (H, W) bool within *reach_px* of their nearest member pixel
+    (*dist*, *labels*: OpenCV's transform of the window, its labels numbering its *n_members* member pixels in
+    raster order), and those nearest pixels: (dst, src) int64 flat indices into the box."""
     hw, ww = dist.shape
     w = member.shape[1]
     pos = np.empty(n_members, np.int64)  # label - 1 -> flat index into the box
@@ -49,11 +49,12 @@ def _nearest_members(member, hidden, y0, x0, dist, labels, n_members, reach_px):
     k = 0
     i = 0
     for y in range(hw):
+        report = rows[0] <= y0 + y < rows[1]
         for x in range(ww):
             if member[y0 + y, x0 + x]:
                 pos[k] = (y0 + y) * w + x0 + x
                 k += 1
-            elif hidden[y0 + y, x0 + x] and dist[y, x] <= reach_px:
+            elif report and hidden[y0 + y, x0 + x] and dist[y, x] <= reach_px:
                 dst[i] = (y0 + y) * w + x0 + x
                 src[i] = labels[y, x] - 1
                 i += 1
@@ -62,14 +63,23 @@ def _nearest_members(member, hidden, y0, x0, dist, labels, n_members, reach_px):
     return dst[:i], src[:i]
 
 
-def behind_sources(member, hidden, reach_px):
+#: Pixels of the largest window one transform of :func:`behind_sources` takes whole (about 40 MB for its distances,
+#: labels and seeds); a larger one is cut into strips of rows that each decide this many pixels or more
+STRIP_WINDOW_PX = 1 << 22
+
+
+def behind_sources(member, hidden, reach_px, strip_px: int = STRIP_WINDOW_PX):
     """Where :func:`extend_layer_behind` extends a layer: (dst, src), int64 flat indices into the (H, W) box of
     the *hidden* pixels within *reach_px* (OpenCV's 5x5 chamfer distance) of a pixel of *member* and of
     that nearest pixel (ties in OpenCV's scan order), or None when there is none.
 
     The transform runs on the window that holds every pixel that can be filled and its nearest member
-    pixel within reach (the hidden pixels' bounding box widened by the reach). A member pixel is its own
-    nearest, so copying it would change nothing: *dst* holds no member pixel.
+    pixel within reach (the hidden pixels' bounding box widened by the reach). A window larger than *strip_px*
+    is cut into strips of rows, each decided by the transform of its rows widened by the reach (a frame's
+    whole background layer at 48 megapixels would otherwise hold gigabytes of transform at once): a pixel's
+    nearest member within reach and the shortest chamfer path to it lie in the rectangle they span, inside the
+    strip's window, so each answer is the whole window's (tests/test_extend_behind.py checks it). A member
+    pixel is its own nearest, so copying it would change nothing: *dst* holds no member pixel.
     """
     rows = np.flatnonzero(hidden.any(axis=1))
     if rows.size == 0:
@@ -77,16 +87,27 @@ def behind_sources(member, hidden, reach_px):
     cols = np.flatnonzero(hidden.any(axis=0))
     pad = int(math.ceil(reach_px)) + 1
     h, w = member.shape
-    y0, x0 = max(0, int(rows[0]) - pad), max(0, int(cols[0]) - pad)
-    win = (slice(y0, min(h, int(rows[-1]) + pad + 1)), slice(x0, min(w, int(cols[-1]) + pad + 1)))
-    m_win = member[win]
-    n_members = int(np.count_nonzero(m_win))
-    if n_members == 0:
+    x0, x1 = max(0, int(cols[0]) - pad), min(w, int(cols[-1]) + pad + 1)
+    first, last = int(rows[0]), int(rows[-1]) + 1
+    step = max(4 * pad, -(-strip_px // (x1 - x0)))
+    member, hidden = np.ascontiguousarray(member, bool), np.ascontiguousarray(hidden, bool)
+    parts = []
+    for r0 in range(first, last, step):
+        r1 = min(last, r0 + step)
+        y0 = max(0, r0 - pad)
+        win = (slice(y0, min(h, r1 + pad)), slice(x0, x1))
+        m_win = member[win]
+        n_members = int(np.count_nonzero(m_win))
+        if n_members == 0:
+            continue
+        dist, labels = cv2.distanceTransformWithLabels(np.logical_not(m_win).view(np.uint8), cv2.DIST_L2, 5,
+                                                       labelType=cv2.DIST_LABEL_PIXEL)
+        parts.append(_nearest_members(member, hidden, y0, x0, dist, labels, n_members, float(reach_px), (r0, r1)))
+        del dist, labels
+    if not parts:
         return None
-    dist, labels = cv2.distanceTransformWithLabels(np.logical_not(m_win).view(np.uint8), cv2.DIST_L2, 5,
-                                                   labelType=cv2.DIST_LABEL_PIXEL)
-    dst, src = _nearest_members(np.ascontiguousarray(member, bool), np.ascontiguousarray(hidden, bool), y0, x0,
-                                dist, labels, n_members, float(reach_px))
+    dst, src = (parts[0] if len(parts) == 1 else (np.concatenate([p[0] for p in parts]),
+                                                    np.concatenate([p[1] for p in parts])))
     return (dst, src) if dst.size else None
 
 

@@ -9,6 +9,10 @@ colour camera; each fill fills its holes, scored against the exact colour-camera
 * ``mae_mm`` at every hole, ``mae_inside_mm`` at holes whose true surface the depth camera's view
   covers (shadows, dropouts, disocclusions), ``mae_outside_mm`` in the strips it does not cover;
 * ``too_near_pct`` / ``too_far_pct``: holes filled more than :data:`OFF_M` nearer / farther than true;
+* ``mae_edge_mm`` at the *measured* pixels within :data:`EDGE_PX` of a true depth discontinuity (a relative
+  jump over :data:`EDGE_JUMP` between 4-neighbours of the exact depth), ``edge_off_pct`` the share of them
+  more than :data:`OFF_M` off: what a rule that moves measured depth at its edges
+  (:func:`pcdof.stages.fill.align_depth_edges`) changes, the holes' scores do not see;
 * ``render_db``: PSNR (dB) of pcdof's render from the filled depth against its render from the exact
   depth (same colour, same lens: focus on the nearest tenth of the scene, a largest blur of 2.5 % of
   the width), i.e. what the fill's errors cost the picture (higher is better; inf = no cost).
@@ -25,6 +29,10 @@ from . import table_lines
 
 #: a hole filled more than this far (metres) from the true depth is counted too near or too far
 OFF_M = 0.05
+#: measured pixels this near (px) to a true depth discontinuity are scored as ``mae_edge_mm``, ``edge_off_pct``
+EDGE_PX = 3
+#: relative depth jump between 4-neighbours of the exact depth that makes a discontinuity
+EDGE_JUMP = 0.05
 #: seeds that chose the border rule, and seeds that are reported (28 consecutive seeds: every scene and rig)
 TUNING_SEEDS = tuple(range(0, 28))
 REPORT_SEEDS = tuple(range(1000, 1028))
@@ -60,10 +68,17 @@ def outside_view(sf) -> np.ndarray:
     return ~inside & (z > 0)
 
 
-def score(filled, truth, holes, outside) -> dict:
-    """Errors of a filled depth map at the holes, split inside / outside the depth camera's view."""
+def score(filled, truth, holes, outside, near_edge=None) -> dict:
+    """Errors of a filled depth map at the holes, split inside / outside the depth camera's view; with
+    *near_edge* ((H, W) bool), also at the measured pixels (not *holes*) it marks."""
     diff = filled.astype(np.float64) - truth
     err = np.abs(diff)
+    edge = {}
+    if near_edge is not None:
+        measured = near_edge & ~holes & (truth > 0)
+        m = max(1, int(measured.sum()))
+        edge = {"mae_edge_mm": float(err[measured].mean() * 1e3) if measured.any() else float("nan"),
+                "edge_off_pct": float(100.0 * np.count_nonzero(measured & (err > OFF_M)) / m)}
 
     def mae(mask):
         return float(err[mask].mean() * 1e3) if mask.any() else float("nan")
@@ -71,7 +86,7 @@ def score(filled, truth, holes, outside) -> dict:
     n = max(1, int(holes.sum()))
     return {"mae_mm": mae(holes), "mae_inside_mm": mae(holes & ~outside), "mae_outside_mm": mae(holes & outside),
             "too_near_pct": float(100.0 * np.count_nonzero(holes & (diff < -OFF_M)) / n),
-            "too_far_pct": float(100.0 * np.count_nonzero(holes & (diff > OFF_M)) / n)}
+            "too_far_pct": float(100.0 * np.count_nonzero(holes & (diff > OFF_M)) / n), **edge}
 
 
 def _render_lens(sf):
@@ -110,7 +125,7 @@ def run_fill_rigs(*, seeds=REPORT_SEEDS, color_width: int = 256, methods=None, r
     """
     from tqdm.auto import tqdm
 
-    from ..metrics import psnr
+    from ..metrics import depth_edge_band, psnr
     from ..stages.register import register_depth
     from ..synth.rigs import rig_case
 
@@ -128,6 +143,7 @@ def run_fill_rigs(*, seeds=REPORT_SEEDS, color_width: int = 256, methods=None, r
         if not holes.any():
             continue
         outside = outside_view(sf)
+        near_edge = depth_edge_band(sf.depth_color_m, EDGE_PX, rel_jump=EDGE_JUMP)
         lens = _render_lens(sf) if render else None
         reference = _render(sf, sf.depth_color_m, lens) if render else None
         for name, fn in methods.items():
@@ -135,7 +151,7 @@ def run_fill_rigs(*, seeds=REPORT_SEEDS, color_width: int = 256, methods=None, r
             row = {"seed": seed, "scene": sf.metadata["scene_kind"], "rig": sf.metadata["rig"],
                    "holes_pct": float(100.0 * holes.mean()),
                    "outside_pct": float(100.0 * (holes & outside).sum() / holes.sum()), "method": name,
-                   **score(filled, sf.depth_color_m, holes, outside)}
+                   **score(filled, sf.depth_color_m, holes, outside, near_edge)}
             if render:
                 row["render_db"] = psnr(_render(sf, filled, lens), reference)
             rows.append(row)
@@ -149,7 +165,8 @@ def _mean(values) -> float:
 
 def summary(rows: list[dict], by: str | None = None) -> list[dict]:
     """Mean of each score per method (and per value of *by*: "scene" or "rig"), in the rows' order."""
-    keys = ("mae_mm", "mae_inside_mm", "mae_outside_mm", "too_near_pct", "too_far_pct", "render_db")
+    keys = ("mae_mm", "mae_inside_mm", "mae_outside_mm", "too_near_pct", "too_far_pct", "mae_edge_mm",
+            "edge_off_pct", "render_db")
     groups: dict = {}
     for r in rows:
         groups.setdefault((r[by] if by else "all", r["method"]), []).append(r)
@@ -160,8 +177,8 @@ def summary(rows: list[dict], by: str | None = None) -> list[dict]:
 def markdown_table(rows: list[dict], by: str | None = None) -> str:
     """:func:`summary` of *rows* as a markdown table."""
     columns = ("group", "method", "cases", "hole MAE mm", "inside-view MAE", "outside-view MAE", "too near %",
-               "too far %", "render dB")
+               "too far %", "measured at edges MAE", "off at edges %", "render dB")
     return "\n".join(table_lines(columns, (
         (s["group"], s["method"], str(s["cases"]), f"{s['mae_mm']:.1f}", f"{s['mae_inside_mm']:.1f}",
          f"{s['mae_outside_mm']:.1f}", f"{s['too_near_pct']:.2f}", f"{s['too_far_pct']:.2f}",
-         f"{s['render_db']:.2f}") for s in summary(rows, by))))
+         f"{s['mae_edge_mm']:.1f}", f"{s['edge_off_pct']:.2f}", f"{s['render_db']:.2f}") for s in summary(rows, by))))

@@ -75,6 +75,14 @@ def _fill(registered, frame: RGBDFrame, color_dev, opts, trace, stream, sync):
     from ..stages.fill import fill_depth as cpu_fill
 
     with _Stage(trace, "fill", stream, sync) as rec:
+        if opts.fill_method == "joint-bilateral":
+            # measured depth edges moved onto the colour edges on the host, as the CPU's fill stage does
+            from ..stages.fill import align_depth_edges
+
+            aligned, moved = align_depth_edges(registered.copy_to_host(stream=stream), frame.color, with_count=True)
+            rec["detail"]["edges_moved"] = moved
+            if moved:
+                registered = to_device(aligned, stream=stream)
         prepared = count_holes(registered, stream)
         holes = int(prepared[2].copy_to_host(stream=stream)[0])
         rec["detail"]["holes"] = holes

@@ -31,7 +31,9 @@ The default method, ``"joint-bilateral"``, handles both with one rule per hole p
    across), where the lines of neighbouring pixels pass different boundary corners and leave
    thin streaks: a 5 x 5 median, twice.
 
-Two rules come before and after these steps:
+Before these steps, measured pixels next to a depth edge whose colour is the nearer surface's move to it
+(:mod:`~pcdof.stages.fill.edges`, in the fill stage with ``"joint-bilateral"``): the depth edge then sits on
+the colour edge. Two rules come before and after these steps:
 
 * **Outside the view.** A hole is outside the depth camera's field of view when neither its row
   nor its column has known pixels on both sides (a colour camera wider than the depth camera leaves
@@ -69,6 +71,7 @@ Modules
 * :mod:`~pcdof.stages.fill.plan`: whether there is work (:func:`needs_fill`) and how it runs (:func:`plan_fill`)
 * :mod:`~pcdof.stages.fill.directional`: the directional fill (``"joint-bilateral"``, ``"nearest-background"``),
   its kernels run in order
+* :mod:`~pcdof.stages.fill.edges`: measured depth edges moved onto the colour edges before the fill
 * :mod:`~pcdof.stages.fill.telea`: OpenCV's Telea inpainting (``"telea"``), the baseline
 * :mod:`~pcdof.stages.fill.inputs`: the depth and colour checked and converted for the kernels
 * :mod:`~pcdof.stages.fill.rules`: the defaults, constants, directions and codes the kernels share
@@ -87,11 +90,12 @@ from .methods import FILL_METHODS, check_fill_method, fill_depth, warmup
 from .plan import FillPlan, needs_fill, plan_fill
 from .rules import (BORDER, BORDER_ASSUMPTIONS, BORDER_RULES, DEFAULT_BACKGROUND_BIAS, DEFAULT_BORDER,
                     DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_COLOR, DEFAULT_TELEA_RADIUS_PX, LOST, SURFACE)
+from .edges import align_depth_edges
 from .telea import fill_telea
 
 __all__ = [
     "BORDER", "BORDER_ASSUMPTIONS", "BORDER_RULES", "DEFAULT_BACKGROUND_BIAS", "DEFAULT_BORDER", "DEFAULT_EDGE_RATIO",
     "DEFAULT_SIGMA_COLOR", "DEFAULT_TELEA_RADIUS_PX", "FILL_METHODS", "FillPlan", "LOST", "SURFACE",
-    "check_border", "check_fill_method", "fill_depth", "fill_joint_bilateral", "fill_nearest_background",
+    "align_depth_edges", "check_border", "check_fill_method", "fill_depth", "fill_joint_bilateral", "fill_nearest_background",
     "fill_telea", "needs_fill", "plan_fill", "warmup",
 ]

@@ -72,6 +72,9 @@ def warmup() -> None:
     cameras and image files give). The other colour path (float64, for every other dtype: see
     :func:`~pcdof.stages.fill.inputs.color_for_kernel`) compiles when first used, once: a first frame does not
     wait for it."""
+    from .edges import align_depth_edges
+
     d = np.array([[1.0, 0.0, 2.0], [1.0, 0.0, 2.0]], np.float32)
     fill_joint_bilateral(d, np.zeros((2, 3, 3), np.uint8), parallel=False)
+    align_depth_edges(np.array([[1.0, 2.0, 0.0], [1.0, 2.0, 0.0]], np.float32), np.zeros((2, 3, 3), np.uint8))
     fill_nearest_background(d, None, parallel=False)

@@ -347,3 +347,85 @@ def fill_nearest_background(depth_m, color=None, *, edge_ratio: float = DEFAULT_
 
 #: Reference fill methods by the name of the fast method they state.
 FILL_METHODS = {"joint-bilateral": fill_joint_bilateral, "nearest-background": fill_nearest_background}
+
+
+def align_depth_edges(depth_m, color, *, edge_ratio: float = DEFAULT_EDGE_RATIO, sigma_color: float = 0.05,
+                      bias: float = 2.0, band_steps: int = 1, window_steps: int = 4,
+                      nearer_only: bool = True) -> np.ndarray:
+    """Measured pixels next to depth edges moved to the side whose colour they have, one pixel at a time (the
+    rule of :mod:`pcdof.stages.fill.edges`); *color* (H, W, 3) float in [0, 1].
+
+    1. The band: measured pixels with a measured pixel within ``band_steps * step`` (Chebyshev) whose depth
+       differs by more than ``edge_ratio`` (max > (1 + edge_ratio) min).
+    2. A band pixel's voters: the measured pixels not in the band on its window (offsets -r..r, r =
+       ``window_steps * step``, every step-th), itself excluded by being in the band. Their depths, sorted, are
+       split into surfaces where neighbours differ by more than ``edge_ratio``; each surface's support is
+       sum exp(-|c_q - c_p|^2 / 2 sigma^2) over its voters.
+    3. Its own surface: the first (nearest) surface its depth joins (not more than ``edge_ratio`` nearer
+       than the surface's nearest voter nor farther than its farthest). With none, it keeps its depth. The
+       best other surface (ties: the nearer; with ``nearer_only``, among the nearer surfaces only) moves it
+       when its support exceeds ``bias`` times its own's.
+    4. A moved pixel takes the mean 1/z of the other measured pixels within the band's reach whose depths
+       lie in [nearest voter / (1 + edge_ratio), farthest voter * (1 + edge_ratio)] of that surface, or with
+       none, the support-weighted mean 1/z of its voters. Every pixel reads the input depth.
+    """
+    depth = np.asarray(depth_m, np.float32).copy()
+    depth[~(np.isfinite(depth) & (depth > 0))] = 0.0
+    color = np.asarray(color, np.float64)
+    if color.ndim == 2:
+        color = np.repeat(color[:, :, None], 3, axis=2)
+    H, W = depth.shape
+    step = max(1, int(round(max(H, W) / 640.0)))
+    reach, radius = band_steps * step, window_steps * step
+
+    def gap(a, b):
+        return max(a, b) > (1.0 + edge_ratio) * min(a, b)
+
+    def near(y, x, r):
+        return [(v, u) for v in range(max(0, y - r), min(H, y + r + 1))
+                for u in range(max(0, x - r), min(W, x + r + 1))]
+
+    band = np.zeros((H, W), bool)
+    for y, x in zip(*np.nonzero(depth > 0)):
+        band[y, x] = any(depth[v, u] > 0 and gap(float(depth[y, x]), float(depth[v, u])) for v, u in near(y, x, reach))
+    out = depth.copy()
+    for y, x in zip(*np.nonzero(band)):
+        zp = float(depth[y, x])
+        voters = []
+        for v in range(y - radius, y + radius + 1, step):
+            for u in range(x - radius, x + radius + 1, step):
+                if 0 <= v < H and 0 <= u < W and depth[v, u] > 0 and not band[v, u]:
+                    w = math.exp(-float(np.sum((color[v, u] - color[y, x]) ** 2)) / (2.0 * sigma_color ** 2))
+                    voters.append((float(depth[v, u]), w))
+        if not voters:
+            continue
+        voters.sort(key=lambda t: t[0])  # stable: ties keep raster order
+        groups, cur = [], [voters[0]]
+        for prev, q in zip(voters, voters[1:]):
+            if gap(prev[0], q[0]):
+                groups.append(cur)
+                cur = [q]
+            else:
+                cur.append(q)
+        groups.append(cur)
+        own = next((g for g in groups if not (zp < g[0][0] and gap(zp, g[0][0]))
+                    and not (zp > g[-1][0] and gap(zp, g[-1][0]))), None)
+        if own is None:
+            continue
+        supports = [sum(w for _, w in g) for g in groups]
+        k_own = next(i for i, g in enumerate(groups) if g is own)
+        others = [(s, i) for i, s in enumerate(supports) if i != k_own and not (nearer_only and i > k_own)]
+        if not others:
+            continue
+        best_s = max(s for s, _ in others)
+        best = groups[next(i for s, i in others if s == best_s)]
+        if not (best_s > 0.0 and best_s > bias * supports[k_own]):
+            continue
+        lo, hi = best[0][0] / (1.0 + edge_ratio), best[-1][0] * (1.0 + edge_ratio)
+        inv = [1.0 / float(depth[v, u]) for v, u in near(y, x, reach)
+               if (v, u) != (y, x) and depth[v, u] > 0 and lo <= depth[v, u] <= hi]
+        if inv:
+            out[y, x] = np.float32(1.0 / (sum(inv) / len(inv)))
+        else:
+            out[y, x] = np.float32(1.0 / (sum(w / z for z, w in best) / sum(w for _, w in best)))
+    return out

@@ -6,7 +6,9 @@ from ..base import FrameState, Stage, StageOutput
 
 
 class FillStage(Stage):
-    """Hole-free depth; skipped when there are no holes."""
+    """Hole-free depth; skipped when there are no holes. With the colour-guided fill (the default), measured
+    pixels next to depth edges first move to the side whose colour they have
+    (:func:`~pcdof.stages.fill.edges.align_depth_edges`)."""
 
     name = "fill"
 
@@ -25,8 +27,15 @@ class FillStage(Stage):
         return plan_fill(state.registered_m)
 
     def run(self, state: FrameState, plan, options) -> StageOutput:
-        from . import fill_depth, needs_fill
+        from ...runtime.threads import numba_threads
+        from . import align_depth_edges, fill_depth, needs_fill
 
-        filled = fill_depth(state.registered_m, state.color, method=options.fill_method, parallel=plan.threads > 1)
-        reason = f"{needs_fill(state.registered_m)[1]} ({options.fill_method}; {plan.describe()})"
-        return StageOutput({"filled_m": filled}, reason, {"holes": plan.holes, "threads": plan.threads})
+        depth, moved = state.registered_m, 0
+        if options.fill_method == "joint-bilateral":
+            with numba_threads(plan.threads):
+                depth, moved = align_depth_edges(depth, state.color, with_count=True)
+        filled = fill_depth(depth, state.color, method=options.fill_method, parallel=plan.threads > 1)
+        reason = f"{needs_fill(state.registered_m)[1]} ({options.fill_method}; {plan.describe()})" + (
+            f"; {moved} px at depth edges moved to the side their colour matches" if moved else "")
+        return StageOutput({"filled_m": filled}, reason, {"holes": plan.holes, "threads": plan.threads,
+                                                         "edges_moved": moved})

@@ -112,3 +112,27 @@ def test_kernel_matches_the_reference_at_a_larger_step():
     fast = align_depth_edges(depth, color)
     slow = ref.align_depth_edges(depth, color / 255.0)
     np.testing.assert_allclose(fast, slow, rtol=1e-6, atol=0)
+
+
+@pytest.mark.parametrize("reach", [1, 2, 3])
+def test_band_is_its_definition(reach):
+    """The band from OpenCV's window maxima and minima against the definition: a measured pixel with a measured
+    pixel within *reach* (Chebyshev) whose depth differs by more than edge_ratio relative to the nearer, with
+    depths exactly at the ratio (not a gap) and holes."""
+    from pcdof.stages.fill.edges import band_of
+
+    rng = np.random.default_rng(reach)
+    H, W = 31, 43
+    depth = rng.choice([1.0, 1.04, 1.05, 2.0, 2.08, 0.0], size=(H, W)).astype(np.float32)
+    got = band_of(depth, reach, 0.04)
+    want = np.zeros((H, W), bool)
+    for y in range(H):
+        for x in range(W):
+            z = float(depth[y, x])
+            if z <= 0:
+                continue
+            win = depth[max(0, y - reach):y + reach + 1, max(0, x - reach):x + reach + 1].astype(np.float64)
+            w = win[win > 0]
+            want[y, x] = bool((np.maximum(w, z) > 1.04 * np.minimum(w, z)).any())
+    np.testing.assert_array_equal(got, want)
+    assert got.any() and not got.all()

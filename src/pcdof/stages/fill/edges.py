@@ -56,24 +56,36 @@ def _gap(a, b, edge_ratio):
     return max(a, b) > (1.0 + edge_ratio) * min(a, b)
 
 
+def band_of(depth, reach, edge_ratio):
+    """The measured pixels of *depth* (H, W) float32 (0 = unknown) with a measured pixel within *reach*
+    (Chebyshev) across a depth gap: (H, W) bool.
+
+    A pixel z has such a neighbour w exactly when the largest measured depth around it exceeds (1 + edge_ratio) z
+    or the smallest is below z / (1 + edge_ratio) (:func:`_gap` compares the nearer of two depths): the window's
+    largest and smallest measured depth are OpenCV's dilation and erosion by a square (holes left out as 0 and
+    +inf), which pick values and do not round them, then compared as :func:`_gap` compares."""
+    import cv2
+
+    square = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * reach + 1, 2 * reach + 1))
+    known = depth > 0
+    far = cv2.dilate(np.where(known, depth, np.float32(0.0)), square, borderType=cv2.BORDER_CONSTANT,
+                     borderValue=0.0)
+    near = cv2.erode(np.where(known, depth, np.float32(np.inf)), square, borderType=cv2.BORDER_CONSTANT,
+                     borderValue=float("inf"))
+    band = np.empty(depth.shape, np.bool_)
+    _band_from_range(depth, far, near, float(edge_ratio), band)
+    return band
+
+
 @njit(cache=True, parallel=True, nogil=True)
-def band_of(depth, reach, edge_ratio, band):
-    """*band*: the measured pixels with a measured pixel within *reach* (Chebyshev) across a depth gap."""
+def _band_from_range(depth, far, near, edge_ratio, band):
+    """*band*: measured pixels of *depth* across a gap from the largest (*far*) or smallest (*near*) measured
+    depth around them (:func:`band_of`)."""
     H, W = depth.shape
     for y in prange(H):
         for x in range(W):
             z = float(depth[y, x])
-            hit = False
-            if z > 0.0:
-                for v in range(max(0, y - reach), min(H, y + reach + 1)):
-                    for u in range(max(0, x - reach), min(W, x + reach + 1)):
-                        w = float(depth[v, u])
-                        if w > 0.0 and _gap(z, w, edge_ratio):
-                            hit = True
-                            break
-                    if hit:
-                        break
-            band[y, x] = hit
+            band[y, x] = z > 0.0 and (_gap(z, float(far[y, x]), edge_ratio) or _gap(z, float(near[y, x]), edge_ratio))
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -202,8 +214,7 @@ def align_depth_edges(depth_m, color, *, edge_ratio: float = DEFAULT_EDGE_RATIO,
     guide, unit = color_for_kernel(color)
     step = edge_step(depth.shape)
     reach = int(band_steps) * step
-    band = np.empty(depth.shape, np.bool_)
-    band_of(read_only(depth), reach, float(edge_ratio), band)
+    band = band_of(depth, reach, float(edge_ratio))
     out = depth.copy()
     moved = 0
     if band.any():

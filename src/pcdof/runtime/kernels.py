@@ -26,7 +26,7 @@ STAGES = {
                                              "pcdof.distortion")),
     "fill": (("pcdof.stages.fill",), ("pcdof.stages.fill.index", "pcdof.stages.fill.boundary",
                                       "pcdof.stages.fill.combine", "pcdof.stages.fill.cleanup",
-                                      "pcdof.stages.fill.inputs")),
+                                      "pcdof.stages.fill.inputs", "pcdof.stages.fill.edges")),
     "render": (("pcdof.stages.render", "pcdof.stages.render.tiles"),
                ("pcdof.stages.render.classify", "pcdof.stages.render.scatter", "pcdof.stages.render.composite",
                 "pcdof.stages.render.extend", "pcdof.stages.render.uniform", "pcdof.stages.render.grids",

@@ -94,6 +94,19 @@ class TestRegisterCommand:
         filled = np.load(out)
         assert (filled > 0).all()
 
+    def test_filled_depth_is_the_pipelines(self, tmp_path):
+        """`register --fill` writes the depth the pipeline renders from: depth edges aligned, then filled."""
+        from pcdof import io, pipeline
+        from pcdof.lens import ThinLens
+
+        out = tmp_path / "filled.npy"
+        result = invoke("register", *frame_args(TUM), "-o", out, "--fill")
+        assert result.exit_code == 0, result.output
+        frame = io.load_frame(f"{TUM}/color.png", f"{TUM}/depth.png", f"{TUM}/calib.json")
+        _, filled, _ = pipeline.prepare_depth(frame, ThinLens(focal_length_mm=50.0, f_number=2.0,
+                                                               focus_distance_m=1.0))
+        np.testing.assert_array_equal(np.load(out), filled)
+
     def test_depth_scale_option(self, tmp_path):
         out = tmp_path / "reg.npy"
         assert invoke("register", *frame_args(TUM), "-o", out, "--depth-scale", 0.001).exit_code == 0

@@ -136,3 +136,20 @@ def test_band_is_its_definition(reach):
             want[y, x] = bool((np.maximum(w, z) > 1.04 * np.minimum(w, z)).any())
     np.testing.assert_array_equal(got, want)
     assert got.any() and not got.all()
+
+
+def test_fill_aligned_is_what_the_fill_stage_does():
+    """fill_aligned: aligned then filled with the colour-guided fill (what the pipeline's fill stage and the
+    register and cloud commands run); the other methods only fill."""
+    from pcdof.stages.fill import fill_aligned, fill_depth
+
+    depth, color = square_scene()
+    depth[20:28, 44:48] = 0.0
+    filled, moved = fill_aligned(depth, color)
+    assert moved == 47
+    np.testing.assert_array_equal(filled, fill_joint_bilateral(align_depth_edges(depth, color), color))
+    filled, moved = fill_aligned(depth, color, method="telea")
+    assert moved == 0
+    np.testing.assert_array_equal(filled, fill_depth(depth, color, method="telea"))
+    with pytest.raises(InputError, match="method"):
+        fill_aligned(depth, color, method="nearest")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from ..stages.fill import FILL_METHODS, fill_depth
+from ..stages.fill import FILL_METHODS, fill_aligned
 from ._common import check_output_file, check_output_paths, handle_errors, load_source_frame, \
     source_arguments, source_inputs
 from ._report import report_decision
@@ -39,7 +39,7 @@ def command(color, depth, calib, depth_scale, frame_index, time_s, output, no_fi
     ensure_warm(stages=("register", "fill"))  # the first run after an install compiles them, and says so
     depth_m, _edges = open_coarse_edges(register_depth(frame), frame.rig)  # a phone's coarse grid: see its docstring
     if not no_fill:
-        depth_m = fill_depth(depth_m, frame.color, method=fill_method)
+        depth_m, _moved = fill_aligned(depth_m, frame.color, method=fill_method)
     points, colors = colored_points(frame.color, depth_m, frame.rig.color, stride=stride)
     write_ply(output, points, colors)
     report_decision("cloud", output=output,

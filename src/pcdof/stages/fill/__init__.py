@@ -86,7 +86,7 @@ Modules
 """
 
 from .directional import check_border, fill_joint_bilateral, fill_nearest_background
-from .methods import FILL_METHODS, check_fill_method, fill_depth, warmup
+from .methods import FILL_METHODS, check_fill_method, fill_aligned, fill_depth, warmup
 from .plan import FillPlan, needs_fill, plan_fill
 from .rules import (BORDER, BORDER_ASSUMPTIONS, BORDER_RULES, DEFAULT_BACKGROUND_BIAS, DEFAULT_BORDER,
                     DEFAULT_EDGE_RATIO, DEFAULT_SIGMA_COLOR, DEFAULT_TELEA_RADIUS_PX, LOST, SURFACE)
@@ -96,6 +96,6 @@ from .telea import fill_telea
 __all__ = [
     "BORDER", "BORDER_ASSUMPTIONS", "BORDER_RULES", "DEFAULT_BACKGROUND_BIAS", "DEFAULT_BORDER", "DEFAULT_EDGE_RATIO",
     "DEFAULT_SIGMA_COLOR", "DEFAULT_TELEA_RADIUS_PX", "FILL_METHODS", "FillPlan", "LOST", "SURFACE",
-    "align_depth_edges", "check_border", "check_fill_method", "fill_depth", "fill_joint_bilateral", "fill_nearest_background",
-    "fill_telea", "needs_fill", "plan_fill", "warmup",
+    "align_depth_edges", "check_border", "check_fill_method", "fill_aligned", "fill_depth", "fill_joint_bilateral",
+    "fill_nearest_background", "fill_telea", "needs_fill", "plan_fill", "warmup",
 ]

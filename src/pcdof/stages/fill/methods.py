@@ -67,6 +67,23 @@ def fill_depth(depth_m, color, *, method: str = "joint-bilateral", parallel: boo
         raise
 
 
+def fill_aligned(depth_m, color, *, method: str = "joint-bilateral", parallel: bool | None = None,
+                 **options) -> tuple[np.ndarray, int]:
+    """What the pipeline's fill stage does: with the colour-guided ``"joint-bilateral"`` method, measured pixels next
+    to depth edges first move to the side whose colour they have (:func:`~pcdof.stages.fill.edges.align_depth_edges`,
+    with the method's ``edge_ratio`` when given), then every unknown pixel is filled (:func:`fill_depth`; the other
+    methods fill only). Parameters as :func:`fill_depth`'s. Returns the filled depth ((H, W) float32 metres) and the
+    number of measured pixels moved."""
+    from .edges import align_depth_edges
+
+    check_fill_method(method)
+    moved = 0
+    if method == "joint-bilateral":
+        edge = {"edge_ratio": options["edge_ratio"]} if "edge_ratio" in options else {}
+        depth_m, moved = align_depth_edges(depth_m, color, with_count=True, **edge)
+    return fill_depth(depth_m, color, method=method, parallel=parallel, **options), moved
+
+
 def warmup() -> None:
     """Compile (or load from numba's cache) the fill kernels on a tiny input, for 8-bit colour (what
     cameras and image files give). The other colour path (float64, for every other dtype: see

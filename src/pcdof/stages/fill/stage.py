@@ -28,13 +28,11 @@ class FillStage(Stage):
 
     def run(self, state: FrameState, plan, options) -> StageOutput:
         from ...runtime.threads import numba_threads
-        from . import align_depth_edges, fill_depth, needs_fill
+        from . import fill_aligned, needs_fill
 
-        depth, moved = state.registered_m, 0
-        if options.fill_method == "joint-bilateral":
-            with numba_threads(plan.threads):
-                depth, moved = align_depth_edges(depth, state.color, with_count=True)
-        filled = fill_depth(depth, state.color, method=options.fill_method, parallel=plan.threads > 1)
+        with numba_threads(plan.threads):
+            filled, moved = fill_aligned(state.registered_m, state.color, method=options.fill_method,
+                                         parallel=plan.threads > 1)
         reason = f"{needs_fill(state.registered_m)[1]} ({options.fill_method}; {plan.describe()})" + (
             f"; {moved} px at depth edges moved to the side their colour matches" if moved else "")
         return StageOutput({"filled_m": filled}, reason, {"holes": plan.holes, "threads": plan.threads,

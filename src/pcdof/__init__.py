@@ -18,7 +18,7 @@ _EXPORTS = {
     "load_frame": "io", "read_calibration": "io", "read_color": "io", "read_depth": "io",
     "write_depth": "io", "write_image": "io", "write_json": "io",
     "ThinLens": "lens", "PaperLens": "lens", "focus_depth_at": "lens",
-    "register_depth": "stages.register", "fill_depth": "stages.fill",
+    "register_depth": "stages.register", "fill_depth": "stages.fill", "fill_aligned": "stages.fill",
     "depth_view_box": "depth_view", "depth_view_mask": "depth_view", "DepthViewBox": "depth_view",
     "RenderResult": "pipeline", "StageTrace": "pipeline", "render": "pipeline", "run": "pipeline",
     "RenderOptions": "options",

@@ -41,13 +41,16 @@ BLUR_SHARE = 0.025
 
 
 def default_methods() -> dict:
-    """Method name -> fill(depth_m, color): pcdof's default, its other border rules, and OpenCV's Telea."""
-    from ..stages.fill import BORDER_RULES, DEFAULT_BORDER, fill_joint_bilateral, fill_telea
+    """Method name -> fill(depth_m, color): pcdof's default as the pipeline's fill stage runs it (depth edges aligned,
+    then filled: :func:`pcdof.stages.fill.fill_aligned`), the fill without the alignment, the other border rules,
+    and OpenCV's Telea."""
+    from ..stages.fill import BORDER_RULES, DEFAULT_BORDER, fill_aligned, fill_joint_bilateral, fill_telea
 
-    out = {"pcdof": lambda d, c: fill_joint_bilateral(d, c)}
+    out = {"pcdof": lambda d, c: fill_aligned(d, c)[0],
+           "pcdof without edge alignment": lambda d, c: fill_joint_bilateral(d, c)}
     for rule in BORDER_RULES:
         if rule != DEFAULT_BORDER:
-            out[f"pcdof border={rule}"] = lambda d, c, rule=rule: fill_joint_bilateral(d, c, border=rule)
+            out[f"pcdof border={rule}"] = lambda d, c, rule=rule: fill_aligned(d, c, border=rule)[0]
     out["telea"] = lambda d, c: fill_telea(d, c)
     return out
 

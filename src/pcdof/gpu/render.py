@@ -356,8 +356,8 @@ def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: 
         reach = int(math.ceil(r_front + rm + 1)) if extend_behind and li > 0 and r_front > 0 else -1
         if key != 0:
             fill_value(diff.reshape(diff.size), 0.0, stream)
-        _layer_sources[blocks, threads, stream](rank, across, li, key == 0, lin, radius, trans, reach, ap.table, ap.unit_area,
-                                                diff, acc, acc_a)
+        _layer_sources[blocks, threads, stream](rank, across, li, key == 0, lin, radius, trans, reach, ap.table,
+                                                ap.unit_area, diff, acc, acc_a)
         if key != 0:
             rblocks, rthreads = grid_1d(H * (C + 1))
             _row_sums[rblocks, rthreads, stream](diff)

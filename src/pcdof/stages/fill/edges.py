@@ -16,8 +16,8 @@ pixels away from the edge. The voters' depths and the pixel's own are sorted and
 relative gaps over ``edge_ratio`` (as the fill's candidates). Each surface scores the colour support
 sum exp(-|c - c_p|^2 / 2 sigma^2) over its voters (sigma :data:`EDGE_SIGMA_COLOR`, colour in [0, 1]).
 The pixel moves to the best-scoring nearer surface (:data:`NEARER_ONLY`) when that scores more than
-:data:`EDGE_BIAS` times its own surface, and only when its own surface has voters (a structure too thin to have pixels away from its
-edges keeps its depth). It then takes the mean 1/z of the measured pixels within the band's reach that
+:data:`EDGE_BIAS` times its own surface, and only when its own surface has voters (a structure too thin to
+have pixels away from its edges keeps its depth). It then takes the mean 1/z of the measured pixels within the band's reach that
 lie on that surface (within ``edge_ratio`` of its voters' depth range), or, with none, the voters'
 colour-weighted mean 1/z. All pixels are decided from the input (one Jacobi pass); holes stay holes.
 """

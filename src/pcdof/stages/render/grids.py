@@ -12,7 +12,7 @@ from numba import njit, prange
 from ...errors import InputError
 from ...runtime.kernels import read_only
 from . import serial
-from .extend import Behind, extend_layer_behind, extended_layer, found_behind
+from .extend import extended_layer, found_behind
 
 
 #: no copied pixels: the *source* of :func:`reduce_cells` for a layer that is not extended
@@ -24,7 +24,7 @@ def reduce_cells(lin, radius, member, s, source=None, origin=(0, 0)):
     *lin* (H, W, C) float32 and *radius* (H, W) float32: member-weighted colour and radius, and member share.
     Returns (lin_s (hs, ws, C), r_s (hs, ws), m_s) as float32, hs = ceil(hb / s), ws = ceil(wb / s).
 
-    *source* (hb, wb) int32 or None: a pixel that is not a member but has source >= 0 counts as a member with
+    *source* (hb, wb) int32 (int64 for a box of 2^31 pixels or more) or None: a pixel that is not a member but has source >= 0 counts as a member with
     the colour and radius of the box's pixel at that flat index (the layer extended behind nearer layers,
     :func:`pcdof.stages.render.extend.extend_layer_behind`, read in place instead of copied).
 
@@ -118,13 +118,9 @@ def reduced_grid(lin, radius, member, hidden, reach_px, s, origin=(0, 0)) -> Gri
     is, through its source's flat index (4 bytes a pixel of the box), not from a copy of the layer (17)."""
     found = found_behind(member, hidden, reach_px)
     source = None
-    if found is not None and member.size < 2 ** 31:
-        source = np.full(member.shape, -1, np.int32)
+    if found is not None:  # 32-bit indices (a box of 2^31 pixels or more: 64-bit, compiled when first needed)
+        source = np.full(member.shape, -1, np.int32 if member.size < 2 ** 31 else np.int64)
         source.ravel()[found[0]] = found[1]
-    elif found is not None:  # too many pixels to index with 32 bits: the box extended as a copy
-        box = _box_at(member, origin)
-        lin, radius, member = extend_layer_behind(lin[box], radius[box], member, Behind(*found), reach_px)
-        origin = (0, 0)
     with serial.serial_if(member.size < serial.SERIAL_BELOW_PX):
         lin_s, r, m_s = reduce_cells(read_only(np.ascontiguousarray(lin, np.float32)),
                                      read_only(np.ascontiguousarray(radius, np.float32)),

@@ -41,8 +41,9 @@ def owners_of_hidden(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, 
     the surface (at least 1 px): with *across* (:func:`pcdof.stages.render.classify.across_jumps` of the
     frame, (H, W) int8), a pixel of a farther layer across a depth jump from a pixel of layer *li* or farther
     (``across >= li``); with None, every pixel of a farther layer. A slanted surface crosses many thin
-    layers, each continued behind the foreground from the same surface, as deep as the surface reaches. Returns (dst, src, dist): those pixels and each one's nearest candidate, the pixel of
-    layer *li* the extension copies ((N,) int64 flat indices into the box; *src* inside the box when it
+    layers, each continued behind the foreground from the same surface, as deep as the surface reaches.
+    Returns (dst, src, dist): those pixels and each one's nearest candidate, the pixel of layer *li* the
+    extension copies ((N,) int64 flat indices into the box; *src* inside the box when it
     holds the layer's bounding box, as the renderer's does), and their distance ((N,) float32); None when
     there is none; or, when no farther layer is near, the hidden pixels layer *li* is the only candidate
     for: (H_box, W_box) bool, their nearest pixels still to be found (:func:`behind_sources`).

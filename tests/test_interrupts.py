@@ -204,3 +204,50 @@ def test_ctrl_c_during_an_import_ends_the_process_at_once_with_the_cleanups():
     folder = proc.stdout.split()[0]
     assert "raised inside an import" not in proc.stdout
     assert set(os.listdir(folder)) <= {"slow_module.py", "__pycache__"}  # the pending file was removed
+
+
+AT_EXIT = r"""
+import atexit, os, signal, sys, time
+import pcdof_console
+
+def ctrl_c_as_the_process_ends():
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(0.2)  # the signal is delivered now, or would be
+    print("disposition", "ignored" if signal.getsignal(signal.SIGINT) is signal.SIG_IGN else "other", flush=True)
+
+atexit.register(ctrl_c_as_the_process_ends)
+sys.argv = ["pcdof"] + sys.argv[1:]
+pcdof_console.main()
+"""
+
+
+@pytest.mark.parametrize("args,code", [(["--version"], 0), (["render", "--no-such-flag"], 2)])
+def test_ctrl_c_after_the_command_ended_keeps_its_exit_status(args, code):
+    """A Ctrl-C as the process ends (exit handlers, the interpreter's shutdown, which otherwise gives SIGINT
+    its default action back and the process would end by the signal) leaves the command's own status."""
+    proc = subprocess.run([sys.executable, "-c", AT_EXIT, *args], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == code, (proc.returncode, proc.stderr)
+    assert "interrupted" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stdout.splitlines()[-1] == "disposition ignored", proc.stdout
+
+
+def test_batch_ctrl_c_inside_numbas_compiler_comes_again_in_pcdofs_code():
+    """numba's compiler swallows an exception raised in its callbacks from LLVM: a batch's Ctrl-C that lands
+    there is sent again until it raises in pcdof's own code, and the batch stops (it was lost before)."""
+    from pcdof.batch.signals import sigterm_interrupts
+
+    compiler = os.sep.join(["", "site-packages", "numba", "core", "compiler_step.py"])
+    namespace: dict = {}
+    exec(compile("def compile_step(swallowed):\n"
+                 "    import os, signal, time\n"
+                 "    try:\n"
+                 "        os.kill(os.getpid(), signal.SIGINT)\n"
+                 "        time.sleep(0.01)\n"
+                 "    except BaseException as error:  # what numba's callbacks do with it\n"
+                 "        swallowed.append(error)\n", compiler, "exec"), namespace)
+    swallowed: list = []
+    with sigterm_interrupts():
+        namespace["compile_step"](swallowed)
+        with pytest.raises(KeyboardInterrupt):
+            time.sleep(5)
+    assert swallowed == []

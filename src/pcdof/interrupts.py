@@ -14,9 +14,9 @@ load. The handler has two behaviours:
   and :class:`cleanup_on_interrupt` (temporary files of the writes in progress, a command's rollback),
   then ``os._exit(130)``.
 
-Once an interrupted command has unwound, the process exits normally but within
-:data:`EXIT_GRACE_S` seconds (:func:`exit_soon`): no thread still running (a worker stuck on a
-lock, a library's thread) can hold it.
+Once a command has ended (done, failed or interrupted), Ctrl-C is ignored and the process exits
+normally but within :data:`EXIT_GRACE_S` seconds (:func:`ending`): the exit status is the command's,
+and no thread still running (a worker stuck on a lock, a library's thread) can hold the process.
 """
 
 from __future__ import annotations
@@ -111,7 +111,20 @@ def exit_soon(code: int = EXIT_INTERRUPTED, grace_s: float = EXIT_GRACE_S) -> No
     threading.Thread(target=watchdog, name="pcdof-exit-watchdog", daemon=True).start()
 
 
-def _in_machinery(frame) -> bool:
+def ending(code: int = 0, grace_s: float = EXIT_GRACE_S) -> None:
+    """The command is over and the process is about to exit with status *code*: Ctrl-C is ignored from here
+    on and the exit takes at most *grace_s* seconds (:func:`exit_soon`).
+
+    Ignoring is what keeps the status: as the interpreter shuts down it gives SIGINT back its default
+    action (unless it is ignored), and a Ctrl-C in that last moment would end the process by the signal,
+    after the command's work was done and reported. The watchdog keeps the exit from hanging instead.
+    """
+    if _STATE["installed"]:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    exit_soon(code, grace_s)
+
+
+def in_machinery(frame) -> bool:
     """Whether *frame* or one of its callers runs the import machinery or numba's compiler."""
     while frame is not None:
         name = frame.f_code.co_filename
@@ -122,7 +135,7 @@ def _in_machinery(frame) -> bool:
 
 
 def _on_sigint(signum, frame) -> None:
-    if _STATE["raising"] and not _in_machinery(frame):
+    if _STATE["raising"] and not in_machinery(frame):
         raise KeyboardInterrupt
     exit_now()
 

@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
+
+from ..interrupts import in_machinery
+
+#: seconds after which a signal that came inside the import machinery or numba's compiler is sent again
+REDELIVER_S = 0.05
 
 
 class Terminated(KeyboardInterrupt):
@@ -20,6 +26,12 @@ def _on_signal(signum, frame) -> None:
     error = Terminated("SIGTERM") if signum == signal.SIGTERM else KeyboardInterrupt()
     if _SIGNALS["held"]:
         _SIGNALS["pending"] = _SIGNALS["pending"] or error
+    elif in_machinery(frame):
+        # raised here, the exception would be swallowed by numba's compiler (its callbacks from LLVM) or
+        # break an import halfway: the signal comes again a moment later, until it lands in pcdof's code
+        timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
+        timer.daemon = True
+        timer.start()
     else:
         raise error
 

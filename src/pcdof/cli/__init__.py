@@ -169,8 +169,9 @@ def console_main() -> None:
 
     Ctrl-C is pcdof's from the start (:mod:`pcdof.interrupts`: the console script,
     the top-level module ``pcdof_console``, installs the handler before this module is imported): one ``pcdof: interrupted`` line and exit status 130 at any moment,
-    and the exit of an interrupted or failed command is given :data:`pcdof.interrupts.EXIT_GRACE_S` seconds,
-    so that no thread left running can hold the process.
+    and once a command has ended, Ctrl-C is ignored and the exit is given :data:`pcdof.interrupts.EXIT_GRACE_S`
+    seconds (:func:`pcdof.interrupts.ending`): the exit status is the command's, and no thread left running
+    can hold the process.
 
     What a command imports lives until the process ends, so the garbage collector is told to leave it out of
     its passes (``gc.freeze``) once the command's module is imported, and again as the process ends: the
@@ -189,8 +190,8 @@ def console_main() -> None:
     try:
         main()
     except SystemExit as done:
-        if done.code and isinstance(done.code, int) and interrupts.installed():
-            interrupts.exit_soon(done.code)  # a failed or interrupted command: no thread left can hold the exit
+        if interrupts.installed():  # the command is over: its exit status stands, whatever comes now
+            interrupts.ending(done.code if isinstance(done.code, int) else 1 if done.code else 0)
         raise
     except KeyboardInterrupt:  # outside a command's body (click's own "Aborted!" would say exit 1)
         interrupts.exit_now()

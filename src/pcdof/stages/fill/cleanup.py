@@ -22,37 +22,46 @@ def _insert_sorted(win, m, value):
 def despeckle(out, hole_y, hole_x, edge_ratio):
     """Replace each hole whose depth differs from all of its 8 neighbours by more than *edge_ratio*
     (relative) by their median (one Jacobi pass): an isolated pixel of another surface is a speckle."""
-    H, W = out.shape
     n = hole_y.shape[0]
-    new = np.full(n, -1.0)
+    new = np.empty(n)
+    for h in range(n):  # plain loops around the parallel one: numba would parallelise np.full too (compile time)
+        new[h] = -1.0
     for c in prange((n + 255) // 256):
-        near = np.empty(8)  # the neighbours in raster order
-        win = np.empty(8)  # sorted, at a speckle only
-        for h in range(c * 256, min(n, (c + 1) * 256)):
-            y = hole_y[h]
-            x = hole_x[h]
-            v = float(out[y, x])
-            m = 0
-            alike = False
-            for dy in range(-1, 2):
-                for dx in range(-1, 2):
-                    yy = y + dy
-                    xx = x + dx
-                    if (dy == 0 and dx == 0) or not (0 <= yy < H and 0 <= xx < W):
-                        continue
-                    u = float(out[yy, xx])
-                    near[m] = u
-                    m += 1
-                    alike = alike or max(u, v) <= (1.0 + edge_ratio) * min(u, v)
-            if alike or m == 0:
-                continue
-            k = 0
-            for i in range(m):
-                k = _insert_sorted(win, k, near[i])
-            new[h] = win[(m - 1) // 2]
+        _despeckle_chunk(c * 256, min(n, (c + 1) * 256), out, hole_y, hole_x, edge_ratio, new)
     for h in range(n):
         if new[h] >= 0.0:
             out[hole_y[h], hole_x[h]] = new[h]
+
+
+@njit(cache=True, nogil=True)
+def _despeckle_chunk(start, stop, out, hole_y, hole_x, edge_ratio, new):
+    """:func:`despeckle`'s decision for the holes ``start:stop`` into *new* (a kernel of its own: compiled once,
+    not inside numba's parallel passes)."""
+    H, W = out.shape
+    near = np.empty(8)  # the neighbours in raster order
+    win = np.empty(8)  # sorted, at a speckle only
+    for h in range(start, stop):
+        y = hole_y[h]
+        x = hole_x[h]
+        v = float(out[y, x])
+        m = 0
+        alike = False
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                yy = y + dy
+                xx = x + dx
+                if (dy == 0 and dx == 0) or not (0 <= yy < H and 0 <= xx < W):
+                    continue
+                u = float(out[yy, xx])
+                near[m] = u
+                m += 1
+                alike = alike or max(u, v) <= (1.0 + edge_ratio) * min(u, v)
+        if alike or m == 0:
+            continue
+        k = 0
+        for i in range(m):
+            k = _insert_sorted(win, k, near[i])
+        new[h] = win[(m - 1) // 2]
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -63,35 +72,49 @@ def median_far(out, hole_y, hole_x, r_near, min_r, step, edge_ratio, iterations)
     neighbouring pixels change abruptly where their lines pass a boundary corner, leaving thin
     streaks; the median removes them and keeps depth edges.
     """
-    H, W = out.shape
-    far = np.flatnonzero(r_near > min_r)
-    n = far.shape[0]
+    n = 0
+    for h in range(r_near.shape[0]):  # the holes farther than min_r (np.flatnonzero(r_near > min_r), in loops)
+        n += r_near[h] > min_r
+    far = np.empty(n, np.int64)
+    n = 0
+    for h in range(r_near.shape[0]):
+        if r_near[h] > min_r:
+            far[n] = h
+            n += 1
     new = np.empty(n, dtype=out.dtype)
     for _ in range(iterations):
         for c in prange((n + 255) // 256):
-            win = np.empty(25, dtype=np.float64)
-            for t in range(c * 256, min(n, (c + 1) * 256)):
-                h = far[t]
-                y = hole_y[h]
-                x = hole_x[h]
-                lo = np.inf
-                hi = -np.inf
-                for dy in range(-2, 3):
-                    v = min(max(y + dy * step, 0), H - 1)
-                    for dx in range(-2, 3):
-                        u = min(max(x + dx * step, 0), W - 1)
-                        val = float(out[v, u])
-                        lo = min(lo, val)
-                        hi = max(hi, val)
-                if hi <= lo * (1.0 + edge_ratio):
-                    new[t] = out[y, x]  # one surface: nothing to clean
-                    continue
-                m = 0
-                for dy in range(-2, 3):
-                    v = min(max(y + dy * step, 0), H - 1)
-                    for dx in range(-2, 3):
-                        u = min(max(x + dx * step, 0), W - 1)
-                        m = _insert_sorted(win, m, float(out[v, u]))
-                new[t] = win[12]
+            _median_chunk(c * 256, min(n, (c + 1) * 256), out, hole_y, hole_x, far, step, edge_ratio, new)
         for t in range(n):
             out[hole_y[far[t]], hole_x[far[t]]] = new[t]
+
+
+@njit(cache=True, nogil=True)
+def _median_chunk(start, stop, out, hole_y, hole_x, far, step, edge_ratio, new):
+    """One pass of :func:`median_far` for the holes ``far[start:stop]`` into *new* (a kernel of its own:
+    compiled once, not inside numba's parallel passes)."""
+    H, W = out.shape
+    win = np.empty(25, dtype=np.float64)
+    for t in range(start, stop):
+        h = far[t]
+        y = hole_y[h]
+        x = hole_x[h]
+        lo = np.inf
+        hi = -np.inf
+        for dy in range(-2, 3):
+            v = min(max(y + dy * step, 0), H - 1)
+            for dx in range(-2, 3):
+                u = min(max(x + dx * step, 0), W - 1)
+                val = float(out[v, u])
+                lo = min(lo, val)
+                hi = max(hi, val)
+        if hi <= lo * (1.0 + edge_ratio):
+            new[t] = out[y, x]  # one surface: nothing to clean
+            continue
+        m = 0
+        for dy in range(-2, 3):
+            v = min(max(y + dy * step, 0), H - 1)
+            for dx in range(-2, 3):
+                u = min(max(x + dx * step, 0), W - 1)
+                m = _insert_sorted(win, m, float(out[v, u]))
+        new[t] = win[12]

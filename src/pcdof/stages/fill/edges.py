@@ -90,93 +90,109 @@ def _band_from_range(depth, far, near, edge_ratio, band):
 
 @njit(cache=True, parallel=True, nogil=True)
 def align_kernel(depth, color, band, out, reach, radius, step, edge_ratio, inv_two_sigma2, bias, nearer_only):
-    """Each band pixel of *depth* decided by its voters (see the module); *out* holds a copy of *depth*."""
+    """Each band pixel of *depth* decided by its voters (see the module); *out* holds a copy of *depth*.
+    Returns the number of pixels moved. Each row is :func:`_align_row`, a kernel of its own (compiled once,
+    not inside numba's parallel passes)."""
+    H = depth.shape[0]
+    moved = np.empty(H, np.int64)
+    for y in prange(H):
+        # np.int64: numba's parallel loop hands out its index as uint64, which would compile a second _align_row
+        moved[y] = _align_row(np.int64(y), depth, color, band, out, reach, radius, step, edge_ratio, inv_two_sigma2,
+                              bias, nearer_only)
+    total = 0
+    for y in range(H):
+        total += moved[y]
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _align_row(y, depth, color, band, out, reach, radius, step, edge_ratio, inv_two_sigma2, bias, nearer_only):
+    """:func:`align_kernel` on row *y*; returns the number of its pixels moved."""
     H, W = depth.shape
     n_max = (2 * radius // step + 1) ** 2 + 1
-    moved = np.zeros(H, np.int64)
-    for y in prange(H):
-        zs = np.empty(n_max)
-        ws = np.empty(n_max)
-        for x in range(W):
-            if not band[y, x]:
+    zs = np.empty(n_max)
+    ws = np.empty(n_max)
+    moved = 0
+    for x in range(W):
+        if not band[y, x]:
+            continue
+        zp = float(depth[y, x])
+        c0 = float(color[y, x, 0])
+        c1 = float(color[y, x, 1])
+        c2 = float(color[y, x, 2])
+        m = 0
+        for v in range(y - radius, y + radius + 1, step):
+            if v < 0 or v >= H:
                 continue
-            zp = float(depth[y, x])
-            c0 = float(color[y, x, 0])
-            c1 = float(color[y, x, 1])
-            c2 = float(color[y, x, 2])
-            m = 0
-            for v in range(y - radius, y + radius + 1, step):
-                if v < 0 or v >= H:
+            for u in range(x - radius, x + radius + 1, step):
+                if u < 0 or u >= W or band[v, u]:
                     continue
-                for u in range(x - radius, x + radius + 1, step):
-                    if u < 0 or u >= W or band[v, u]:
-                        continue
-                    zq = float(depth[v, u])
-                    if not zq > 0.0:
-                        continue
-                    d0 = float(color[v, u, 0]) - c0
-                    d1 = float(color[v, u, 1]) - c1
-                    d2 = float(color[v, u, 2]) - c2
-                    wq = np.exp(-(d0 * d0 + d1 * d1 + d2 * d2) * inv_two_sigma2)
-                    # insertion sort by depth, ties in raster order
-                    i = m
-                    while i > 0 and zs[i - 1] > zq:
-                        zs[i] = zs[i - 1]
-                        ws[i] = ws[i - 1]
-                        i -= 1
-                    zs[i] = zq
-                    ws[i] = wq
-                    m += 1
-            if m == 0:
-                continue
-            # surfaces: runs of the sorted voters split at gaps; the pixel's own surface is the one its depth
-            # joins (within edge_ratio of a voter of it), if any
-            own = 0.0
-            own_found = False
-            best = -1.0
-            best_lo = 0
-            best_hi = 0
-            s = 0
-            while s < m:
-                e = s + 1
-                while e < m and not _gap(zs[e - 1], zs[e], edge_ratio):
-                    e += 1
-                support = 0.0
-                for i in range(s, e):
-                    support += ws[i]
-                joins = not (_gap(zp, zs[s], edge_ratio) and zp < zs[s]) and \
-                    not (_gap(zp, zs[e - 1], edge_ratio) and zp > zs[e - 1])
-                if joins and not own_found:
-                    own = support
-                    own_found = True
-                elif support > best and not (nearer_only and own_found):
-                    best = support
-                    best_lo = s
-                    best_hi = e
-                s = e
-            if not own_found or best <= 0.0 or not best > bias * own:
-                continue
-            lo = zs[best_lo] / (1.0 + edge_ratio)
-            hi = zs[best_hi - 1] * (1.0 + edge_ratio)
-            acc = 0.0
-            k = 0
-            for v in range(max(0, y - reach), min(H, y + reach + 1)):
-                for u in range(max(0, x - reach), min(W, x + reach + 1)):
-                    zq = float(depth[v, u])
-                    if zq > 0.0 and lo <= zq <= hi and not (v == y and u == x):
-                        acc += 1.0 / zq
-                        k += 1
-            if k == 0:
-                wsum = 0.0
-                for i in range(best_lo, best_hi):
-                    acc += ws[i] / zs[i]
-                    wsum += ws[i]
-                inv = acc / wsum
-            else:
-                inv = acc / k
-            out[y, x] = np.float32(1.0 / inv)
-            moved[y] += 1
-    return moved.sum()
+                zq = float(depth[v, u])
+                if not zq > 0.0:
+                    continue
+                d0 = float(color[v, u, 0]) - c0
+                d1 = float(color[v, u, 1]) - c1
+                d2 = float(color[v, u, 2]) - c2
+                wq = np.exp(-(d0 * d0 + d1 * d1 + d2 * d2) * inv_two_sigma2)
+                # insertion sort by depth, ties in raster order
+                i = m
+                while i > 0 and zs[i - 1] > zq:
+                    zs[i] = zs[i - 1]
+                    ws[i] = ws[i - 1]
+                    i -= 1
+                zs[i] = zq
+                ws[i] = wq
+                m += 1
+        if m == 0:
+            continue
+        # surfaces: runs of the sorted voters split at gaps; the pixel's own surface is the one its depth
+        # joins (within edge_ratio of a voter of it), if any
+        own = 0.0
+        own_found = False
+        best = -1.0
+        best_lo = 0
+        best_hi = 0
+        s = 0
+        while s < m:
+            e = s + 1
+            while e < m and not _gap(zs[e - 1], zs[e], edge_ratio):
+                e += 1
+            support = 0.0
+            for i in range(s, e):
+                support += ws[i]
+            joins = not (_gap(zp, zs[s], edge_ratio) and zp < zs[s]) and \
+                not (_gap(zp, zs[e - 1], edge_ratio) and zp > zs[e - 1])
+            if joins and not own_found:
+                own = support
+                own_found = True
+            elif support > best and not (nearer_only and own_found):
+                best = support
+                best_lo = s
+                best_hi = e
+            s = e
+        if not own_found or best <= 0.0 or not best > bias * own:
+            continue
+        lo = zs[best_lo] / (1.0 + edge_ratio)
+        hi = zs[best_hi - 1] * (1.0 + edge_ratio)
+        acc = 0.0
+        k = 0
+        for v in range(max(0, y - reach), min(H, y + reach + 1)):
+            for u in range(max(0, x - reach), min(W, x + reach + 1)):
+                zq = float(depth[v, u])
+                if zq > 0.0 and lo <= zq <= hi and not (v == y and u == x):
+                    acc += 1.0 / zq
+                    k += 1
+        if k == 0:
+            wsum = 0.0
+            for i in range(best_lo, best_hi):
+                acc += ws[i] / zs[i]
+                wsum += ws[i]
+            inv = acc / wsum
+        else:
+            inv = acc / k
+        out[y, x] = np.float32(1.0 / inv)
+        moved += 1
+    return moved
 
 
 def align_depth_edges(depth_m, color, *, edge_ratio: float = DEFAULT_EDGE_RATIO,

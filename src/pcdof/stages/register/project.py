@@ -148,6 +148,5 @@ def _prepare(counter, n_tasks, depth, rays, t, cam, d, tilt, has_dist, r2_max, f
 
 def project_and_code(threads: int, n_tasks: int, *args) -> None:
     """Pass 1 on up to *threads* threads in *n_tasks* chunks of depth rows: :func:`run_tasks` of the kernel
-    :func:`_prepare`, read from this module's globals when called (where :mod:`pcdof.ahead` puts a kernel compiled
-    ahead of time); *args*: the kernel's arguments after its counter and task count."""
+    :func:`_prepare`; *args*: the kernel's arguments after its counter and task count."""
     run_tasks(_prepare, threads, n_tasks, *args)

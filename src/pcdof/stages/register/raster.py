@@ -126,6 +126,5 @@ def _rasterise(counter, n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_
 
 def rasterise(threads: int, n_bands: int, *args) -> None:
     """Pass 2 on up to *threads* threads in *n_bands* bands of colour rows: :func:`run_tasks` of the kernel
-    :func:`_rasterise`, read from this module's globals when called (where :mod:`pcdof.ahead` puts a kernel
-    compiled ahead of time); *args*: the kernel's arguments after its counter and band count."""
+    :func:`_rasterise`; *args*: the kernel's arguments after its counter and band count."""
     run_tasks(_rasterise, threads, n_bands, *args)

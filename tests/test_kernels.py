@@ -285,6 +285,20 @@ def test_stage_warmup_reaches_every_kernel_of_its_module(warm_module, module_nam
     assert missed == []
 
 
+@pytest.mark.parametrize("stage", list(kernels.STAGES))
+def test_each_kernel_compiles_once_in_its_stages_warmup(stage):
+    """The warm-up compiles one specialisation per kernel: a second one (a parallel loop's index, which numba
+    hands to a called kernel as uint64, not int64) would double that kernel's part of the first run."""
+    import importlib
+
+    warm_modules, module_names = kernels.STAGES[stage]
+    for name in warm_modules:
+        importlib.import_module(name).warmup()
+    twice = {d.__name__: [str(sig) for sig in d.signatures] for m in module_names
+             for d in kernels._cached_dispatchers(m) if len(d.signatures) > 1}
+    assert twice == {}
+
+
 def test_byte_compile_leaves_every_module_with_current_bytecode():
     """After byte_compile() no pcdof module is compiled from source on import, even where Python is told not
     to write bytecode: each one's .pyc exists and records its source's mtime and size (PEP 552 header)."""

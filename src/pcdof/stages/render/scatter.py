@@ -96,93 +96,101 @@ def scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symmet
     the 2 reach + 1 source rows around its current output row in a ring, each source row's strips
     computed once when the task first needs them, so the table lookups are off the gather's critical
     path and shared by the rows they serve. Every output pixel sums the same terms in the same order
-    (source row, then column) whatever the split.
+    (source row, then column) whatever the split. A task is :func:`_scatter_rows`, a kernel of its own, so
+    numba's parallel passes see a one-line loop (compiling the scatter inside it took 7 s of a first run).
     """
     h = offsets.size - 1
     reach = int(math.ceil(r_max + 0.5))
-    nd = 2 * reach + 1
-    n_max = 0
+    n_max = np.int64(0)  # not 0: numba would also compile _scatter_rows for a literal 0
     for ys in range(max(0, y_lo - reach), min(h - 1, y_hi + reach) + 1):
         n_max = max(n_max, offsets[ys + 1] - offsets[ys])
     for task in prange(starts.size - 1):
-        ya = starts[task]
-        yb = starts[task + 1]
-        areas = np.empty((nd, nd, n_max), np.float64)  # [source row % nd, dy + reach, source]
-        centres = np.zeros((nd if not symmetric else 1, nd, n_max), np.float64)
-        row_r = np.zeros(nd, np.float32)  # the largest radius of each source row in the ring
-        diff = np.empty((width + 1, 4), np.float32)
-        next_row = max(0, ya - reach)
-        for y in range(ya, yb):
-            while next_row <= min(h - 1, y + reach):
-                slot = next_row % nd
-                k0, k1 = offsets[next_row], offsets[next_row + 1]
-                row_strips(radius, k0, k1 - k0, reach, symmetric, table, areas[slot], centres[0 if symmetric else slot])
-                row_r[slot] = 0.0
-                for k in range(k0, k1):
-                    row_r[slot] = max(row_r[slot], radius[k])
-                next_row += 1
-            diff[:] = 0.0
-            row = out[y]
-            for ys in range(max(0, y - reach), min(h - 1, y + reach) + 1):
-                d = y - ys + reach
-                slot = ys % nd
-                if abs(d - reach) - 0.5 >= row_r[slot]:
-                    continue  # no footprint of that row reaches this one (every strip's area is 0)
-                k0 = offsets[ys]
-                for j in range(offsets[ys + 1] - k0):
-                    area = areas[slot, d, j]
-                    if area <= 0.0:
-                        continue
-                    k = k0 + j
-                    centre = 0.0 if symmetric else centres[slot, d, j]
-                    v0, v1, v2, v3 = values[k, 0], values[k, 1], values[k, 2], values[k, 3]
-                    a = xs[k] + centre - 0.5 * area
-                    b = a + area
-                    ka = int(math.floor(a + 0.5))
-                    kb = int(math.floor(b + 0.5))
-                    if ka == kb:
-                        if 0 <= ka < width:
-                            row[ka, 0] += area * v0
-                            row[ka, 1] += area * v1
-                            row[ka, 2] += area * v2
-                            row[ka, 3] += area * v3
-                        continue
+        _scatter_rows(starts[task], starts[task + 1], xs, radius, values, offsets, width, reach, n_max,
+                      symmetric, table, out)
+
+
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _scatter_rows(ya, yb, xs, radius, values, offsets, width, reach, n_max, symmetric, table, out):
+    """:func:`scatter_packed` for the output rows ya..yb-1 (one task): its own ring of strips and difference
+    array; *n_max* is the most sources of a source row the task can reach."""
+    h = offsets.size - 1
+    nd = 2 * reach + 1
+    areas = np.empty((nd, nd, n_max), np.float64)  # [source row % nd, dy + reach, source]
+    centres = np.zeros((nd if not symmetric else 1, nd, n_max), np.float64)
+    row_r = np.zeros(nd, np.float32)  # the largest radius of each source row in the ring
+    diff = np.empty((width + 1, 4), np.float32)
+    next_row = max(0, ya - reach)
+    for y in range(ya, yb):
+        while next_row <= min(h - 1, y + reach):
+            slot = next_row % nd
+            k0, k1 = offsets[next_row], offsets[next_row + 1]
+            row_strips(radius, k0, k1 - k0, reach, symmetric, table, areas[slot], centres[0 if symmetric else slot])
+            row_r[slot] = 0.0
+            for k in range(k0, k1):
+                row_r[slot] = max(row_r[slot], radius[k])
+            next_row += 1
+        diff[:] = 0.0
+        row = out[y]
+        for ys in range(max(0, y - reach), min(h - 1, y + reach) + 1):
+            d = y - ys + reach
+            slot = ys % nd
+            if abs(d - reach) - 0.5 >= row_r[slot]:
+                continue  # no footprint of that row reaches this one (every strip's area is 0)
+            k0 = offsets[ys]
+            for j in range(offsets[ys + 1] - k0):
+                area = areas[slot, d, j]
+                if area <= 0.0:
+                    continue
+                k = k0 + j
+                centre = 0.0 if symmetric else centres[slot, d, j]
+                v0, v1, v2, v3 = values[k, 0], values[k, 1], values[k, 2], values[k, 3]
+                a = xs[k] + centre - 0.5 * area
+                b = a + area
+                ka = int(math.floor(a + 0.5))
+                kb = int(math.floor(b + 0.5))
+                if ka == kb:
                     if 0 <= ka < width:
-                        f = ka + 0.5 - a
-                        row[ka, 0] += f * v0
-                        row[ka, 1] += f * v1
-                        row[ka, 2] += f * v2
-                        row[ka, 3] += f * v3
-                    if 0 <= kb < width:
-                        f = b - (kb - 0.5)
-                        row[kb, 0] += f * v0
-                        row[kb, 1] += f * v1
-                        row[kb, 2] += f * v2
-                        row[kb, 3] += f * v3
-                    lo = max(ka + 1, 0)
-                    hi = min(kb, width)  # whole pixels ka+1 .. kb-1
-                    if hi > lo:
-                        diff[lo, 0] += v0
-                        diff[lo, 1] += v1
-                        diff[lo, 2] += v2
-                        diff[lo, 3] += v3
-                        diff[hi, 0] -= v0
-                        diff[hi, 1] -= v1
-                        diff[hi, 2] -= v2
-                        diff[hi, 3] -= v3
-            r0 = np.float32(0.0)
-            r1 = np.float32(0.0)
-            r2 = np.float32(0.0)
-            r3 = np.float32(0.0)
-            for x in range(width):
-                r0 += diff[x, 0]
-                r1 += diff[x, 1]
-                r2 += diff[x, 2]
-                r3 += diff[x, 3]
-                row[x, 0] += r0
-                row[x, 1] += r1
-                row[x, 2] += r2
-                row[x, 3] += r3
+                        row[ka, 0] += area * v0
+                        row[ka, 1] += area * v1
+                        row[ka, 2] += area * v2
+                        row[ka, 3] += area * v3
+                    continue
+                if 0 <= ka < width:
+                    f = ka + 0.5 - a
+                    row[ka, 0] += f * v0
+                    row[ka, 1] += f * v1
+                    row[ka, 2] += f * v2
+                    row[ka, 3] += f * v3
+                if 0 <= kb < width:
+                    f = b - (kb - 0.5)
+                    row[kb, 0] += f * v0
+                    row[kb, 1] += f * v1
+                    row[kb, 2] += f * v2
+                    row[kb, 3] += f * v3
+                lo = max(ka + 1, 0)
+                hi = min(kb, width)  # whole pixels ka+1 .. kb-1
+                if hi > lo:
+                    diff[lo, 0] += v0
+                    diff[lo, 1] += v1
+                    diff[lo, 2] += v2
+                    diff[lo, 3] += v3
+                    diff[hi, 0] -= v0
+                    diff[hi, 1] -= v1
+                    diff[hi, 2] -= v2
+                    diff[hi, 3] -= v3
+        r0 = np.float32(0.0)
+        r1 = np.float32(0.0)
+        r2 = np.float32(0.0)
+        r3 = np.float32(0.0)
+        for x in range(width):
+            r0 += diff[x, 0]
+            r1 += diff[x, 1]
+            r2 += diff[x, 2]
+            r3 += diff[x, 3]
+            row[x, 0] += r0
+            row[x, 1] += r1
+            row[x, 2] += r2
+            row[x, 3] += r3
 
 
 @njit(cache=True)

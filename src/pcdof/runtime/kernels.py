@@ -35,9 +35,8 @@ STAGES = {
 
 #: CPU seconds each stage's ``warmup()`` takes to compile with an empty cache, measured on the project's 2-core
 #: machine with ``scripts/profile_compile.py`` (each stage in a fresh interpreter; other load on the cores adds
-#: 10-30 %): the fill in one process, the renderer then registration in the other (47 s); only for the estimate
-#: printed before compiling and for sharing the stages out (``_compile_groups``).
-COMPILE_CPU_S = {"register": 12.0, "fill": 40.0, "render": 35.0}
+#: 10-30 %); only for the estimate printed before compiling and for sharing the stages out (``_compile_groups``).
+COMPILE_CPU_S = {"register": 13.0, "fill": 33.0, "render": 34.0}
 
 #: stages this process has checked (or compiled): each is checked once per process
 _checked: set = set()
@@ -173,7 +172,7 @@ def warm_stage(stage: str, whole_process: bool = False) -> float:
 
 def _compile_groups(stages, workers: int) -> list[list[str]]:
     """*stages* shared among at most *workers* processes so they end close together: longest compile first,
-    each to the process with the least so far (on 2 cores: the fill in one, the renderer then registration in
+    each to the process with the least so far (on 2 cores: the renderer in one, the fill then registration in
     the other). Each process runs its stages one after the other."""
     groups: list[list[str]] = [[] for _ in range(max(1, min(workers, len(stages))))]
     for stage in sorted(stages, key=lambda stage: -COMPILE_CPU_S[stage]):

@@ -42,11 +42,11 @@ def owners_of_hidden(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, 
     frame, (H, W) int8), a pixel of a farther layer across a depth jump from a pixel of layer *li* or farther
     (``across >= li``); with None, every pixel of a farther layer. A slanted surface crosses many thin
     layers, each continued behind the foreground from the same surface, as deep as the surface reaches.
-    Returns (dst, src, dist): those pixels and each one's nearest candidate, the pixel of layer *li* the
-    extension copies ((N,) int64 flat indices into the box; *src* inside the box when it
-    holds the layer's bounding box, as the renderer's does), and their distance ((N,) float32); None when
-    there is none; or, when no farther layer is near, the hidden pixels layer *li* is the only candidate
-    for: (H_box, W_box) bool, their nearest pixels still to be found (:func:`behind_sources`).
+    Returns (dst, src, dist): those pixels and each one's nearest candidate, the pixel of layer *li* the extension
+    copies ((N,) int64 flat indices into the box; *src* inside the box when it holds the layer's bounding box, as
+    the renderer's does), and their distance ((N,) float32); None when there is none; or, when no farther layer
+    is near, the hidden pixels layer *li* is the only candidate for: (H_box, W_box) bool, their nearest pixels
+    still to be found (:func:`behind_sources`).
 
     A hidden pixel is continued by one layer only, the one seen next to it: a small layer (a lamp, a
     glint, a thin rod) is not copied across the whole width a blurred foreground hides, on top of the
@@ -112,8 +112,7 @@ def owners_of_hidden(layer: np.ndarray, li: int, box, bbox, hidden: np.ndarray, 
     py, px, qy, qx, d = (np.concatenate(v) for v in zip(*parts))
     if py.size == 0:
         return None
-    wb = ex - bx
-    return (py - by) * wb + px - bx, (qy - by) * wb + qx - bx, d
+    return (py - by) * (ex - bx) + px - bx, (qy - by) * (ex - bx) + qx - bx, d  # flat indices into the box
 
 
 def cut_window(win, seeds, keep):

@@ -45,7 +45,7 @@ class TestReadOnly:
         """Writable, read-only, grey and every colour dtype share two kernel types (uint8, float64), all
         read-only; the results are the same whatever the caller's array flags."""
         from pcdof.stages.fill import fill_joint_bilateral
-        from pcdof.stages.fill.combine import combine
+        from pcdof.stages.fill.combine import _combine_tasks
 
         rng = np.random.default_rng(3)
         depth = rng.uniform(1.0, 3.0, (12, 16)).astype(np.float32)
@@ -60,10 +60,10 @@ class TestReadOnly:
         for c in (color[:, :, 0], color.astype(np.uint16) * 257, color.astype(np.float32) / 255,
                   color.astype(np.float16) / 255, color.astype(np.float64) / 255):
             assert fill_joint_bilateral(depth, c).shape == depth.shape
-        colour_types = {sig[1] for sig in combine.signatures}
+        colour_types = {sig[3] for sig in _combine_tasks.signatures}  # (counter, n_tasks, depth, colour, ...)
         assert {t.dtype.name for t in colour_types} <= {"uint8", "float64"}
         assert all(not t.mutable and t.layout == "C" for t in colour_types)
-        assert all(not sig[0].mutable for sig in combine.signatures)  # the depth too
+        assert all(not sig[2].mutable for sig in _combine_tasks.signatures)  # the depth too
 
     def test_coc_and_tiles_take_read_only_inputs(self):
         from pcdof.lens import ThinLens, _signed_coc

@@ -206,6 +206,6 @@ def test_the_fill_kernels_release_the_gil():
     from pcdof.runtime.kernels import STAGES, _cached_dispatchers
 
     kernels = [k for module in STAGES["fill"][1] for k in _cached_dispatchers(module)]
-    assert {k.__name__ for k in kernels} >= {"index_depth", "sweep", "fit_boundary", "combine", "despeckle",
-                                             "median_far"}
+    assert {k.__name__ for k in kernels} >= {"index_depth", "_sweep_tasks", "_fit_tasks", "_combine_tasks",
+                                             "_despeckle_tasks", "_median_tasks", "_align_tasks", "_band_from_range"}
     assert all(k.targetoptions.get("nogil") for k in kernels), [k.__name__ for k in kernels]

@@ -4,12 +4,16 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
+from ...runtime.tasks import claim, run_tasks
+from ...runtime.threads import current_threads
 from .rules import HOLE
 
+#: boundary pixels per task of :func:`fit_boundary`
+FIT_TASK = 256
 
-@njit(cache=True, parallel=True, nogil=True)
+
 def sweep(code, hole_x, row_start, dirs, halves):
     """Per direction k and hole h: label of the nearest known pixel along dirs[k] (-1: none).
 
@@ -19,17 +23,24 @@ def sweep(code, hole_x, row_start, dirs, halves):
     next to a hole, i.e. on the boundary. Cost: O(directions x holes).
     """
     K = dirs.shape[0]
-    n_holes = hole_x.shape[0]
-    cand = np.empty((K, n_holes), dtype=np.int32)
-    for k in prange(K):
-        _sweep_direction(np.int64(k), code, hole_x, row_start, dirs, halves, cand)
+    cand = np.empty((K, hole_x.shape[0]), dtype=np.int32)
+    run_tasks(_sweep_tasks, current_threads(), K, code, hole_x, row_start, dirs, halves, cand)
     return cand
 
 
 @njit(cache=True, nogil=True)
+def _sweep_tasks(counter, n_tasks, code, hole_x, row_start, dirs, halves, cand):
+    """:func:`sweep`'s directions, each claimed from *counter* (:func:`pcdof.runtime.tasks.run_tasks`)."""
+    while True:
+        k = claim(counter)
+        if k >= n_tasks:
+            return
+        _sweep_direction(k, code, hole_x, row_start, dirs, halves, cand)
+
+
+@njit(cache=True, nogil=True)
 def _sweep_direction(k, code, hole_x, row_start, dirs, halves, cand):
-    """:func:`sweep` for direction *k*: fills ``cand[k]`` (a kernel of its own: compiled once, not inside numba's
-    parallel passes)."""
+    """:func:`sweep` for direction *k*: fills ``cand[k]``."""
     H, W = code.shape
     dx = dirs[k, 0]
     dy = dirs[k, 1]
@@ -85,7 +96,6 @@ def _sweep_direction(k, code, hole_x, row_start, dirs, halves, cand):
             y += ys
 
 
-@njit(cache=True, parallel=True, nogil=True)
 def fit_boundary(depth, b_y, b_x, radius, step, edge_ratio, plane):
     """Local plane of 1/z at each boundary pixel: plane[i] = (1/z, d(1/z)/dx, d(1/z)/dy) at (b_y[i], b_x[i]).
 
@@ -93,14 +103,24 @@ def fit_boundary(depth, b_y, b_x, radius, step, edge_ratio, plane):
     same surface (depth within ``edge_ratio`` of the centre's). With fewer than 6 such pixels or a
     degenerate spread, the plane is flat at their mean.
     """
-    for i in prange(b_y.shape[0]):
-        _fit_plane(np.int64(i), depth, b_y, b_x, radius, step, edge_ratio, plane)
+    n_tasks = -(-b_y.shape[0] // FIT_TASK)
+    run_tasks(_fit_tasks, current_threads(), n_tasks, depth, b_y, b_x, radius, step, edge_ratio, plane)
+
+
+@njit(cache=True, nogil=True)
+def _fit_tasks(counter, n_tasks, depth, b_y, b_x, radius, step, edge_ratio, plane):
+    """:func:`fit_boundary` for chunks of :data:`FIT_TASK` boundary pixels, each claimed from *counter*."""
+    while True:
+        k = claim(counter)
+        if k >= n_tasks:
+            return
+        for i in range(k * FIT_TASK, min(b_y.shape[0], (k + 1) * FIT_TASK)):
+            _fit_plane(i, depth, b_y, b_x, radius, step, edge_ratio, plane)
 
 
 @njit(cache=True, nogil=True)
 def _fit_plane(i, depth, b_y, b_x, radius, step, edge_ratio, plane):
-    """:func:`fit_boundary` at boundary pixel *i* (a kernel of its own: compiled once, not inside numba's
-    parallel passes)."""
+    """:func:`fit_boundary` at boundary pixel *i*."""
     H, W = depth.shape
     y = b_y[i]
     x = b_x[i]

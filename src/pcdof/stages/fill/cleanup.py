@@ -4,7 +4,13 @@ speckles (:func:`despeckle`)."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from ...runtime.tasks import claim, run_tasks
+from ...runtime.threads import current_threads
+
+#: holes per task of :func:`despeckle` and :func:`median_far`
+CHUNK = 256
 
 
 @njit(cache=True, inline="always")
@@ -18,25 +24,36 @@ def _insert_sorted(win, m, value):
     return m + 1
 
 
-@njit(cache=True, parallel=True, nogil=True)
 def despeckle(out, hole_y, hole_x, edge_ratio):
     """Replace each hole whose depth differs from all of its 8 neighbours by more than *edge_ratio*
     (relative) by their median (one Jacobi pass): an isolated pixel of another surface is a speckle."""
     n = hole_y.shape[0]
-    new = np.empty(n)
-    for h in range(n):  # plain loops around the parallel one: numba would parallelise np.full too (compile time)
-        new[h] = -1.0
-    for c in prange((n + 255) // 256):
-        _despeckle_chunk(c * 256, min(n, (c + 1) * 256), out, hole_y, hole_x, edge_ratio, new)
-    for h in range(n):
-        if new[h] >= 0.0:
-            out[hole_y[h], hole_x[h]] = new[h]
+    new = out[hole_y, hole_x].astype(np.float64)  # what stays where a hole is no speckle
+    run_tasks(_despeckle_tasks, current_threads(), -(-n // CHUNK), out, hole_y, hole_x, edge_ratio, new)
+    _write_back(out, hole_y, hole_x, np.arange(n), new)
+
+
+@njit(cache=True, nogil=True)
+def _despeckle_tasks(counter, n_tasks, out, hole_y, hole_x, edge_ratio, new):
+    """:func:`despeckle`'s chunks of holes, each claimed from *counter*."""
+    while True:
+        c = claim(counter)
+        if c >= n_tasks:
+            return
+        _despeckle_chunk(c * CHUNK, min(hole_y.shape[0], (c + 1) * CHUNK), out, hole_y, hole_x, edge_ratio, new)
+
+
+@njit(cache=True, nogil=True)
+def _write_back(out, hole_y, hole_x, which, new):
+    """``out`` at hole ``which[t]`` = ``new[t]`` (after a Jacobi pass: every new value from the old ones)."""
+    for t in range(which.shape[0]):
+        out[hole_y[which[t]], hole_x[which[t]]] = new[t]
 
 
 @njit(cache=True, nogil=True)
 def _despeckle_chunk(start, stop, out, hole_y, hole_x, edge_ratio, new):
-    """:func:`despeckle`'s decision for the holes ``start:stop`` into *new* (a kernel of its own: compiled once,
-    not inside numba's parallel passes)."""
+    """:func:`despeckle`'s decision for the holes ``start:stop`` into *new* (left as it is where a hole is no
+    speckle)."""
     H, W = out.shape
     near = np.empty(8)  # the neighbours in raster order
     win = np.empty(8)  # sorted, at a speckle only
@@ -64,7 +81,6 @@ def _despeckle_chunk(start, stop, out, hole_y, hole_x, edge_ratio, new):
         new[h] = win[(m - 1) // 2]
 
 
-@njit(cache=True, parallel=True, nogil=True)
 def median_far(out, hole_y, hole_x, r_near, min_r, step, edge_ratio, iterations):
     """Replace the holes farther than *min_r* from every candidate by the median of their 5 x 5
     neighbourhood (taps *step* apart) when it spans more than one surface (a relative range over
@@ -72,27 +88,27 @@ def median_far(out, hole_y, hole_x, r_near, min_r, step, edge_ratio, iterations)
     neighbouring pixels change abruptly where their lines pass a boundary corner, leaving thin
     streaks; the median removes them and keeps depth edges.
     """
-    n = 0
-    for h in range(r_near.shape[0]):  # the holes farther than min_r (np.flatnonzero(r_near > min_r), in loops)
-        n += r_near[h] > min_r
-    far = np.empty(n, np.int64)
-    n = 0
-    for h in range(r_near.shape[0]):
-        if r_near[h] > min_r:
-            far[n] = h
-            n += 1
-    new = np.empty(n, dtype=out.dtype)
+    far = np.flatnonzero(r_near > min_r)
+    new = np.empty(far.shape[0])
     for _ in range(iterations):
-        for c in prange((n + 255) // 256):
-            _median_chunk(c * 256, min(n, (c + 1) * 256), out, hole_y, hole_x, far, step, edge_ratio, new)
-        for t in range(n):
-            out[hole_y[far[t]], hole_x[far[t]]] = new[t]
+        run_tasks(_median_tasks, current_threads(), -(-far.shape[0] // CHUNK), out, hole_y, hole_x, far, step,
+                  edge_ratio, new)
+        _write_back(out, hole_y, hole_x, far, new)
+
+
+@njit(cache=True, nogil=True)
+def _median_tasks(counter, n_tasks, out, hole_y, hole_x, far, step, edge_ratio, new):
+    """One pass of :func:`median_far` in chunks of holes, each claimed from *counter*."""
+    while True:
+        c = claim(counter)
+        if c >= n_tasks:
+            return
+        _median_chunk(c * CHUNK, min(far.shape[0], (c + 1) * CHUNK), out, hole_y, hole_x, far, step, edge_ratio, new)
 
 
 @njit(cache=True, nogil=True)
 def _median_chunk(start, stop, out, hole_y, hole_x, far, step, edge_ratio, new):
-    """One pass of :func:`median_far` for the holes ``far[start:stop]`` into *new* (a kernel of its own:
-    compiled once, not inside numba's parallel passes)."""
+    """One pass of :func:`median_far` for the holes ``far[start:stop]`` into *new*."""
     H, W = out.shape
     win = np.empty(25, dtype=np.float64)
     for t in range(start, stop):

@@ -4,24 +4,34 @@ distance to its nearest candidate and its kind."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
+from ...runtime.tasks import claim, run_tasks
+from ...runtime.threads import current_threads
 from .rules import BORDER, CANDIDATES, LOST, SURFACE
 from .surfaces import border_inv, choose_surface, collect_candidates, interpolate_all
 
 
-@njit(cache=True, parallel=True, nogil=True)
 def combine(depth, color, holes, bnd, dirs, rules, out, r_near, kind):
     """Fill each hole from its candidates (:mod:`pcdof.stages.fill`, steps 1-4); per hole, also the
     distance to its nearest candidate (*r_near*, 0 at the border) and its *kind*.
 
-    The holes are shared out in chunks over the threads; each chunk is :func:`fill_holes`, a kernel of its own,
-    so numba's parallel passes see a one-line loop (compiling the whole fill inside it took 20 s of a first run).
-    """
+    The holes are cut into up to 256 chunks, each a task of :func:`fill_holes` on the threads
+    (:func:`pcdof.runtime.tasks.run_tasks`)."""
     n = holes.y.shape[0]
-    n_chunks = min(n, 256)
-    for c in prange(n_chunks):
-        fill_holes(c * n // n_chunks, (c + 1) * n // n_chunks, depth, color, holes, bnd, dirs, rules, out, r_near,
+    run_tasks(_combine_tasks, current_threads(), min(n, 256), depth, color, holes, bnd, dirs, rules, out, r_near,
+              kind)
+
+
+@njit(cache=True, nogil=True)
+def _combine_tasks(counter, n_tasks, depth, color, holes, bnd, dirs, rules, out, r_near, kind):
+    """:func:`combine`'s chunks of holes, each claimed from *counter*."""
+    n = holes.y.shape[0]
+    while True:
+        c = claim(counter)
+        if c >= n_tasks:
+            return
+        fill_holes(c * n // n_tasks, (c + 1) * n // n_tasks, depth, color, holes, bnd, dirs, rules, out, r_near,
                    kind)
 
 

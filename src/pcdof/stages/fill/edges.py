@@ -25,10 +25,12 @@ colour-weighted mean 1/z. All pixels are decided from the input (one Jacobi pass
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ...errors import InputError
 from ...runtime.kernels import read_only
+from ...runtime.tasks import claim, run_tasks
+from ...runtime.threads import current_threads
 from .inputs import color_for_kernel, option_number
 from .rules import DEFAULT_EDGE_RATIO, REFERENCE_SIZE_PX
 
@@ -43,6 +45,8 @@ EDGE_SIGMA_COLOR = 0.05
 NEARER_ONLY = True
 #: how many times its own surface's support another surface needs for a pixel to move to it
 EDGE_BIAS = 2.0
+#: rows per task of the band's comparison
+BAND_TASK_ROWS = 16
 
 
 def edge_step(shape) -> int:
@@ -73,36 +77,47 @@ def band_of(depth, reach, edge_ratio):
     near = cv2.erode(np.where(known, depth, np.float32(np.inf)), square, borderType=cv2.BORDER_CONSTANT,
                      borderValue=float("inf"))
     band = np.empty(depth.shape, np.bool_)
-    _band_from_range(depth, far, near, float(edge_ratio), band)
+    run_tasks(_band_from_range, current_threads(), -(-depth.shape[0] // BAND_TASK_ROWS), depth, far, near,
+              float(edge_ratio), band)
     return band
 
 
-@njit(cache=True, parallel=True, nogil=True)
-def _band_from_range(depth, far, near, edge_ratio, band):
+@njit(cache=True, nogil=True)
+def _band_from_range(counter, n_tasks, depth, far, near, edge_ratio, band):
     """*band*: measured pixels of *depth* across a gap from the largest (*far*) or smallest (*near*) measured
-    depth around them (:func:`band_of`)."""
+    depth around them (:func:`band_of`), in tasks of :data:`BAND_TASK_ROWS` rows claimed from *counter*."""
     H, W = depth.shape
-    for y in prange(H):
-        for x in range(W):
-            z = float(depth[y, x])
-            band[y, x] = z > 0.0 and (_gap(z, float(far[y, x]), edge_ratio) or _gap(z, float(near[y, x]), edge_ratio))
+    while True:
+        task = claim(counter)
+        if task >= n_tasks:
+            return
+        for y in range(task * BAND_TASK_ROWS, min(H, (task + 1) * BAND_TASK_ROWS)):
+            for x in range(W):
+                z = float(depth[y, x])
+                band[y, x] = z > 0.0 and (_gap(z, float(far[y, x]), edge_ratio) or
+                                          _gap(z, float(near[y, x]), edge_ratio))
 
 
-@njit(cache=True, parallel=True, nogil=True)
 def align_kernel(depth, color, band, out, reach, radius, step, edge_ratio, inv_two_sigma2, bias, nearer_only):
     """Each band pixel of *depth* decided by its voters (see the module); *out* holds a copy of *depth*.
-    Returns the number of pixels moved. Each row is :func:`_align_row`, a kernel of its own (compiled once,
-    not inside numba's parallel passes)."""
-    H = depth.shape[0]
-    moved = np.empty(H, np.int64)
-    for y in prange(H):
-        # np.int64: numba's parallel loop hands out its index as uint64, which would compile a second _align_row
-        moved[y] = _align_row(np.int64(y), depth, color, band, out, reach, radius, step, edge_ratio, inv_two_sigma2,
-                              bias, nearer_only)
-    total = 0
-    for y in range(H):
-        total += moved[y]
-    return total
+    Returns the number of pixels moved. Each row is a task of :func:`_align_row` on the threads
+    (:func:`pcdof.runtime.tasks.run_tasks`)."""
+    moved = np.zeros(depth.shape[0], np.int64)
+    run_tasks(_align_tasks, current_threads(), depth.shape[0], depth, color, band, out, reach, radius, step,
+              edge_ratio, inv_two_sigma2, bias, nearer_only, moved)
+    return int(moved.sum())
+
+
+@njit(cache=True, nogil=True)
+def _align_tasks(counter, n_tasks, depth, color, band, out, reach, radius, step, edge_ratio, inv_two_sigma2, bias,
+                 nearer_only, moved):
+    """:func:`align_kernel`'s rows, each claimed from *counter*; *moved*: pixels moved per row."""
+    while True:
+        y = claim(counter)
+        if y >= n_tasks:
+            return
+        moved[y] = _align_row(y, depth, color, band, out, reach, radius, step, edge_ratio, inv_two_sigma2, bias,
+                              nearer_only)
 
 
 @njit(cache=True, nogil=True)

@@ -34,7 +34,7 @@ bands are drawn. How they run (threads, chunks, bands, the small-quad kernel) is
 thread and ``plan.threads - 1`` helper threads take chunks and bands from an atomic counter and
 wait for each other in the operating system, without spinning. So when another process keeps a
 core busy, the threads that do get a CPU take over the remaining work instead of waiting,
-spinning, for one that does not. (The renderer and fill use numba's ``prange``; here it would
+spinning, for one that does not. (The renderer uses numba's ``prange``; here it would
 compile the drawing kernel about 2.5 times slower, a cost paid at the first run after every
 install, for the same speed once compiled.) :func:`warmup` compiles (or loads from numba's
 cache) the kernels and starts the helper threads up front.
@@ -47,7 +47,8 @@ Modules
 * :mod:`~pcdof.stages.register.raster`: pass 2, the colour bands drawn (triangles, then footprints)
 * :mod:`~pcdof.stages.register.triangles`: drawing one triangle or quad into the 1/z buffer
 * :mod:`~pcdof.stages.register.rig`: the per-calibration constants, cached
-* :mod:`~pcdof.stages.register.tasks`: tasks claimed from an atomic counter, and the helper threads
+* :mod:`~pcdof.stages.register.tasks`: tasks of rows claimed from an atomic counter (:mod:`pcdof.runtime.tasks`),
+  and the helper threads
 * :mod:`~pcdof.stages.register.constants`: what the kernels share
 * :mod:`~pcdof.stages.register.reference`: the plain per-triangle specification the kernels are tested against
 * :mod:`~pcdof.stages.register.guided`: a depth grid coarser than the colour in the same camera (phone depth

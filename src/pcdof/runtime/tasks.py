@@ -1,0 +1,62 @@
+"""Kernels run as numbered tasks on threads: each thread claims the next task number from an atomic counter
+until all are taken (:func:`claim`), the calling thread and helper threads of a kept pool alike
+(:func:`run_tasks`). numba releases the GIL in the kernels (``nogil=True``).
+
+This is how the registration and the fill run their kernels on several threads instead of numba's
+``prange``: the run time is the same, and numba compiles a ``prange`` loop's parallel machinery, about
+1 s of CPU per kernel, on the first run after an install (``docs/developing.md``, "Threading").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from .threads import max_threads, worker_pool
+
+
+@intrinsic
+def claim(typingctx, counter):
+    """Atomically take the next task number: fetch-and-add 1 on ``counter[0]`` (int64)."""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64 and counter.ndim == 1):
+        return None
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [context.get_constant(types.intp, 0)])
+        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1), "monotonic")
+
+    return types.int64(counter), codegen
+
+
+def task_pool(name: str = "tasks"):
+    """Helper threads for task kernels, the runtime's pool *name* kept between frames."""
+    return worker_pool(name, max(1, max_threads() - 1))
+
+
+def run_tasks(kernel, threads: int, n_tasks: int, *args, pool=None) -> None:
+    """Run ``kernel(counter, n_tasks, *args)`` on up to *threads* threads: the calling thread and helpers of
+    *pool* (default :func:`task_pool`).
+
+    The kernel claims task numbers from the shared counter (:func:`claim`) until all are taken, so the
+    calling thread and the helpers share the work however the operating system schedules them; waiting
+    is done in the OS (no spinning), so a thread that gets no CPU (another busy process) only leaves its
+    share to the others instead of stalling them. Helpers that have not started when the caller has
+    finished are cancelled.
+    """
+    counter = np.zeros(1, dtype=np.int64)
+    helpers = min(threads, n_tasks) - 1
+    futures = []
+    if helpers > 0:
+        try:
+            pool = task_pool() if pool is None else pool
+            futures = [pool.submit(kernel, counter, n_tasks, *args) for _ in range(helpers)]
+        except RuntimeError:  # interpreter shutting down: no new threads
+            futures = []
+    kernel(counter, n_tasks, *args)
+    for f in futures:
+        if not f.cancel():
+            f.result()

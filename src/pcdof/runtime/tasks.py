@@ -10,7 +10,7 @@ This is how the registration and the fill run their kernels on several threads i
 from __future__ import annotations
 
 import numpy as np
-from numba import types
+from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -30,6 +30,17 @@ def claim(typingctx, counter):
         return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1), "monotonic")
 
     return types.int64(counter), codegen
+
+
+@njit(cache=True, inline="always")
+def next_chunk(counter, n_tasks, size, total):
+    """Claim the next of *n_tasks* tasks of *size* items out of *total*: its items [lo, hi), or (-1, -1) when
+    every task is taken (the loop of every task kernel: ``while True: lo, hi = next_chunk(...)``)."""
+    k = claim(counter)
+    if k >= n_tasks:
+        return -1, -1
+    lo = k * size
+    return lo, min(total, lo + size)
 
 
 def task_pool(name: str = "tasks"):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ...runtime.tasks import claim, run_tasks
+from ...runtime.tasks import claim, next_chunk, run_tasks
 from ...runtime.threads import current_threads
 from .rules import HOLE
 
@@ -111,10 +111,10 @@ def fit_boundary(depth, b_y, b_x, radius, step, edge_ratio, plane):
 def _fit_tasks(counter, n_tasks, depth, b_y, b_x, radius, step, edge_ratio, plane):
     """:func:`fit_boundary` for chunks of :data:`FIT_TASK` boundary pixels, each claimed from *counter*."""
     while True:
-        k = claim(counter)
-        if k >= n_tasks:
+        lo, hi = next_chunk(counter, n_tasks, FIT_TASK, b_y.shape[0])
+        if lo < 0:
             return
-        for i in range(k * FIT_TASK, min(b_y.shape[0], (k + 1) * FIT_TASK)):
+        for i in range(lo, hi):
             _fit_plane(i, depth, b_y, b_x, radius, step, edge_ratio, plane)
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ...runtime.tasks import claim, run_tasks
+from ...runtime.tasks import next_chunk, run_tasks
 from ...runtime.threads import current_threads
 
 #: holes per task of :func:`despeckle` and :func:`median_far`
@@ -37,10 +37,10 @@ def despeckle(out, hole_y, hole_x, edge_ratio):
 def _despeckle_tasks(counter, n_tasks, out, hole_y, hole_x, edge_ratio, new):
     """:func:`despeckle`'s chunks of holes, each claimed from *counter*."""
     while True:
-        c = claim(counter)
-        if c >= n_tasks:
+        lo, hi = next_chunk(counter, n_tasks, CHUNK, hole_y.shape[0])
+        if lo < 0:
             return
-        _despeckle_chunk(c * CHUNK, min(hole_y.shape[0], (c + 1) * CHUNK), out, hole_y, hole_x, edge_ratio, new)
+        _despeckle_chunk(lo, hi, out, hole_y, hole_x, edge_ratio, new)
 
 
 @njit(cache=True, nogil=True)
@@ -100,10 +100,10 @@ def median_far(out, hole_y, hole_x, r_near, min_r, step, edge_ratio, iterations)
 def _median_tasks(counter, n_tasks, out, hole_y, hole_x, far, step, edge_ratio, new):
     """One pass of :func:`median_far` in chunks of holes, each claimed from *counter*."""
     while True:
-        c = claim(counter)
-        if c >= n_tasks:
+        lo, hi = next_chunk(counter, n_tasks, CHUNK, far.shape[0])
+        if lo < 0:
             return
-        _median_chunk(c * CHUNK, min(far.shape[0], (c + 1) * CHUNK), out, hole_y, hole_x, far, step, edge_ratio, new)
+        _median_chunk(lo, hi, out, hole_y, hole_x, far, step, edge_ratio, new)
 
 
 @njit(cache=True, nogil=True)

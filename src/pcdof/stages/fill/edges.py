@@ -29,7 +29,7 @@ from numba import njit
 
 from ...errors import InputError
 from ...runtime.kernels import read_only
-from ...runtime.tasks import claim, run_tasks
+from ...runtime.tasks import claim, next_chunk, run_tasks
 from ...runtime.threads import current_threads
 from .inputs import color_for_kernel, option_number
 from .rules import DEFAULT_EDGE_RATIO, REFERENCE_SIZE_PX
@@ -88,10 +88,10 @@ def _band_from_range(counter, n_tasks, depth, far, near, edge_ratio, band):
     depth around them (:func:`band_of`), in tasks of :data:`BAND_TASK_ROWS` rows claimed from *counter*."""
     H, W = depth.shape
     while True:
-        task = claim(counter)
-        if task >= n_tasks:
+        y0, y1 = next_chunk(counter, n_tasks, BAND_TASK_ROWS, H)
+        if y0 < 0:
             return
-        for y in range(task * BAND_TASK_ROWS, min(H, (task + 1) * BAND_TASK_ROWS)):
+        for y in range(y0, y1):
             for x in range(W):
                 z = float(depth[y, x])
                 band[y, x] = z > 0.0 and (_gap(z, float(far[y, x]), edge_ratio) or

@@ -8,7 +8,7 @@ from numba import njit
 
 from ...distortion import distort_point, unpack
 from .constants import FASTMATH, WHOLE
-from .tasks import next_rows, run_tasks
+from .tasks import next_chunk, run_tasks
 
 #: Colour-frame z below which a point counts as being on or behind the colour camera.
 _MIN_Z_M = 1e-6
@@ -127,7 +127,7 @@ def _prepare(counter, n_tasks, depth, rays, t, cam, d, tilt, has_dist, r2_max, f
     sv = np.empty(w, np.float32)
     siz = np.empty(w, np.float32)
     while True:
-        r0, r1 = next_rows(counter, n_tasks, chunk, h)
+        r0, r1 = next_chunk(counter, n_tasks, chunk, h)
         if r0 < 0:
             break
         # the chunk's rows, then the next chunk's first row into the scratch rows: one loop, so that the

@@ -7,7 +7,7 @@ import numpy as np
 from numba import njit
 
 from .constants import FASTMATH, MAX_PRIMITIVE_PX, WHOLE
-from .tasks import next_rows, run_tasks
+from .tasks import next_chunk, run_tasks
 from .triangles import draw_quad
 
 
@@ -73,7 +73,7 @@ def _rasterise(counter, n_bands, use_block, depth, U, V, IZ, codes, row_lo, row_
     H, W = out.shape
     band_h = -(-H // n_bands)
     while True:
-        y0, y1 = next_rows(counter, n_bands, band_h, H)
+        y0, y1 = next_chunk(counter, n_bands, band_h, H)
         if y0 < 0:
             break
         for y in range(y0, y1):

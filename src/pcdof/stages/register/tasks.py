@@ -4,21 +4,11 @@ helper threads that wait for each other in the operating system, without spinnin
 
 from __future__ import annotations
 
-from numba import njit
-
-from ...runtime.tasks import claim, task_pool
+from ...runtime.tasks import next_chunk, task_pool
 from ...runtime.tasks import run_tasks as _run_in_pool
 
 
-@njit(cache=True, inline="always")
-def next_rows(counter, n_tasks, size, total):
-    """Claim the next of *n_tasks* tasks of *size* rows out of *total*: its rows [lo, hi), or (-1, -1) when
-    every task is taken (the one task loop of both passes)."""
-    k = claim(counter)
-    if k >= n_tasks:
-        return -1, -1
-    lo = k * size
-    return lo, min(total, lo + size)
+__all__ = ["next_chunk", "run_tasks", "thread_pool"]
 
 
 def thread_pool():

@@ -59,7 +59,7 @@ def test_a_stage_added_to_the_list_runs_between_the_others_and_is_traced():
     # the later stages saw the new depth: the background is blurred as if it stood at 2 m
     at_two = frame()
     at_two = RGBDFrame(at_two.color, np.minimum(np.where(at_two.depth_m > 0, at_two.depth_m, 0), 2.0), at_two.rig)
-    np.testing.assert_array_equal(state.coc_px[20:, :], run(at_two, options).coc_px[20:, :])
+    np.testing.assert_array_equal(np.abs(state.signed_coc_px[20:, :]), run(at_two, options).coc_px[20:, :])
     # and skipped, with its reason, where it has nothing to do
     _, trace = run_stages(initial_state(f), options, stages=[*STAGES[:2], FarWall(10.0), *STAGES[2:]])
     assert trace[2].skipped and trace[2].reason == "nothing beyond 10.0 m"

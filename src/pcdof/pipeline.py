@@ -192,7 +192,8 @@ def run(frame: RGBDFrame, lens, **options) -> RenderResult:
     ensure_warm()  # the first run after an install compiles every stage's kernels, and says so
     with threads_for_load():  # fewer threads while other processes keep cores busy (same result)
         state, trace = run_stages(initial_state(frame), opts)
-    return RenderResult(state.image, state.registered_m, state.filled_m, state.coc_px, state.lens, trace)
+    coc = None if state.signed_coc_px is None else np.abs(state.signed_coc_px)
+    return RenderResult(state.image, state.registered_m, state.filled_m, coc, state.lens, trace)
 
 
 def _run_on_gpu(frame: RGBDFrame, opts) -> RenderResult:

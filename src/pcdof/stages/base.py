@@ -41,9 +41,9 @@ class FrameState:
     registered_m : (H, W) float32 metres on the colour grid, 0 = unknown (register)
     filled_m : (H, W) float32 metres, no holes (fill)
     lens : the lens with its focus resolved (coc; :mod:`pcdof.focus`)
-    signed_coc_px, coc_px : (H, W) float32 circle of confusion, signed (negative in front of focus) and its
-        size, pixels (coc; None for the paper method)
-    coc_max_px : float, the largest ``coc_px`` (coc)
+    signed_coc_px : (H, W) float32 circle of confusion, pixels, negative in front of focus (coc; None for the
+        paper method); its size is ``abs(signed_coc_px)`` (the result's ``coc_px``, derived once the stages ran)
+    coc_max_px : float, the largest size (coc)
     source, source_linear : the colour the renderer blurs and whether it is linear light (highlights)
     image : the render, like ``color`` (render)
     started : stage name -> the waiter its ``start`` returned (see the module docstring)
@@ -58,7 +58,6 @@ class FrameState:
     filled_m: np.ndarray | None = None
     lens: object = None
     signed_coc_px: np.ndarray | None = None
-    coc_px: np.ndarray | None = None
     coc_max_px: float | None = None
     source: np.ndarray | None = None
     source_linear: bool | None = None

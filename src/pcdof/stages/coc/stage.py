@@ -13,8 +13,8 @@ def focused(state: FrameState, options):
 
 
 class CocStage(Stage):
-    """Signed and absolute circle of confusion, pixels, with the lens's focus resolved; the paper method's lens
-    has none (the stage then only resolves the focus)."""
+    """Signed circle of confusion, pixels, and its largest size, with the lens's focus resolved; the paper method's
+    lens has none (the stage then only resolves the focus)."""
 
     name = "coc"
 
@@ -28,6 +28,7 @@ class CocStage(Stage):
 
     def run(self, state: FrameState, plan, options) -> StageOutput:
         lens = focused(state, options)
-        signed, coc, coc_max, share = lens.coc_maps_px(state.filled_m, state.fx_px)
-        return StageOutput({"lens": lens, "signed_coc_px": signed, "coc_px": coc, "coc_max_px": coc_max},
+        # the size |signed| is not kept through the render (4 bytes a pixel): the result derives it at the end
+        signed, _, coc_max, share = lens.coc_maps_px(state.filled_m, state.fx_px)
+        return StageOutput({"lens": lens, "signed_coc_px": signed, "coc_max_px": coc_max},
                            f"max {coc_max:.2f} px", {"max_coc_px": coc_max, "out_of_focus_share": share})

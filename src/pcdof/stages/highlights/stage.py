@@ -87,7 +87,7 @@ class HighlightsStage(Stage):
         if found is None:
             return StageOutput(self.passthrough(state, options), "nothing clipped", skipped=True)
         n = found.clipped_pixels
-        source = reconstruct_prepared(found, method=how, gain=gain, coc_px=state.coc_px)
+        source = reconstruct_prepared(found, method=how, gain=gain, coc_px=state.signed_coc_px)  # the sign is ignored
         return StageOutput({"source": source, "source_linear": True},
                            f"{how}{f' (gain {gain:g})' if how in ('gain', 'rim') else ''}: {n} clipped pixels",
                            {"method": how, "gain": gain, "clipped_pixels": n, **overlap})

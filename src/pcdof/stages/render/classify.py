@@ -4,7 +4,10 @@ in one pass with each layer's pixel count, largest radius and bounding box."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from ...runtime.tasks import next_chunk, run_tasks
+from ...runtime.threads import current_threads
 
 #: |CoC| layer edges in pixels; |c| < 1 is the in-focus layer, copied without blur.
 LAYER_EDGES_PX = np.array([1, 1.5, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 91, 128, 181, 256, np.inf])
@@ -23,6 +26,11 @@ MIN_SOURCE_RADIUS_PX = 0.5
 #: surface crosses a layer edge every few pixels, and a depth map's steps on it stay well below this.
 JUMP_COC_PX = 2.0
 
+#: rows of a task of :func:`classify_layers`'s first pass and of :func:`across_jumps` (tasks on the threads:
+#: :func:`pcdof.runtime.tasks.run_tasks`), and of its relabelling (a lookup per pixel: less work a row)
+TASK_ROWS = 16
+RELABEL_ROWS = 32
+
 
 @njit(cache=True, inline="always")
 def _note_run(count, r_max, box, k, y, x0, x1, r):
@@ -36,16 +44,16 @@ def _note_run(count, r_max, box, k, y, x0, x1, r):
     box[k, 3] = max(box[k, 3], x1)
 
 
-@njit(parallel=True, cache=True)
 def classify_layers(raw, max_coc, edges):
     """One pass over a signed CoC map (H, W): cleaned CoC, footprint radius, layer ids and per-layer statistics.
 
     The CoC is cleaned as NaN -> 0 and clipped to +-max_coc; the footprint radius is |c| / 2. The
-    signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k]
-    (negative in front of focus); layers number the keys present from near to far. Bands of rows
-    run in parallel and note, per key, the pixel count, largest radius and bounding box (once per run of
-    equal keys along a row, not per pixel); the bands are merged exactly (counts, maxima and bounds do not
-    depend on the order), then the keys are replaced by layer ids in a second parallel pass.
+    signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k] (*edges*
+    ascending; negative in front of focus); layers number the keys present from near to far. Bands of
+    :data:`TASK_ROWS` rows are tasks on the threads (:func:`_band_tasks`) and note, per key, the pixel count,
+    largest radius and bounding box (once per run of equal keys along a row, not per pixel); the bands are
+    merged exactly (counts, maxima and bounds do not depend on the order, :func:`_merge_bands`), then the
+    keys are replaced by layer ids, rows again as tasks (:func:`_relabel_tasks`).
 
     Returns (coc, radius) float32 (H, W), layer (H, W) int8 (at most 2 len(edges) + 1 layers), keys (L,) int64
     ascending, and per
@@ -54,24 +62,37 @@ def classify_layers(raw, max_coc, edges):
     h, w = raw.shape
     n = edges.size
     n_keys = 2 * n + 1
-    # every finite edge is a multiple of 1/2 px: the layer is constant on [i/2, (i+1)/2)
+    # every finite edge is a multiple of 1/2 px: the layer is constant on [i/2, (i+1)/2); its key's size is the
+    # number of edges at or below i/2
     n_half = int(2 * edges[n - 2]) + 1
-    by_half = np.empty(n_half, np.int32)
-    for i in range(n_half):
-        j = 0
-        while j < n and 0.5 * i >= edges[j]:
-            j += 1
-        by_half[i] = j
+    by_half = np.searchsorted(edges, 0.5 * np.arange(n_half), side="right").astype(np.int32)
     coc = np.empty((h, w), np.float32)
     radius = np.empty((h, w), np.float32)
     layer = np.empty((h, w), np.int8)  # 1 byte a pixel: at most 37 keys
-    n_bands = min(h, 64)
-    # np.empty, set by plain loops: each np.zeros in a parallel kernel is a parallel loop more to compile
-    count = np.empty((n_bands, n_keys), np.int64)
+    n_bands = -(-h // TASK_ROWS)
+    count = np.empty((n_bands, n_keys), np.int64)  # each band sets its own
     r_max = np.empty((n_bands, n_keys), np.float32)
     box = np.empty((n_bands, n_keys, 4), np.int64)
+    threads = current_threads()
+    run_tasks(_band_tasks, threads, n_bands, raw, max_coc, by_half, n, coc, radius, layer, count, r_max, box)
+    lookup, keys, total, r_all, box_all = _merge_bands(count, r_max, box, h, w, n)
+    run_tasks(_relabel_tasks, threads, -(-h // RELABEL_ROWS), layer, lookup)
+    return coc, radius, layer, keys, total, r_all, box_all
+
+
+@njit(cache=True, nogil=True)
+def _band_tasks(counter, n_tasks, raw, max_coc, by_half, n, coc, radius, layer, count, r_max, box):
+    """:func:`classify_layers`'s bands of :data:`TASK_ROWS` rows, each claimed from *counter*: band b's cleaned
+    CoC, radius and keys, and its statistics per key in ``count[b]``, ``r_max[b]``, ``box[b]``."""
+    h, w = raw.shape
+    n_keys = count.shape[1]
+    n_half = by_half.size
     lim = np.float32(max_coc)
-    for b in prange(n_bands):
+    while True:
+        y0, y1 = next_chunk(counter, n_tasks, TASK_ROWS, h)
+        if y0 < 0:
+            return
+        b = y0 // TASK_ROWS
         for k in range(n_keys):
             count[b, k] = 0
             r_max[b, k] = 0.0
@@ -79,7 +100,7 @@ def classify_layers(raw, max_coc, edges):
             box[b, k, 1] = -1
             box[b, k, 2] = w
             box[b, k, 3] = -1
-        for y in range(b * h // n_bands, (b + 1) * h // n_bands):
+        for y in range(y0, y1):
             # the statistics per run of equal keys along the row (runs are long: a key is a range of depth)
             run_k, run_x, run_r = -1, 0, np.float32(0.0)
             for x in range(w):
@@ -101,7 +122,13 @@ def classify_layers(raw, max_coc, edges):
                 run_k, run_x, run_r = k, x, r
             if run_k >= 0:
                 _note_run(count[b], r_max[b], box[b], run_k, y, run_x, w - 1, run_r)
-    # plain loops, not count.sum(axis=0): numba's axis reductions cost seconds of compiling
+
+
+@njit(cache=True, nogil=True)
+def _merge_bands(count, r_max, box, h, w, n):
+    """The bands' statistics (:func:`_band_tasks`) merged per key present: (lookup (2 n + 1,) int8, the layer id
+    of each key or -1; keys, count, largest radius and box per layer, as :func:`classify_layers` returns them)."""
+    n_bands, n_keys = count.shape
     present = np.empty(n_keys, np.bool_)
     n_layers = 0
     for k in range(n_keys):
@@ -110,13 +137,14 @@ def classify_layers(raw, max_coc, edges):
             if count[b, k] > 0:
                 present[k] = True
         n_layers += int(present[k])
-    lookup = np.full(n_keys, -1, np.int8)
+    lookup = np.empty(n_keys, np.int8)
     keys = np.empty(n_layers, np.int64)
     total = np.empty(n_layers, np.int64)
     r_all = np.empty(n_layers, np.float32)
     box_all = np.empty((n_layers, 4), np.int64)
     i = 0
     for k in range(n_keys):  # ascending signed CoC = near to far (c is monotone in z)
+        lookup[k] = -1
         if not present[k]:
             continue
         lookup[k] = i
@@ -135,10 +163,21 @@ def classify_layers(raw, max_coc, edges):
             box_all[i, 2] = min(box_all[i, 2], box[b, k, 2])
             box_all[i, 3] = max(box_all[i, 3], box[b, k, 3])
         i += 1
-    for y in prange(h):
-        for x in range(w):
-            layer[y, x] = lookup[layer[y, x]]
-    return coc, radius, layer, keys, total, r_all, box_all
+    return lookup, keys, total, r_all, box_all
+
+
+@njit(cache=True, nogil=True)
+def _relabel_tasks(counter, n_tasks, layer, lookup):
+    """``layer = lookup[layer]`` (keys to layer ids) in tasks of :data:`RELABEL_ROWS` rows claimed from
+    *counter*."""
+    h, w = layer.shape
+    while True:
+        y0, y1 = next_chunk(counter, n_tasks, RELABEL_ROWS, h)
+        if y0 < 0:
+            return
+        for y in range(y0, y1):
+            for x in range(w):
+                layer[y, x] = lookup[layer[y, x]]
 
 
 def across_jumps(coc: np.ndarray, layer: np.ndarray, jump_px: float = JUMP_COC_PX) -> np.ndarray:
@@ -150,26 +189,31 @@ def across_jumps(coc: np.ndarray, layer: np.ndarray, jump_px: float = JUMP_COC_P
     layer *li* or farther: it is where the surfaces seen beside a hidden pixel end (the extension behind
     nearer layers reaches no farther than that); a farther layer that merely continues the same surface does
     not end it. *coc* (H, W) float32 is the cleaned signed CoC, *layer* (H, W) int8 the layer ids (at most
-    127). Rows run in parallel."""
-    return _across_jumps(coc, layer, np.float32(jump_px))
-
-
-@njit(parallel=True, cache=True)
-def _across_jumps(coc, layer, jump_px):
-    """:func:`across_jumps`."""
-    h, w = layer.shape
-    out = np.empty((h, w), np.int8)
-    for y in prange(h):
-        for x in range(w):
-            c = coc[y, x]
-            best = -1
-            if y > 0 and c - coc[y - 1, x] > jump_px:
-                best = max(best, layer[y - 1, x])
-            if y + 1 < h and c - coc[y + 1, x] > jump_px:
-                best = max(best, layer[y + 1, x])
-            if x > 0 and c - coc[y, x - 1] > jump_px:
-                best = max(best, layer[y, x - 1])
-            if x + 1 < w and c - coc[y, x + 1] > jump_px:
-                best = max(best, layer[y, x + 1])
-            out[y, x] = best
+    127). Rows run as tasks on the threads (:func:`_across_tasks`)."""
+    out = np.empty(layer.shape, np.int8)
+    run_tasks(_across_tasks, current_threads(), -(-layer.shape[0] // TASK_ROWS), coc, layer, np.float32(jump_px),
+              out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _across_tasks(counter, n_tasks, coc, layer, jump_px, out):
+    """:func:`across_jumps` into *out*, in tasks of :data:`TASK_ROWS` rows claimed from *counter*."""
+    h, w = layer.shape
+    while True:
+        y0, y1 = next_chunk(counter, n_tasks, TASK_ROWS, h)
+        if y0 < 0:
+            return
+        for y in range(y0, y1):
+            for x in range(w):
+                c = coc[y, x]
+                best = -1
+                if y > 0 and c - coc[y - 1, x] > jump_px:
+                    best = max(best, layer[y - 1, x])
+                if y + 1 < h and c - coc[y + 1, x] > jump_px:
+                    best = max(best, layer[y + 1, x])
+                if x > 0 and c - coc[y, x - 1] > jump_px:
+                    best = max(best, layer[y, x - 1])
+                if x + 1 < w and c - coc[y, x + 1] > jump_px:
+                    best = max(best, layer[y, x + 1])
+                out[y, x] = best

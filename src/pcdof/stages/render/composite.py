@@ -4,12 +4,17 @@ taken from the input, and the final normalisation by the accumulated opacity."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
+from ...runtime.tasks import next_chunk, run_tasks
+from ...runtime.threads import current_threads
 from .tiles import TileMap
 
+#: rows of a task of :func:`composite_under` and :func:`normalise` (tasks on the threads:
+#: :func:`pcdof.runtime.tasks.run_tasks`)
+TASK_ROWS = 16
 
-@njit(parallel=True, cache=True)
+
 def composite_under(layer_buf, y0, x0, acc, opacity):
     """Composite a scattered layer (placed at row y0, column x0) behind what is already there.
 
@@ -17,25 +22,36 @@ def composite_under(layer_buf, y0, x0, acc, opacity):
     normalised by its coverage, so overlapping sources within a layer average. *acc* (H, W, C) is the
     premultiplied colour, *opacity* (H, W) the opacity composited so far (the transmittance is 1 - opacity;
     colour and opacity add the same weights, so their ratio is a convex combination of the layers' colours
-    whatever the rounding of 1 - opacity). A pixel covered fully is opaque (1) exactly.
+    whatever the rounding of 1 - opacity). A pixel covered fully is opaque (1) exactly. Rows of the layer run
+    as tasks on the threads (:func:`_under_tasks`).
     """
+    run_tasks(_under_tasks, current_threads(), -(-layer_buf.shape[0] // TASK_ROWS), layer_buf, y0, x0, acc, opacity)
+
+
+@njit(cache=True, nogil=True)
+def _under_tasks(counter, n_tasks, layer_buf, y0, x0, acc, opacity):
+    """:func:`composite_under` in tasks of :data:`TASK_ROWS` rows of the layer claimed from *counter*."""
     hb, wb, nc1 = layer_buf.shape
     nc = nc1 - 1
-    for yy in prange(hb):
-        y = y0 + yy
-        for xx in range(wb):
-            x = x0 + xx
-            a = opacity[y, x]
-            if not a < 1.0:
-                continue  # opaque already: the layer's pixel is not even read
-            cover = layer_buf[yy, xx, nc]
-            if cover > 1e-6:
-                t = np.float32(1.0) - a
-                alpha = 1.0 if cover >= 1.0 - 1e-4 else cover
-                f = t * alpha / cover
-                for c in range(nc):
-                    acc[y, x, c] += f * layer_buf[yy, xx, c]
-                opacity[y, x] = 1.0 if alpha == 1.0 else a + t * alpha
+    while True:
+        ya, yb = next_chunk(counter, n_tasks, TASK_ROWS, hb)
+        if ya < 0:
+            return
+        for yy in range(ya, yb):
+            y = y0 + yy
+            for xx in range(wb):
+                x = x0 + xx
+                a = opacity[y, x]
+                if not a < 1.0:
+                    continue  # opaque already: the layer's pixel is not even read
+                cover = layer_buf[yy, xx, nc]
+                if cover > 1e-6:
+                    t = np.float32(1.0) - a
+                    alpha = 1.0 if cover >= 1.0 - 1e-4 else cover
+                    f = t * alpha / cover
+                    for c in range(nc):
+                        acc[y, x, c] += f * layer_buf[yy, xx, c]
+                    opacity[y, x] = 1.0 if alpha == 1.0 else a + t * alpha
 
 
 @njit(cache=True)
@@ -91,18 +107,33 @@ def copy_tiles(src: np.ndarray, tiles: TileMap, out: np.ndarray) -> None:
                     tiles.tile_px, out.view(np.uint8).reshape(out.shape[0], out.shape[1], -1))
 
 
-@njit(parallel=True, cache=True)
 def normalise(acc, opacity, lin, out):
     """out = acc / opacity where some light arrived (opacity > 1e-6), else the input pixel (*out* may be *acc*:
-    each pixel is read before it is written)."""
+    each pixel is read before it is written). Rows run as tasks on the threads (:func:`_normalise_tasks`)."""
+    run_tasks(_normalise_tasks, current_threads(), -(-acc.shape[0] // TASK_ROWS), acc, opacity, lin, out)
+
+
+@njit(cache=True, nogil=True)
+def _normalise_tasks(counter, n_tasks, acc, opacity, lin, out):
+    """:func:`normalise` in tasks of :data:`TASK_ROWS` rows claimed from *counter*."""
     h, w, nc = acc.shape
-    for y in prange(h):
-        for x in range(w):
-            a = opacity[y, x]
-            if a > 1e-6:
-                inv = 1.0 / a
-                for c in range(nc):
-                    out[y, x, c] = acc[y, x, c] * inv
-            else:
-                for c in range(nc):
-                    out[y, x, c] = lin[y, x, c]
+    while True:
+        ya, yb = next_chunk(counter, n_tasks, TASK_ROWS, h)
+        if ya < 0:
+            return
+        for y in range(ya, yb):
+            for x in range(w):
+                # the channels as two loops, the first of at most 4: LLVM leaves that one scalar instead of
+                # vectorising it behind checks that *out* overlaps no input, which cost 20-40 % on one thread
+                a = opacity[y, x]
+                if a > 1e-6:
+                    inv = 1.0 / a
+                    for c in range(min(nc, 4)):
+                        out[y, x, c] = acc[y, x, c] * inv
+                    for c in range(4, nc):
+                        out[y, x, c] = acc[y, x, c] * inv
+                else:
+                    for c in range(min(nc, 4)):
+                        out[y, x, c] = lin[y, x, c]
+                    for c in range(4, nc):
+                        out[y, x, c] = lin[y, x, c]

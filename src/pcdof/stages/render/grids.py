@@ -7,16 +7,21 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ...errors import InputError
 from ...runtime.kernels import read_only
+from ...runtime.tasks import next_chunk, run_tasks
+from ...runtime.threads import current_threads
 from . import serial
 from .extend import extended_layer, found_behind
 
 
 #: no copied pixels: the *source* of :func:`reduce_cells` for a layer that is not extended
 NO_SOURCE = read_only(np.zeros((0, 0), np.int32))
+#: pixel rows of a task of :func:`reduce_cells` (whole rows of cells, at least one; tasks on the threads:
+#: :func:`pcdof.runtime.tasks.run_tasks`)
+TASK_ROWS = 16
 
 
 def reduce_cells(lin, radius, member, s, source=None, origin=(0, 0)):
@@ -28,59 +33,69 @@ def reduce_cells(lin, radius, member, s, source=None, origin=(0, 0)):
     the colour and radius of the box's pixel at that flat index (the layer extended behind nearer layers,
     :func:`pcdof.stages.render.extend.extend_layer_behind`, read in place instead of copied).
 
-    Rows of cells run in parallel; each cell is summed in scalar accumulators, its pixels in raster order."""
-    return _reduce_cells(lin, radius, member, s, NO_SOURCE if source is None else source, int(origin[0]),
-                         int(origin[1]))
+    Rows of cells run as tasks on the threads (:func:`_reduce_tasks`, about :data:`TASK_ROWS` pixel rows each);
+    each cell is summed in scalar accumulators, its pixels in raster order."""
+    h, w = member.shape
+    s = int(s)
+    hs, ws = (h + s - 1) // s, (w + s - 1) // s
+    lin_s = np.empty((hs, ws, lin.shape[2]), np.float32)  # each task zeroes its own rows
+    r_s = np.empty((hs, ws), np.float32)
+    m_s = np.empty((hs, ws), np.float32)
+    cell_rows = max(1, TASK_ROWS // s)
+    run_tasks(_reduce_tasks, current_threads(), -(-hs // cell_rows), cell_rows, lin, radius, member, s,
+              NO_SOURCE if source is None else source, int(origin[0]), int(origin[1]), lin_s, r_s, m_s)
+    return lin_s, r_s, m_s
 
 
-@njit(parallel=True, cache=True)
-def _reduce_cells(lin, radius, member, s, source, oy, ox):
-    """:func:`reduce_cells`, *source* (0, 0) for none."""
+@njit(cache=True, nogil=True)
+def _reduce_tasks(counter, n_tasks, cell_rows, lin, radius, member, s, source, oy, ox, lin_s, r_s, m_s):
+    """:func:`reduce_cells` into *lin_s*, *r_s*, *m_s* in tasks of *cell_rows* rows of cells claimed from
+    *counter*; *source* (0, 0) for none."""
     h, w = member.shape
     nc = lin.shape[2]
     copies = source.shape[0] > 0
-    hs, ws = (h + s - 1) // s, (w + s - 1) // s
-    # zeroed row by row below: np.zeros would be three parallel loops more to compile
-    lin_s = np.empty((hs, ws, nc), np.float32)
-    r_s = np.empty((hs, ws), np.float32)
-    m_s = np.empty((hs, ws), np.float32)
+    hs, ws = r_s.shape
     inv_area = 1.0 / (s * s)
-    for cy in prange(hs):
-        y0, y1 = cy * s, min(h, (cy + 1) * s)
-        for cx in range(ws):
-            r_s[cy, cx] = 0.0
-            for ch in range(nc):
-                lin_s[cy, cx, ch] = 0.0
-        for cx in range(ws):
-            x0, x1 = cx * s, min(w, (cx + 1) * s)
-            m = np.float32(0.0)
-            r = np.float32(0.0)
-            # the channels in scalars, not a small array: they stay in registers (the same sums, in the same order)
-            a0 = a1 = a2 = np.float32(0.0)
-            for y in range(y0, y1):
-                for x in range(x0, x1):
-                    sy, sx = oy + y, ox + x
-                    if not member[y, x]:
-                        if not copies or source[y, x] < 0:
-                            continue
-                        sy, sx = oy + source[y, x] // w, ox + source[y, x] % w
-                    m += np.float32(1.0)
-                    r += radius[sy, sx]
-                    a0 += lin[sy, sx, 0]
+    while True:
+        ca, cb = next_chunk(counter, n_tasks, cell_rows, hs)
+        if ca < 0:
+            return
+        for cy in range(ca, cb):
+            y0, y1 = cy * s, min(h, (cy + 1) * s)
+            for cx in range(ws):
+                r_s[cy, cx] = 0.0
+                for ch in range(nc):
+                    lin_s[cy, cx, ch] = 0.0
+            for cx in range(ws):
+                x0, x1 = cx * s, min(w, (cx + 1) * s)
+                m = np.float32(0.0)
+                r = np.float32(0.0)
+                # the channels in scalars, not a small array: they stay in registers (the same sums, in the same
+                # order)
+                a0 = a1 = a2 = np.float32(0.0)
+                for y in range(y0, y1):
+                    for x in range(x0, x1):
+                        sy, sx = oy + y, ox + x
+                        if not member[y, x]:
+                            if not copies or source[y, x] < 0:
+                                continue
+                            sy, sx = oy + source[y, x] // w, ox + source[y, x] % w
+                        m += np.float32(1.0)
+                        r += radius[sy, sx]
+                        a0 += lin[sy, sx, 0]
+                        if nc > 1:
+                            a1 += lin[sy, sx, 1]
+                        if nc > 2:
+                            a2 += lin[sy, sx, 2]
+                if m > 0:
+                    inv = 1.0 / m
+                    r_s[cy, cx] = r * inv
+                    lin_s[cy, cx, 0] = a0 * inv
                     if nc > 1:
-                        a1 += lin[sy, sx, 1]
+                        lin_s[cy, cx, 1] = a1 * inv
                     if nc > 2:
-                        a2 += lin[sy, sx, 2]
-            if m > 0:
-                inv = 1.0 / m
-                r_s[cy, cx] = r * inv
-                lin_s[cy, cx, 0] = a0 * inv
-                if nc > 1:
-                    lin_s[cy, cx, 1] = a1 * inv
-                if nc > 2:
-                    lin_s[cy, cx, 2] = a2 * inv
-            m_s[cy, cx] = m * inv_area
-    return lin_s, r_s, m_s
+                        lin_s[cy, cx, 2] = a2 * inv
+                m_s[cy, cx] = m * inv_area
 
 
 @dataclass(frozen=True)

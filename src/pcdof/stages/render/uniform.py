@@ -9,9 +9,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import njit
 
 from ...runtime.kernels import read_only
+from ...runtime.tasks import next_chunk, run_tasks
+from ...runtime.threads import current_threads
 from . import scatter, serial
 from .classify import MIN_SOURCE_RADIUS_PX
 from .grids import Grid
@@ -199,7 +201,6 @@ def _running_sums(lin, share, y, c0, c1, pad, s_row):
         s_row[i + 3] = a3
 
 
-@njit(parallel=True, cache=True)
 def convolve_rows(lin, share, bins, b, ya, yb, xa, xb, taps, weights, tasks, buf):
     """buf[y, x] = the footprint's convolution of the premultiplied grid at the cells of bin *b* in rows
     ya..yb-1, columns xa..xb-1 (zeros beyond the grid).
@@ -208,24 +209,34 @@ def convolve_rows(lin, share, bins, b, ya, yb, xa, xb, taps, weights, tasks, buf
     scatter's strip: one end pixel at column offset ma, one at mb, and a run of equal weights between, so
     its convolution is two taps and a run, all four differences of the source row's running sums
     (float64): O(1) per pixel and row of the footprint whatever its width. The rows run in up to *tasks*
-    runs, one parallel task each, each keeping the running sums of the 2k + 1 source rows around its
-    current row in a ring, each source row summed once per task.
+    runs of about equal length, tasks on the threads (:func:`_convolve_tasks`), each keeping the running
+    sums of the 2k + 1 source rows around its current row in a ring, each source row summed once per run.
     """
+    k = taps.shape[0] // 2
+    n_rows = yb - ya
+    n_tasks = max(1, min(tasks, n_rows // (4 * k + 4)))
+    size = -(-n_rows // n_tasks)
+    run_tasks(_convolve_tasks, current_threads(), -(-n_rows // size), size, lin, share, bins, b, ya, yb, xa, xb, taps,
+              weights, buf)
+
+
+@njit(cache=True, nogil=True)
+def _convolve_tasks(counter, n_tasks, size, lin, share, bins, b, ya, yb, xa, xb, taps, weights, buf):
+    """:func:`convolve_rows` in runs of *size* rows claimed from *counter*."""
     hs, ws, _ = lin.shape
     nd = taps.shape[0]
     k = nd // 2
     pad = k + 1
     c0, c1 = max(0, xa - k), min(ws, xb + k)
-    n_rows = yb - ya
-    n_tasks = max(1, min(tasks, n_rows // (4 * k + 4)))
     four = np.uint64(4)
-    for task in prange(n_tasks):
-        ta = ya + task * n_rows // n_tasks
-        tb = ya + (task + 1) * n_rows // n_tasks
-        ring = np.empty((nd, (c1 - c0 + 2 * pad + 1) * 4), np.float64)
-        acc = np.empty((xb - xa) * 4, np.float64)
-        next_row = ta - k
-        for y in range(ta, tb):
+    ring = np.empty((nd, (c1 - c0 + 2 * pad + 1) * 4), np.float64)
+    acc = np.empty((xb - xa) * 4, np.float64)
+    while True:
+        ta, tb = next_chunk(counter, n_tasks, size, yb - ya)
+        if ta < 0:
+            return
+        next_row = ya + ta - k
+        for y in range(ya + ta, ya + tb):
             while next_row <= y + k:
                 _running_sums(lin, share, next_row, c0, c1, pad, ring[next_row % nd])
                 next_row += 1
@@ -282,8 +293,8 @@ def convolve_uniform(lin, share, bins, groups, symmetric, table, buf):
         taps, weights = footprint_taps(footprint_kernel(radius, symmetric, table))
         k = taps.shape[0] // 2
         # up to two runs of rows per thread (runs of at least 4 k + 4 rows), a multiple of the threads' count:
-        # numba hands each thread an equal count of runs, so three runs on two threads left one thread two
-        threads = get_num_threads()
+        # runs of equal length, so three runs on two threads left one thread two
+        threads = current_threads()
         runs = min(2 * threads, (yb - ya) // (4 * k + 4))
         if runs > threads:
             runs -= runs % threads

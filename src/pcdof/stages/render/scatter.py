@@ -10,8 +10,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import njit
 
+from ...runtime.tasks import claim, run_tasks
+from ...runtime.threads import current_threads
 from . import serial
 from .aperture import RenderAperture, cumulative_at
 from .classify import MIN_SOURCE_RADIUS_PX
@@ -80,7 +82,6 @@ def balanced_runs(offsets, width, reach, y_lo, y_hi, runs):
     return starts
 
 
-@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symmetric, table, out, starts):
     """Scatter packed sources into ``out`` rows y_lo..y_hi (H, W, 4: premultiplied colour, coverage).
 
@@ -91,28 +92,38 @@ def scatter_packed(xs, radius, values, offsets, width, r_max, y_lo, y_hi, symmet
     a gather over output rows, so rows are independent; the four channels are unrolled.
 
     The output rows y_lo..y_hi are cut into runs of consecutive rows, run i starting at ``starts[i]``
-    (``starts[-1]`` = y_hi + 1; :func:`balanced_runs`), one parallel task each (one parallel region per
-    call: on a loaded machine every region waits for its slowest thread). A task keeps the strips of
-    the 2 reach + 1 source rows around its current output row in a ring, each source row's strips
-    computed once when the task first needs them, so the table lookups are off the gather's critical
-    path and shared by the rows they serve. Every output pixel sums the same terms in the same order
-    (source row, then column) whatever the split. A task is :func:`_scatter_rows`, a kernel of its own, so
-    numba's parallel passes see a one-line loop (compiling the scatter inside it took 7 s of a first run).
+    (``starts[-1]`` = y_hi + 1; :func:`balanced_runs`), each a task on the threads (:func:`_scatter_tasks`).
+    A task keeps the strips of the 2 reach + 1 source rows around its current output row in a ring, each
+    source row's strips computed once when the task first needs them, so the table lookups are off the
+    gather's critical path and shared by the rows they serve. Every output pixel sums the same terms in the
+    same order (source row, then column) whatever the split.
     """
     h = offsets.size - 1
     reach = int(math.ceil(r_max + 0.5))
-    n_max = np.int64(0)  # not 0: numba would also compile _scatter_rows for a literal 0
-    for ys in range(max(0, y_lo - reach), min(h - 1, y_hi + reach) + 1):
-        n_max = max(n_max, offsets[ys + 1] - offsets[ys])
-    for task in prange(starts.size - 1):
-        _scatter_rows(starts[task], starts[task + 1], xs, radius, values, offsets, width, reach, n_max,
-                      symmetric, table, out)
+    lo, hi = max(0, y_lo - reach), min(h - 1, y_hi + reach)
+    n_max = int((offsets[lo + 1:hi + 2] - offsets[lo:hi + 1]).max(initial=0))  # the most sources of a source row
+    run_tasks(_scatter_tasks, current_threads(), starts.size - 1, starts, xs, radius, values, offsets, width, reach,
+              n_max, symmetric, table, out)
+
+
+@njit(cache=True, nogil=True)
+def _scatter_tasks(counter, n_tasks, starts, xs, radius, values, offsets, width, reach, n_max, symmetric, table,
+                   out):
+    """:func:`scatter_packed`'s runs of rows, each claimed from *counter*: run t is :func:`_scatter_rows` of the
+    rows ``starts[t]:starts[t + 1]``."""
+    while True:
+        t = claim(counter)
+        if t >= n_tasks:
+            return
+        _scatter_rows(starts[t], starts[t + 1], xs, radius, values, offsets, width, reach, n_max, symmetric, table,
+                      out)
 
 
 @njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _scatter_rows(ya, yb, xs, radius, values, offsets, width, reach, n_max, symmetric, table, out):
     """:func:`scatter_packed` for the output rows ya..yb-1 (one task): its own ring of strips and difference
-    array; *n_max* is the most sources of a source row the task can reach."""
+    array; *n_max* is the most sources of a source row the task can reach. A kernel of its own, with the
+    scatter's fastmath flags, called by the task loop (:func:`_scatter_tasks`)."""
     h = offsets.size - 1
     nd = 2 * reach + 1
     areas = np.empty((nd, nd, n_max), np.float64)  # [source row % nd, dy + reach, source]
@@ -239,10 +250,10 @@ def scatter_sources(grid: Grid, scattered, aperture: RenderAperture, buf) -> int
         reach = int(math.ceil(r_max + 0.5))
         hs, ws = scattered.shape
         y_lo, y_hi = max(0, rows[0] - reach), min(hs - 1, rows[-1] + reach)
-        # one run of rows of equal work per thread: numba's static schedule hands each thread an equal count of
-        # runs, so runs of equal rows (as many as 3 on 2 threads) left one thread up to twice the other's work
+        # one run of rows of equal work per thread: runs of equal rows (as many as 3 on 2 threads) left one
+        # thread up to twice the other's work
         small = n_scattered * (2 * reach + 1) < serial.SERIAL_BELOW_STRIPS
-        starts = balanced_runs(offsets, ws, reach, y_lo, y_hi, 1 if small else get_num_threads())
+        starts = balanced_runs(offsets, ws, reach, y_lo, y_hi, 1 if small else current_threads())
         with serial.serial_if(starts.size == 2):
             scatter_packed(xs, src_r, values, offsets, ws, r_max, y_lo, y_hi, aperture.symmetric, aperture.table,
                            buf, starts)

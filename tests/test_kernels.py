@@ -66,7 +66,7 @@ class TestReadOnly:
         assert all(not sig[2].mutable for sig in _combine_tasks.signatures)  # the depth too
 
     def test_coc_and_tiles_take_read_only_inputs(self):
-        from pcdof.lens import ThinLens, _signed_coc
+        from pcdof.lens import ThinLens, _signed_coc_tasks
         from pcdof.stages.render.tiles import classify_tiles, tile_ranges
 
         depth = np.linspace(0.5, 4.0, 64, dtype=np.float32).reshape(8, 8)
@@ -77,8 +77,9 @@ class TestReadOnly:
         np.testing.assert_array_equal(lens.signed_coc_px(frozen, 500.0), coc)
         np.testing.assert_array_equal(lens.signed_coc_px(depth.astype(np.uint16), 500.0),
                                       lens.signed_coc_px(depth.astype(np.uint16).astype(np.float64), 500.0))
-        assert all(not sig[0].mutable for sig in _signed_coc.signatures)
-        assert {sig[0].dtype.name for sig in _signed_coc.signatures} <= {"float32", "float64"}
+        depths = [sig[2] for sig in _signed_coc_tasks.signatures]  # (counter, n_tasks, depth, ...)
+        assert depths and all(not t.mutable for t in depths)
+        assert {t.dtype.name for t in depths} <= {"float32", "float64"}
         coc.flags.writeable = False
         classify_tiles(coc, tile_px=4)
         classify_tiles(np.array(coc), tile_px=4)

@@ -90,7 +90,7 @@ class TestThreadingLayer:
                 "from pcdof.runtime.process import tune_process; tune_process()\n"
                 "import open3d, pcdof, numpy as np\n"
                 "pcdof.ThinLens(focal_length_mm=50, f_number=2, focus_distance_m=1)"
-                ".signed_coc_px(np.ones((4, 4), np.float32), 100.0)\n"  # a parallel kernel
+                ".signed_coc_px(np.ones((4, 4), np.float32), 100.0)\n"  # starts numba's threading layer
                 "import numba; print(numba.threading_layer())")
         base = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_THREADING_LAYER")}
         out = subprocess.run([sys.executable, "-c", code], env=base, capture_output=True, text=True, check=True)

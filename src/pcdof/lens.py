@@ -19,11 +19,13 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from . import validate
 from .errors import CalibrationError, InputError, LensError
 from .runtime.kernels import read_only
+from .runtime.tasks import next_chunk, run_tasks
+from .runtime.threads import current_threads
 from .validate import as_array, short_repr
 
 #: Largest circle of confusion (pixels) the renderers compute; larger ones are clamped with a warning.
@@ -39,6 +41,8 @@ PAPER_SIGMA_SIDES = 2.0
 #: Most blades of a polygonal aperture (real lenses have up to about 20; a 64-gon's outline is within
 #: 0.12 % of its circle's radius, a tenth of a pixel on the largest blur rendered).
 MAX_APERTURE_BLADES = 64
+#: pixels of a task of the CoC kernels (tasks on the threads: :func:`pcdof.runtime.tasks.run_tasks`)
+COC_TASK = 16384
 
 
 def finite_number(name: str, value, error=LensError) -> float:
@@ -89,39 +93,54 @@ def _coc_at(z, scale, inv_focus):
     return min(max(v, -_F32_MAX), _F32_MAX)
 
 
-@njit(cache=True, parallel=True)
 def _signed_coc(z, scale, inv_focus, out):
-    """out = :func:`_coc_at` per pixel (written as float32)."""
-    for i in prange(z.size):
-        out[i] = _coc_at(z[i], scale, inv_focus)
+    """out = :func:`_coc_at` per pixel (written as float32), in tasks of :data:`COC_TASK` pixels on the threads
+    (:func:`_signed_coc_tasks`)."""
+    run_tasks(_signed_coc_tasks, current_threads(), -(-z.size // COC_TASK), z, scale, inv_focus, out)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
+def _signed_coc_tasks(counter, n_tasks, z, scale, inv_focus, out):
+    """:func:`_signed_coc` in tasks of :data:`COC_TASK` pixels claimed from *counter*."""
+    while True:
+        lo, hi = next_chunk(counter, n_tasks, COC_TASK, z.size)
+        if lo < 0:
+            return
+        for i in range(lo, hi):
+            out[i] = _coc_at(z[i], scale, inv_focus)
+
+
 def _coc_maps(z, scale, inv_focus, signed, size):
     """signed = :func:`_coc_at` per pixel (float32), size = |signed|, in one pass; returns (largest size,
-    how many sizes are >= 1): per chunk of pixels, then over the chunks (exact whatever the order)."""
-    n = z.size
-    n_chunks = max(1, min(n, 256))
-    top = np.empty(n_chunks, np.float32)  # every chunk writes its own (np.zeros would be a parallel loop more)
-    count = np.empty(n_chunks, np.int64)
-    for c in prange(n_chunks):
+    how many sizes are >= 1): per task of :data:`COC_TASK` pixels (:func:`_coc_maps_tasks`), then over the
+    tasks (exact whatever the order)."""
+    n_tasks = -(-z.size // COC_TASK)
+    top = np.empty(n_tasks, np.float32)  # every task writes its own
+    count = np.empty(n_tasks, np.int64)
+    run_tasks(_coc_maps_tasks, current_threads(), n_tasks, z, scale, inv_focus, signed, size, top, count)
+    return (top.max(), int(count.sum())) if n_tasks else (np.float32(0.0), 0)
+
+
+@njit(cache=True, nogil=True)
+def _coc_maps_tasks(counter, n_tasks, z, scale, inv_focus, signed, size, top, count):
+    """:func:`_coc_maps` in tasks of :data:`COC_TASK` pixels claimed from *counter*: task t's largest size in
+    ``top[t]``, its sizes >= 1 in ``count[t]``."""
+    while True:
+        lo, hi = next_chunk(counter, n_tasks, COC_TASK, z.size)
+        if lo < 0:
+            return
         m = np.float32(0.0)
         k = 0
-        for i in range(c * n // n_chunks, (c + 1) * n // n_chunks):
+        for i in range(lo, hi):
             v = np.float32(_coc_at(z[i], scale, inv_focus))
             a = abs(v)
             signed[i] = v
             size[i] = a
             m = max(m, a)
             k += a >= 1.0
-        top[c] = m
-        count[c] = k
-    largest = np.float32(0.0)
-    total = 0
-    for c in range(n_chunks):
-        largest = max(largest, top[c])
-        total += count[c]
-    return largest, total
+        t = lo // COC_TASK
+        top[t] = m
+        count[t] = k
 
 
 class CocMaps(NamedTuple):

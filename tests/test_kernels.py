@@ -283,8 +283,8 @@ def test_stage_warmup_reaches_every_kernel_of_its_module(warm_module, module_nam
 
     importlib.import_module(warm_module).warmup()
     dispatchers = [d for m in module_names for d in kernels._cached_dispatchers(m)]
-    # a task kernel called from a parallel kernel loaded from the cache is not loaded itself (its code is in
-    # its caller's): it counts as reached when a reached kernel calls it
+    # a kernel called from another kernel loaded from the cache is not loaded itself (its code is in its
+    # caller's): it counts as reached when a reached kernel calls it
     by_name = {d.__name__: d for d in dispatchers}
     reached = {d.__name__ for d in dispatchers if d.signatures}
     todo = list(reached)
@@ -295,6 +295,19 @@ def test_stage_warmup_reaches_every_kernel_of_its_module(warm_module, module_nam
                 todo.append(name)
     missed = [d.__name__ for d in dispatchers if d.__name__ not in reached]
     assert missed == []
+
+
+def test_the_renderer_kernels_run_as_tasks_that_release_the_gil():
+    """The renderer's parallel kernels are task kernels run on the calling thread and a pool's helpers
+    (:func:`pcdof.runtime.tasks.run_tasks`): each must release the GIL (numba's nogil) or the helpers would
+    wait for it; none is a ``prange`` kernel (numba's parallel machinery costs about a second of compiling each)."""
+    dispatchers = [d for m in kernels.STAGES["render"][1] for d in kernels._cached_dispatchers(m)]
+    tasks = [d for d in dispatchers if d.__name__.endswith("_tasks")]
+    assert {d.__name__ for d in tasks} >= {"_band_tasks", "_relabel_tasks", "_across_tasks", "_under_tasks",
+                                          "_normalise_tasks", "_reduce_tasks", "_convolve_tasks", "_scatter_tasks",
+                                          "_signed_coc_tasks", "_coc_maps_tasks", "_encode8_tasks"}
+    assert all(d.targetoptions.get("nogil") for d in tasks), [d.__name__ for d in tasks]
+    assert [d.__name__ for d in dispatchers if d.targetoptions.get("parallel")] == []
 
 
 def test_byte_compile_leaves_every_module_with_current_bytecode():

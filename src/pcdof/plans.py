@@ -7,10 +7,10 @@ stage function takes ``plan=None`` (the planner's choice) or a plan made here (o
 tests pick a path by parameter. Every plan a stage accepts gives the same answer within the
 tolerance stated on its field (Halide's split of algorithm from schedule).
 
-The renderer runs on numba's ``prange``: its plan's ``threads`` is applied with
-:func:`numba.set_num_threads` for the duration of the call (:func:`threads_for`). Registration
-takes ``threads`` numba threads of its own (the caller and helpers sharing tasks through an atomic
-counter; see :mod:`pcdof.stages.register` for why it does not use ``prange``).
+The renderer's plan's ``threads`` is applied with :func:`numba.set_num_threads` for the duration of
+the call (:func:`threads_for`), and its kernels run as tasks on that many threads (the caller and
+helpers sharing tasks through an atomic counter, :mod:`pcdof.runtime.tasks`). Registration takes
+``threads`` threads of its own the same way (see :mod:`pcdof.stages.register` for why not ``prange``).
 """
 
 from __future__ import annotations

@@ -36,7 +36,7 @@ STAGES = {
 #: CPU seconds each stage's ``warmup()`` takes to compile with an empty cache, measured on the project's 2-core
 #: machine with ``scripts/profile_compile.py`` (each stage in a fresh interpreter; other load on the cores adds
 #: 10-30 %); only for the estimate printed before compiling and for sharing the stages out (``_compile_groups``).
-COMPILE_CPU_S = {"register": 13.0, "fill": 23.0, "render": 34.0}
+COMPILE_CPU_S = {"register": 13.0, "fill": 23.0, "render": 24.0}
 
 #: stages this process has checked (or compiled): each is checked once per process
 _checked: set = set()

@@ -2,9 +2,10 @@
 until all are taken (:func:`claim`), the calling thread and helper threads of a kept pool alike
 (:func:`run_tasks`). numba releases the GIL in the kernels (``nogil=True``).
 
-This is how the registration and the fill run their kernels on several threads instead of numba's
-``prange``: the run time is the same, and numba compiles a ``prange`` loop's parallel machinery, about
-1 s of CPU per kernel, on the first run after an install (``docs/developing.md``, "Threading").
+This is how the registration, the fill and the renderer run their kernels on several threads instead of
+numba's ``prange``: the run time is the same or better, and numba compiles a ``prange`` loop's parallel
+machinery, about 1 s of CPU per kernel, on the first run after an install (``docs/developing.md``,
+"Threading").
 """
 
 from __future__ import annotations

@@ -34,7 +34,7 @@ bands are drawn. How they run (threads, chunks, bands, the small-quad kernel) is
 thread and ``plan.threads - 1`` helper threads take chunks and bands from an atomic counter and
 wait for each other in the operating system, without spinning. So when another process keeps a
 core busy, the threads that do get a CPU take over the remaining work instead of waiting,
-spinning, for one that does not. (The renderer uses numba's ``prange``; here it would
+spinning, for one that does not. (numba's ``prange`` would also
 compile the drawing kernel about 2.5 times slower, a cost paid at the first run after every
 install, for the same speed once compiled.) :func:`warmup` compiles (or loads from numba's
 cache) the kernels and starts the helper threads up front.

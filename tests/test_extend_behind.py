@@ -10,6 +10,7 @@ whole windows copied, masks and index arrays built in full.
 from __future__ import annotations
 
 import math
+from unittest import mock
 
 import cv2
 import hypothesis.strategies as st
@@ -165,6 +166,42 @@ def test_extension_in_strips_is_the_whole_windows(seed):
     if whole is not None:
         for g, x in zip(strips, whole):
             np.testing.assert_array_equal(g, x)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), threads=st.integers(2, 5))
+def test_extension_in_strips_on_threads_is_the_whole_windows(seed, threads):
+    """Cut into strips for threads (every window: the threshold lowered to nothing), decided at once, the
+    nearest pixels found are the whole window's, in the same order."""
+    _, layer, li, box, hidden, reach = _layer_case(seed)
+    member = layer[box] == li
+    whole = renderer.extend.behind_sources(member, hidden, reach, strip_px=1 << 40)
+    with mock.patch.object(renderer.extend, "THREADED_WINDOW_PX", 0):
+        for strip_px in (1 << 40, 1):
+            found = renderer.extend.behind_sources(member, hidden, reach, strip_px=strip_px, threads=threads)
+            assert (whole is None) == (found is None)
+            if whole is not None:
+                for g, x in zip(found, whole):
+                    np.testing.assert_array_equal(g, x)
+
+
+def test_a_large_window_is_cut_into_strips_for_threads():
+    """A layer beside a wide hidden band (0.6 megapixels): on two threads its window is decided in two strips
+    or more, at once, with the one thread's answer."""
+    h, w = 600, 1000
+    member = np.zeros((h, w), bool)
+    member[:, :40] = True
+    hidden = np.zeros((h, w), bool)
+    hidden[:, 40:] = True
+    calls = []
+    real = renderer.extend.cv2.distanceTransformWithLabels
+    with mock.patch.object(renderer.extend.cv2, "distanceTransformWithLabels",
+                           side_effect=lambda *a, **k: calls.append(a[0].shape) or real(*a, **k)):
+        two = renderer.extend.behind_sources(member, hidden, 30.0, threads=2)
+    one = renderer.extend.behind_sources(member, hidden, 30.0, threads=1)
+    assert len(calls) >= 2 and all(s[0] < h for s in calls)
+    for g, x in zip(two, one):
+        np.testing.assert_array_equal(g, x)
 
 
 @settings(max_examples=300, deadline=None)

@@ -10,6 +10,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from ...runtime.tasks import task_pool
+
 
 @njit(cache=True)
 def _copy_pixels(lin, radius, member, dst, src):
@@ -63,12 +65,15 @@ def _nearest_members(member, hidden, y0, x0, dist, labels, n_members, reach_px, 
     return dst[:i], src[:i]
 
 
+#: Pixels of the smallest window :func:`behind_sources` cuts into strips for threads (a transform of 0.5
+#: megapixels takes about 5 ms: less would not pay for a thread)
+THREADED_WINDOW_PX = 1 << 19
 #: Pixels of the largest window one transform of :func:`behind_sources` takes whole (about 40 MB for its distances,
 #: labels and seeds); a larger one is cut into strips of rows that each decide this many pixels or more
 STRIP_WINDOW_PX = 1 << 22
 
 
-def behind_sources(member, hidden, reach_px, strip_px: int = STRIP_WINDOW_PX):
+def behind_sources(member, hidden, reach_px, strip_px: int = STRIP_WINDOW_PX, threads: int = 1):
     """Where :func:`extend_layer_behind` extends a layer: (dst, src), int64 flat indices into the (H, W) box of
     the *hidden* pixels within *reach_px* (OpenCV's 5x5 chamfer distance) of a pixel of *member* and of
     that nearest pixel (ties in OpenCV's scan order), or None when there is none.
@@ -78,8 +83,11 @@ def behind_sources(member, hidden, reach_px, strip_px: int = STRIP_WINDOW_PX):
     is cut into strips of rows, each decided by the transform of its rows widened by the reach (a frame's
     whole background layer at 48 megapixels would otherwise hold gigabytes of transform at once): a pixel's
     nearest member within reach and the shortest chamfer path to it lie in the rectangle they span, inside the
-    strip's window, so each answer is the whole window's (tests/test_extend_behind.py checks it). A member
-    pixel is its own nearest, so copying it would change nothing: *dst* holds no member pixel.
+    strip's window, so each answer is the whole window's (tests/test_extend_behind.py checks it). With
+    *threads* > 1 a window of at least :data:`THREADED_WINDOW_PX` is cut into that many strips or more, no
+    thinner than four times the reach, decided on threads at once (OpenCV and the kernel release the GIL;
+    together they hold no more than *strip_px* pixels of transform). A member pixel is its own nearest, so
+    copying it would change nothing: *dst* holds no member pixel.
     """
     rows = np.flatnonzero(hidden.any(axis=1))
     if rows.size == 0:
@@ -89,21 +97,36 @@ def behind_sources(member, hidden, reach_px, strip_px: int = STRIP_WINDOW_PX):
     h, w = member.shape
     x0, x1 = max(0, int(cols[0]) - pad), min(w, int(cols[-1]) + pad + 1)
     first, last = int(rows[0]), int(rows[-1]) + 1
-    step = max(4 * pad, -(-strip_px // (x1 - x0)))
+    threads = max(1, int(threads)) if (last - first) * (x1 - x0) >= THREADED_WINDOW_PX else 1
+    step = max(4 * pad, -(-strip_px // (threads * (x1 - x0))))
+    if threads > 1:
+        step = min(step, max(4 * pad, -(-(last - first) // threads)))
     member, hidden = np.ascontiguousarray(member, bool), np.ascontiguousarray(hidden, bool)
-    parts = []
-    for r0 in range(first, last, step):
+
+    def strip(r0):
         r1 = min(last, r0 + step)
         y0 = max(0, r0 - pad)
         win = (slice(y0, min(h, r1 + pad)), slice(x0, x1))
         m_win = member[win]
         n_members = int(np.count_nonzero(m_win))
         if n_members == 0:
-            continue
+            return None
         dist, labels = cv2.distanceTransformWithLabels(np.logical_not(m_win).view(np.uint8), cv2.DIST_L2, 5,
                                                        labelType=cv2.DIST_LABEL_PIXEL)
-        parts.append(_nearest_members(member, hidden, y0, x0, dist, labels, n_members, float(reach_px), (r0, r1)))
-        del dist, labels
+        return _nearest_members(member, hidden, y0, x0, dist, labels, n_members, float(reach_px), (r0, r1))
+
+    starts = list(range(first, last, step))
+    if threads > 1 and len(starts) > 1:
+        pool = task_pool()
+        found = [None] * len(starts)
+        for i in range(0, len(starts), threads):  # at most *threads* transforms held at once
+            batch = [pool.submit(strip, r0) for r0 in starts[i + 1:i + threads]]
+            found[i] = strip(starts[i])
+            for j, f in enumerate(batch):
+                found[i + 1 + j] = f.result()
+    else:
+        found = [strip(r0) for r0 in starts]
+    parts = [p for p in found if p is not None]
     if not parts:
         return None
     dst, src = (parts[0] if len(parts) == 1 else (np.concatenate([p[0] for p in parts]),

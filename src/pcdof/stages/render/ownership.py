@@ -275,7 +275,7 @@ def continued_pixels(frame: RenderFrame, canvas: Canvas, li: int, box, bbox, rea
     threads = frame.plan.threads if hidden.size >= 200_000 else 1
     found = owners_of_hidden(frame.layer, li, box, bbox, hidden, reach_px, cell_px, threads, frame.across)
     if isinstance(found, np.ndarray):  # their nearest pixels of the layer still to be found
-        found = behind_sources(frame.layer[box] == li, found, reach_px)
+        found = behind_sources(frame.layer[box] == li, found, reach_px, threads=threads)
         return None if found is None else Behind(*found)
     if found is None:
         return None

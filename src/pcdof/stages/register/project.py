@@ -7,8 +7,9 @@ import numpy as np
 from numba import njit
 
 from ...distortion import distort_point, unpack
+from ...runtime.tasks import next_chunk
 from .constants import FASTMATH, WHOLE
-from .tasks import next_chunk, run_tasks
+from .tasks import run_tasks
 
 #: Colour-frame z below which a point counts as being on or behind the colour camera.
 _MIN_Z_M = 1e-6

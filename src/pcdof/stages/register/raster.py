@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ...runtime.tasks import next_chunk
 from .constants import FASTMATH, MAX_PRIMITIVE_PX, WHOLE
-from .tasks import next_chunk, run_tasks
+from .tasks import run_tasks
 from .triangles import draw_quad
 
 

@@ -4,11 +4,8 @@ helper threads that wait for each other in the operating system, without spinnin
 
 from __future__ import annotations
 
-from ...runtime.tasks import next_chunk, task_pool
+from ...runtime.tasks import task_pool
 from ...runtime.tasks import run_tasks as _run_in_pool
-
-
-__all__ = ["next_chunk", "run_tasks", "thread_pool"]
 
 
 def thread_pool():

@@ -3,6 +3,7 @@
 #   make demo-batch  - render the bundled sequence with a focus pull into out/demo-batch/ (frames and a video)
 #   make test        - set everything up, run the test suite
 #   make docs        - build the documentation site into out/site (mkdocs --strict)
+#   make blender     - Blender (bpy) in .venv-blender, so that `make bench` adds its Defocus node as a peer
 # Each step says what it does, how long it took last time on a 2-core machine, and how long it took now.
 PYTHON ?= python3
 VENV   := .venv
@@ -12,7 +13,7 @@ STAMP  := $(VENV)/.installed
 SHELL  := /bin/bash
 .SHELLFLAGS := -o pipefail -c
 
-.PHONY: demo demo-batch test test-slow bench stress setup sysdeps chromium docs clean clean-kernels
+.PHONY: demo demo-batch test test-slow bench blender stress setup sysdeps chromium docs clean clean-kernels
 
 # $(call timed,WHAT,COMMAND): run COMMAND between a line saying what it does and one saying how long it took
 timed = t0=$$(date +%s); echo "==> $(1)"; $(2) && echo "==> done in $$(( $$(date +%s) - t0 )) s"
@@ -75,8 +76,20 @@ test: setup chromium
 test-slow: setup
 	$(PY) -m pytest -q -m slow
 
+# Blender's compositor as a benchmark peer (optional): bpy pins numpy below 2, which pcdof's OpenCV does not
+# accept, so it gets an environment of its own; `make bench` uses it when it is there
+BLENDER_VENV := .venv-blender
+BLENDER_PY   := $(BLENDER_VENV)/bin/python
+BPY          := bpy>=4.2,<5.1
+
 bench: setup
-	$(VENV)/bin/pcdof bench -o out/bench
+	$(if $(wildcard $(BLENDER_PY)),PCDOF_BLENDER_PYTHON=$(abspath $(BLENDER_PY))) $(VENV)/bin/pcdof bench -o out/bench
+
+blender:
+	@test -x $(BLENDER_PY) || { echo "==> creating $(BLENDER_VENV) (bpy needs Python 3.11)"; python3.11 -m venv $(BLENDER_VENV); }
+	@$(call ticking,installing Blender as a Python module (bpy) into $(BLENDER_VENV) (about 400 MB; 30 s on a fast line),\
+	  $(BLENDER_PY) -m pip install --progress-bar off '$(BPY)' | { grep --line-buffered -E '^(Collecting|Installing|Successfully)' || true; })
+	@echo "benchmarks add Blender's Defocus node with: export PCDOF_BLENDER_PYTHON=$(abspath $(BLENDER_PY))"
 
 stress: setup
 	$(PY) scripts/stress --cases 10000

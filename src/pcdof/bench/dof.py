@@ -26,7 +26,7 @@ import numpy as np
 from ..color import linear_to_srgb, to_float
 from ..lens import PaperLens, ThinLens
 from ..metrics import depth_edge_band, psnr, ssim_map
-from . import check_repeats, check_scenes, plot_to
+from . import blender, check_repeats, check_scenes, plot_to
 
 #: f-number multipliers of the scene's own lens: the benchmark's lens settings
 SETTINGS = {"wide": 1.0, "stopped-down": 2.5}
@@ -68,10 +68,21 @@ def _baseline(sf, lens):
     return render_baseline(sf.frame, lens)
 
 
+def _blender(sf, lens):
+    from .blender import render_blender
+
+    return render_blender(sf, lens)
+
+
+#: the peers every table compares pcdof with: the seed paper's method, the gather baseline and, when an
+#: interpreter with Blender is at hand (:func:`pcdof.bench.blender.available`), Blender's Defocus node
+PEERS = ("paper", "baseline", *((blender.NAME,) if blender.available() else ()))
+
 METHODS = {
     **{f"pcdof-{q}": Method(f"pcdof-{q}", _physical(q)) for q in ("exact", "high", "balanced", "fast")},
     "paper": Method("paper", _paper),
     "baseline": Method("baseline", _baseline),
+    **({blender.NAME: Method(blender.NAME, _blender)} if blender.NAME in PEERS else {}),
 }
 
 
@@ -189,9 +200,10 @@ def markdown_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def compact_table(rows: list[dict], ours: str = "pcdof-balanced", others=("paper", "baseline")) -> str:
-    """One line per scene and lens setting: PSNR overall / edge band and time of *ours* and *others*,
-    and the margin of *ours* over the best of the others (dB, overall / edge band)."""
+def compact_table(rows: list[dict], ours: str = "pcdof-balanced", others=None) -> str:
+    """One line per scene and lens setting: PSNR overall / edge band and time of *ours* and *others* (default:
+    the :data:`PEERS` in *rows*), and the margin of *ours* over the best of the others (dB, overall / edge band)."""
+    others = peers_in(rows) if others is None else others
     head = f"| scene | setting | max CoC px | {ours} dB (edge) ms | " + " | ".join(
         f"{o} dB (edge) ms" for o in others) + " | margin dB (edge) |"
     lines = [head, "|" + "---|" * (5 + len(others))]
@@ -216,6 +228,12 @@ def compact_table(rows: list[dict], ours: str = "pcdof-balanced", others=("paper
     return "\n".join(lines)
 
 
+def peers_in(rows: list[dict]) -> tuple[str, ...]:
+    """The peers of :data:`PEERS` (and Blender's, whatever this machine has) that *rows* hold, in that order."""
+    there = {r["method"] for r in rows}
+    return tuple(p for p in ("paper", "baseline", blender.NAME) if p in there)
+
+
 def summary_table(rows: list[dict]) -> str:
     """Per method over all scenes and settings: mean PSNR, mean edge-band PSNR, mean SSIM, median ms."""
     lines = ["| method | mean PSNR dB | mean PSNR edge band dB | mean SSIM | median ms |", "|---|---|---|---|---|"]
@@ -227,7 +245,7 @@ def summary_table(rows: list[dict]) -> str:
 #: one colour and marker per method (colour-blind-safe palette), reused by the other bench plots
 STYLE = {"pcdof-exact": ("#4477aa", "o"), "pcdof-high": ("#66ccee", "s"), "pcdof-balanced": ("#228833", "D"),
          "pcdof-fast": ("#ccbb44", "^"), "pcdof-balanced+hl": ("#aa3377", "P"), "paper": ("#ee6677", "v"),
-         "baseline": ("#555555", "X")}
+         "baseline": ("#555555", "X"), blender.NAME: ("#ee7733", "h")}
 
 
 def method_style(name: str, index: int) -> tuple[str, str]:

@@ -35,6 +35,7 @@ from ..color import decode_to_linear, linear_to_srgb, to_float
 from ..errors import InputError
 from ..metrics import depth_edge_band
 from . import plot_to
+from .dof import PEERS, peers_in
 
 #: frame width (px) at which :data:`BLURS_PX` are given; a run at another width scales them with it
 REFERENCE_WIDTH_PX = 640
@@ -66,11 +67,11 @@ class Variant:
     quality: str = "balanced"
 
 
-#: pcdof rows of the main table (measured input); "paper" and "baseline" come from :mod:`pcdof.bench.dof`
+#: pcdof rows of the main table (measured input); the peers (:data:`pcdof.bench.dof.PEERS`) come from :mod:`pcdof.bench.dof`
 PCDOF_METHODS = {f"pcdof-{q}": Variant(quality=q) for q in ("exact", "high", "balanced", "fast")}
 PCDOF_METHODS["pcdof-balanced+hl"] = Variant(highlights=HIGHLIGHTS)
 #: methods of the main table
-WIDE_METHODS = (*PCDOF_METHODS, "paper", "baseline")
+WIDE_METHODS = (*PCDOF_METHODS, *PEERS)
 #: error-budget variants (pcdof exact); "+hl": with highlight reconstruction (run_wide's *highlights*)
 BUDGET = {"measured": Variant(quality="exact"), "measured+hl": Variant(highlights=HIGHLIGHTS, quality="exact"),
           "true depth": Variant(True, quality="exact"),
@@ -380,8 +381,10 @@ def budget_table(rows: list[dict], highlights=HIGHLIGHTS) -> str:
     return "\n".join(lines)
 
 
-def losses_table(rows: list[dict], ours: str = "pcdof-balanced", others=("paper", "baseline")) -> str:
-    """Every case where *ours* scores below one of *others* (overall or edge band), with the margin."""
+def losses_table(rows: list[dict], ours: str = "pcdof-balanced", others=None) -> str:
+    """Every case where *ours* scores below one of *others* (default: the peers in *rows*, :func:`pcdof.bench.dof.peers_in`),
+    overall or in the edge band, with the margin."""
+    others = peers_in(rows) if others is None else others
     lines = [f"| scene | seed | focus | blur px | {ours} dB (edge) | best other dB (edge) | margin dB (edge) |",
              "|---|---|---|---|---|---|---|"]
     cases = _by_case(rows)

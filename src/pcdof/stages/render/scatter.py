@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ...runtime.tasks import claim, run_tasks
+from ...runtime.tasks import claim, next_chunk, run_tasks
 from ...runtime.threads import current_threads
 from . import serial
 from .aperture import RenderAperture, cumulative_at
@@ -204,39 +204,69 @@ def _scatter_rows(ya, yb, xs, radius, values, offsets, width, reach, n_max, symm
             row[x, 3] += r3
 
 
-@njit(cache=True)
+#: rows of a task of :func:`pack_sources` (tasks on the threads: :func:`pcdof.runtime.tasks.run_tasks`)
+PACK_ROWS = 32
+
+
 def pack_sources(lin, radius, member, share, unit_area, min_radius):
     """The member pixels as scatter sources, in row-major order.
 
     Returns column (float32), footprint radius (at least *min_radius*), values (colour zero-padded
     to 3 channels, then coverage 1, all times share / footprint area: (N, 4) float32) and per-row
-    offsets (H + 1,) so that row y's sources are offsets[y]:offsets[y+1].
+    offsets (H + 1,) so that row y's sources are offsets[y]:offsets[y+1]. Rows are counted, then packed,
+    in tasks of :data:`PACK_ROWS` rows on the threads (the same values whatever the split).
     """
-    h, w, nc = lin.shape
+    h, w = member.shape
+    n_tasks = -(-h // PACK_ROWS)
+    threads = 1 if h * w < serial.SERIAL_BELOW_PX else current_threads()
     offsets = np.zeros(h + 1, np.int64)
-    for y in range(h):
-        n = 0
-        for x in range(w):
-            if member[y, x]:
-                n += 1
-        offsets[y + 1] = offsets[y] + n
-    total = offsets[h]
+    run_tasks(_count_tasks, threads, n_tasks, member, offsets)
+    np.cumsum(offsets, out=offsets)
+    total = int(offsets[h])
     xs = np.empty(total, np.float32)
     src_r = np.empty(total, np.float32)
     values = np.zeros((total, 4), np.float32)
-    k = 0
-    for y in range(h):
-        for x in range(w):
-            if member[y, x]:
-                r = max(radius[y, x], min_radius)
-                weight = share[y, x] / (unit_area * r * r)  # each source spreads exactly its own energy
-                xs[k] = x
-                src_r[k] = r
-                for c in range(nc):
-                    values[k, c] = lin[y, x, c] * weight
-                values[k, 3] = weight
-                k += 1
+    run_tasks(_pack_tasks, threads, n_tasks, lin, radius, member, share, unit_area, min_radius, offsets, xs, src_r,
+              values)
     return xs, src_r, values, offsets
+
+
+@njit(cache=True, nogil=True)
+def _count_tasks(counter, n_tasks, member, counts):
+    """:func:`pack_sources`' first pass: ``counts[y + 1]`` = the members of row y, in tasks of rows."""
+    h, w = member.shape
+    while True:
+        ya, yb = next_chunk(counter, n_tasks, PACK_ROWS, h)
+        if ya < 0:
+            return
+        for y in range(ya, yb):
+            n = 0
+            for x in range(w):
+                if member[y, x]:
+                    n += 1
+            counts[y + 1] = n
+
+
+@njit(cache=True, nogil=True)
+def _pack_tasks(counter, n_tasks, lin, radius, member, share, unit_area, min_radius, offsets, xs, src_r, values):
+    """:func:`pack_sources`' second pass: row y's members written from ``offsets[y]`` on, in tasks of rows."""
+    h, w, nc = lin.shape
+    while True:
+        ya, yb = next_chunk(counter, n_tasks, PACK_ROWS, h)
+        if ya < 0:
+            return
+        for y in range(ya, yb):
+            k = offsets[y]
+            for x in range(w):
+                if member[y, x]:
+                    r = max(radius[y, x], min_radius)
+                    weight = share[y, x] / (unit_area * r * r)  # each source spreads exactly its own energy
+                    xs[k] = x
+                    src_r[k] = r
+                    for c in range(nc):
+                        values[k, c] = lin[y, x, c] * weight
+                    values[k, 3] = weight
+                    k += 1
 
 
 def scatter_sources(grid: Grid, scattered, aperture: RenderAperture, buf) -> int:

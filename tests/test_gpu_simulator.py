@@ -164,6 +164,20 @@ def test_coc_matches_reference():
 
 
 @sim_only
+def test_clamped_window_widens_with_edges_and_cuts_back():
+    from pcdof.gpu.launch import to_device
+    from pcdof.gpu.render import clamped_window
+
+    rgb = np.arange(5 * 6 * 3, dtype=np.float32).reshape(5, 6, 3)
+    wide = clamped_window(to_device(rgb), -2, -2, (9, 10))
+    np.testing.assert_array_equal(wide.copy_to_host(), np.pad(rgb, ((2, 2), (2, 2), (0, 0)), mode="edge"))
+    np.testing.assert_array_equal(clamped_window(wide, 2, 2, (5, 6)).copy_to_host(), rgb)
+    grey = rgb[..., 0].copy()
+    np.testing.assert_array_equal(clamped_window(to_device(grey), -1, -1, (7, 8)).copy_to_host(),
+                                  np.pad(grey, 1, mode="edge"))
+
+
+@sim_only
 @pytest.mark.parametrize("distorted", [False, True])
 def test_register_matches_reference(distorted):
     from pcdof.gpu.register import register_depth

@@ -599,3 +599,36 @@ def test_reference_linear_light_round_trip():
     out = ref_render.render_physical(color, np.full((8, 9), 2.0, np.float32), lens, fx=50.0)
     np.testing.assert_allclose(out, color / 255.0, atol=1e-7)  # in focus everywhere: the input
     assert decode_to_linear(color).dtype == np.float32
+
+
+class TestFrameBorder:
+    """Beyond the frame the scene continues its edge pixels (pcdof.stages.render.border)."""
+
+    @pytest.mark.parametrize("module", ["renderer", "reference"])
+    def test_a_pattern_running_out_of_the_frame_blurs_as_inside(self, module):
+        # every column constant: replicating the top and bottom rows continues it exactly, so the blurred
+        # border rows equal the middle rows (averaging only the inside would weight the columns differently)
+        rng = np.random.default_rng(3)
+        columns = (rng.random((1, 40, 3)) < 0.5).astype(np.uint8) * 255
+        color = np.repeat(columns, 30, axis=0)
+        depth = np.full((30, 40), 4.0, np.float32)
+        lens = ThinLens(focal_length_mm=50, f_number=1.4, focus_distance_m=1.0)
+        fx = 400.0
+        assert lens.coc_px(depth, fx).max() > 8  # a blur that reaches well past the border rows
+        if module == "renderer":
+            out = renderer.render_physical(color, depth, lens, fx=fx, quality="exact")[0].astype(np.float64) / 255
+        else:
+            out = ref_render.render_physical(color, depth, lens, fx=fx)
+        np.testing.assert_allclose(out[0], out[15], atol=0.5 / 255)
+        np.testing.assert_allclose(out[-1], out[15], atol=0.5 / 255)
+
+    def test_replicate_border(self):
+        from pcdof.stages.render.border import border_px, replicate_border
+
+        a = np.arange(12, dtype=np.float32).reshape(3, 4)
+        np.testing.assert_array_equal(replicate_border(a, 2), np.pad(a, 2, mode="edge"))
+        rgb = np.arange(24, dtype=np.float32).reshape(2, 4, 3)
+        np.testing.assert_array_equal(replicate_border(rgb, 1), np.pad(rgb, ((1, 1), (1, 1), (0, 0)), mode="edge"))
+        one = np.ones((2, 3, 1), np.float32)
+        assert replicate_border(one, 2).shape == (6, 7, 1)
+        assert border_px(0.0) == 2 and border_px(9.0) == 7

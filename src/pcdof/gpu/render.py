@@ -308,6 +308,28 @@ def classify_layers(signed_coc, stream=0):
     return radius, key_bin, count.copy_to_host(stream=stream), r_max.copy_to_host(stream=stream)
 
 
+@cuda.jit
+def _clamped_window(src, oy, ox, out):
+    """out[y, x, c] = src[y + oy, x + ox, c], the indices clamped to *src* (its edge pixels repeated outward)."""
+    y, x = cuda.grid(2)
+    h, w, nc = src.shape
+    if y < out.shape[0] and x < out.shape[1]:
+        sy = min(max(y + oy, 0), h - 1)
+        sx = min(max(x + ox, 0), w - 1)
+        for c in range(nc):
+            out[y, x, c] = src[sy, sx, c]
+
+
+def clamped_window(image, oy: int, ox: int, shape, stream=0):
+    """The window of *shape* (H', W') at row *oy*, column *ox* of the (H, W) or (H, W, C) device *image*, read
+    with its edge pixels repeated beyond it (negative offsets widen it: :mod:`pcdof.stages.render.border`)."""
+    src = image.reshape(tuple(image.shape) + (1,)) if len(image.shape) == 2 else image
+    out = cuda.device_array(tuple(shape) + (src.shape[2],), src.dtype, stream=stream)
+    blocks, threads = grid_2d(int(shape[0]), int(shape[1]))
+    _clamped_window[blocks, threads, stream](src, int(oy), int(ox), out)
+    return out.reshape(tuple(shape)) if len(image.shape) == 2 else out
+
+
 def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: bool = True, stream=0):
     """Physical depth of field in linear light on the device (the rules of :mod:`pcdof.stages.render.reference`).
 

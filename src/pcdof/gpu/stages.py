@@ -20,14 +20,15 @@ import numpy as np
 from ..camera import RGBDFrame
 from ..errors import InputError
 from ..focus import resolve_lens
-from ..lens import ThinLens, aperture_for
+from ..lens import MAX_COC_PX, ThinLens, aperture_for
 from ..stages.render import SHARP_COC_PX
+from ..stages.render.border import border_px
 from .coc import coc_maps
 from .color import decode, encode
 from .fill import count_holes, fill_depth
 from .launch import thread_stream, to_device
 from .register import register_depth
-from .render import render_layers_linear
+from .render import clamped_window, render_layers_linear
 
 
 class _Stage:
@@ -142,7 +143,14 @@ def _render_physical(frame, color_dev, opts, lens, signed, cmax, source_linear, 
             lin = to_device(np.ascontiguousarray(source_linear, np.float32), stream)
         else:
             lin = decode(color_dev, linear=opts.linear, stream=stream)
-        out_lin, layers = render_layers_linear(lin, signed, aperture_for(lens), stream=stream)
+        # the scene beyond the frame continues its edge pixels: rendered widened, then cut back
+        h, w = frame.color.shape[:2]
+        pad = border_px(min(cmax, MAX_COC_PX))
+        wide = (h + 2 * pad, w + 2 * pad)
+        out_lin, layers = render_layers_linear(clamped_window(lin, -pad, -pad, wide, stream),
+                                               clamped_window(signed, -pad, -pad, wide, stream),
+                                               aperture_for(lens), stream=stream)
+        out_lin = clamped_window(out_lin, pad, pad, (h, w), stream)
         blurred = [l for l in layers if l["key"] != 0]
         rec["reason"] = f"physical, {len(blurred)} blur layers, exact scatter at full resolution"
         rec["detail"]["layers"] = layers

@@ -8,7 +8,9 @@ area-exact, anti-aliased coverage, normalised to carry exactly its energy -- and
 composited front to back with the "over" operator, the layer's coverage being its opacity. So a
 blurred foreground spreads softly over what lies behind it, and an in-focus subject (opaque)
 receives nothing from behind. The result is divided by the accumulated opacity, so every output
-pixel is a convex combination of input pixels: a uniform image stays uniform.
+pixel is a convex combination of input pixels: a uniform image stays uniform. Beyond the frame the
+scene is taken to continue its edge pixels (:mod:`pcdof.stages.render.border`): the frame is rendered
+widened by the reach of its largest blur, its border replicated, and cut back.
 
 The scatter is written as a gather over output rows (each source row's span on that output row),
 so rows run in parallel with no write conflicts and no per-layer image buffers are needed.
@@ -30,6 +32,7 @@ from ...plans import RenderPlan, as_dict, check_quality, check_render_plan, plan
 from ...runtime.threads import threads_for
 from . import classify, composite, serial
 from .aperture import RenderAperture, cached_aperture_table
+from .border import border_px, replicate_border
 from .classify import LAYER_EDGES_PX, SHARP_COC_PX, across_jumps
 from .composite import copy_tiles
 from .extend import NO_PIXELS
@@ -232,9 +235,15 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     src = as_channels(color)
     lin = to_float(src) if linear else decode_to_linear(src)  # read only: the render never writes its input
     tiles = classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
-    out_lin, info = render_layers_linear(np.ascontiguousarray(lin, np.float32), coc,
-                                         aperture=aperture_for(lens),
-                                         quality=quality, tiles=tiles, plan=plan)
+    # the scene beyond the frame continues its edge pixels: rendered widened by the largest reach, then cut back
+    pad = border_px(min(cmax, MAX_COC_PX))
+    wide_lin = replicate_border(np.ascontiguousarray(lin, np.float32), pad)
+    del lin
+    out_lin, info = render_layers_linear(wide_lin, replicate_border(coc, pad), aperture=aperture_for(lens),
+                                         quality=quality, plan=plan)
+    del wide_lin
+    out_lin = np.ascontiguousarray(out_lin[pad:-pad, pad:-pad])
+    info["border_px"] = pad
     if linear:
         out = out_lin if color.dtype.kind == "f" else from_float(out_lin, color.dtype)
         out = out.astype(color.dtype, copy=False)

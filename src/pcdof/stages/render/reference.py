@@ -45,6 +45,7 @@ from ...apertures import Aperture, aperture_from_blades, as_aperture
 from ...color import decode_to_linear, encode_from_linear, to_float
 from ...lens import MAX_COC_PX, aperture_for
 from ..coc.reference import paper_alpha, signed_coc_px
+from .border import border_px
 from .classify import JUMP_COC_PX, LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, SHARP_COC_PX
 
 
@@ -252,7 +253,11 @@ def render_physical(color, depth_m, lens, *, fx: float, linear: bool = False) ->
     if np.abs(coc).max() < SHARP_COC_PX:
         return to_float(src).astype(np.float64)
     lin = to_float(src) if linear else decode_to_linear(src)
-    out = render_layers_linear(lin, coc, aperture=aperture_for(lens))
+    # the scene beyond the frame continues its edge pixels (pcdof.stages.render.border)
+    pad = border_px(min(float(np.abs(coc).max()), MAX_COC_PX))
+    edge = ((pad, pad), (pad, pad))
+    out = render_layers_linear(np.pad(lin, edge + ((0, 0),), mode="edge"), np.pad(coc, edge, mode="edge"),
+                               aperture=aperture_for(lens))[pad:-pad, pad:-pad]
     if linear:
         return out
     return to_float(encode_from_linear(out.astype(np.float32), np.float32)).astype(np.float64)

@@ -178,6 +178,21 @@ def test_clamped_window_widens_with_edges_and_cuts_back():
 
 
 @sim_only
+def test_continued_border_matches_the_cpus():
+    from pcdof.gpu.launch import to_device
+    from pcdof.gpu.render import continued_border
+    from pcdof.stages.render.border import continue_border
+
+    rgb = np.random.default_rng(1).random((6, 7, 3)).astype(np.float32)
+    for pad in (0, 1, 4):
+        np.testing.assert_allclose(continued_border(to_device(rgb), pad).copy_to_host(), continue_border(rgb, pad),
+                                   rtol=1e-6, atol=1e-6)
+    bright = rgb * 3
+    np.testing.assert_allclose(continued_border(to_device(bright), 3, 1.0).copy_to_host(),
+                               continue_border(bright, 3, most=1.0), rtol=1e-6, atol=1e-6)
+
+
+@sim_only
 @pytest.mark.parametrize("distorted", [False, True])
 def test_register_matches_reference(distorted):
     from pcdof.gpu.register import register_depth

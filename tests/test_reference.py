@@ -25,7 +25,7 @@ from pcdof.stages import fill as fast_fill
 from pcdof.stages.fill.directional import fill_directional
 import pcdof.stages.render as renderer
 from pcdof.camera import Intrinsics, Rig
-from pcdof.color import decode_to_linear
+from pcdof.color import decode_to_linear, srgb_to_linear
 from pcdof.lens import PaperLens, ThinLens
 from pcdof.plans import plan_render
 from pcdof.stages.coc import reference as ref_coc
@@ -602,25 +602,51 @@ def test_reference_linear_light_round_trip():
 
 
 class TestFrameBorder:
-    """Beyond the frame the scene continues its edge pixels (pcdof.stages.render.border)."""
+    """What lies beyond the frame is continued from its edge (pcdof.stages.render.border)."""
 
     @pytest.mark.parametrize("module", ["renderer", "reference"])
-    def test_a_pattern_running_out_of_the_frame_blurs_as_inside(self, module):
-        # every column constant: replicating the top and bottom rows continues it exactly, so the blurred
-        # border rows equal the middle rows (averaging only the inside would weight the columns differently)
+    def test_a_pattern_running_out_of_the_frame_blurs_as_if_it_went_on(self, module):
+        # rows of one colour each, running out at the top and bottom: continued from the edge, the frame renders
+        # as the crop of a taller frame whose extra rows repeat the edge rows (rendered here explicitly), away from
+        # the left and right edges (beyond which the continuation mixes the rows)
         rng = np.random.default_rng(3)
-        columns = (rng.random((1, 40, 3)) < 0.5).astype(np.uint8) * 255
-        color = np.repeat(columns, 30, axis=0)
+        rows = (rng.random((30, 1, 3)) < 0.5).astype(np.uint8) * 255
+        color = np.repeat(rows, 40, axis=1)
         depth = np.full((30, 40), 4.0, np.float32)
         lens = ThinLens(focal_length_mm=50, f_number=1.4, focus_distance_m=1.0)
         fx = 400.0
-        assert lens.coc_px(depth, fx).max() > 8  # a blur that reaches well past the border rows
+        coc = lens.signed_coc_px(depth, fx)
+        assert np.abs(coc).max() > 8  # a blur that reaches well past the border rows
+        m = 20
+        tall = np.pad(decode_to_linear(color), ((m, m), (m, m), (0, 0)), mode="edge")
+        want, _ = renderer.render_layers_linear(tall, np.pad(coc, m, mode="edge"), quality="exact")
+        want = want[m:-m, m:-m][:, 12:28]
         if module == "renderer":
-            out = renderer.render_physical(color, depth, lens, fx=fx, quality="exact")[0].astype(np.float64) / 255
+            got = decode_to_linear(renderer.render_physical(color, depth, lens, fx=fx, quality="exact")[0])[:, 12:28]
+            np.testing.assert_allclose(got, want, atol=5e-3)  # half an 8-bit code near white
         else:
-            out = ref_render.render_physical(color, depth, lens, fx=fx)
-        np.testing.assert_allclose(out[0], out[15], atol=0.5 / 255)
-        np.testing.assert_allclose(out[-1], out[15], atol=0.5 / 255)
+            got = srgb_to_linear(ref_render.render_physical(color, depth, lens, fx=fx))[:, 12:28]
+            np.testing.assert_allclose(got, want, atol=5e-3)  # the fast renderer and the reference agree to that
+        # without the continuation the border rows differ by several codes
+        inside, _ = renderer.render_layers_linear(decode_to_linear(color), coc, quality="exact")
+        assert np.abs(inside[0, 12:28] - want[0]).max() > 0.01
+
+    def test_the_continuation_is_the_mean_along_the_edge(self):
+        from pcdof.stages.render.border import continue_border
+
+        a = np.random.default_rng(0).random((7, 9, 3)).astype(np.float32)
+        for p in (0, 1, 3, 12):
+            got = continue_border(a, p)
+            assert got.shape == (7 + 2 * p, 9 + 2 * p, 3)
+            np.testing.assert_array_equal(got[p:p + 7, p:p + 9], a)
+            if p:
+                np.testing.assert_allclose(got, ref_render._continued(a, p), atol=1e-6)
+                bright = continue_border(a * 3, p, most=1.0)
+                np.testing.assert_allclose(bright, ref_render._continued(a * 3, p, 1.0), atol=1e-6)
+                np.testing.assert_array_equal(bright[p:p + 7, p:p + 9], a * 3)  # the frame itself is not capped
+                assert bright[:p].max() <= 1.0 and bright[:, :p].max() <= 1.0
+            if p >= 2:
+                np.testing.assert_allclose(got[p - 2, p + 4], a[0, 2:7].mean(axis=0), atol=1e-6)  # 2 rows up: 5 px
 
     def test_replicate_border(self):
         from pcdof.stages.render.border import border_px, replicate_border
@@ -632,3 +658,41 @@ class TestFrameBorder:
         one = np.ones((2, 3, 1), np.float32)
         assert replicate_border(one, 2).shape == (6, 7, 1)
         assert border_px(0.0) == 2 and border_px(9.0) == 7
+
+
+class TestBorderAboveWhite:
+    def test_light_above_white_is_continued_only_without_a_limit(self):
+        lin = np.full((24, 32, 3), 0.2, np.float32)
+        lin[0, 14:18] = 20.0  # a lamp cut by the top edge
+        depth = np.full((24, 32), 4.0, np.float32)
+        lens = ThinLens(focal_length_mm=50, f_number=1.4, focus_distance_m=1.0)
+        fx = float(9.0 / (lens.aperture_m * 0.75))
+        assert abs(float(lens.coc_px(depth, fx).max()) - 9.0) < 1e-3
+        free = renderer.render_physical(lin, depth, lens, fx=fx, linear=True, quality="exact")[0]
+        capped = renderer.render_physical(lin, depth, lens, fx=fx, linear=True, quality="exact", border_most=1.0)[0]
+        assert capped[:3, 10:22].sum() < 0.8 * free[:3, 10:22].sum()  # the lamp is not repeated above the frame
+        np.testing.assert_allclose(capped[12:, :], free[12:, :], atol=1e-6)  # out of the margin's reach: the same
+
+    def test_the_pipeline_limits_it_where_the_highlights_stage_estimated_it(self, monkeypatch):
+        import pcdof.stages.render as render_pkg
+        from pcdof.camera import RGBDFrame
+        from pcdof.pipeline import run as run_pipeline
+        from pcdof.synth.rig import pinhole
+
+        seen = []
+        real = render_pkg.render_image
+
+        def spy(*args, **kwargs):
+            seen.append(kwargs.get("border_most"))
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(render_pkg, "render_image", spy)
+        color = np.full((40, 60, 3), 90, np.uint8)
+        color[0:3, 20:26] = 255  # clipped: the highlights stage estimates light above white there
+        rig = Rig.registered(pinhole((60, 40), 60.0), max_range_m=10.0)
+        depth = np.full((40, 60), 4.0, np.float32)
+        lens = ThinLens(focal_length_mm=50, f_number=1.4, focus_distance_m=1.0)
+        frame = RGBDFrame(color, depth, rig)
+        run_pipeline(frame, lens)
+        run_pipeline(frame, lens, highlights="off")
+        assert seen == [1.0, None]

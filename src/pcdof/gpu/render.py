@@ -330,6 +330,59 @@ def clamped_window(image, oy: int, ox: int, shape, stream=0):
     return out.reshape(tuple(shape)) if len(image.shape) == 2 else out
 
 
+@cuda.jit
+def _continue_rows(lin, pad, most, out):
+    """The middle columns of :func:`continued_border`: the image, and above and below it the mean of the edge row's
+    pixels within d of each one's column, d rows beyond the edge, at most *most*."""
+    y, x = cuda.grid(2)
+    h, w, nc = lin.shape
+    if y >= h + 2 * pad or x >= w:
+        return
+    if pad <= y < pad + h:
+        for c in range(nc):
+            out[y, x + pad, c] = lin[y - pad, x, c]
+        return
+    row, d = (0, pad - y) if y < pad else (h - 1, y - pad - h + 1)
+    lo, hi = max(0, x - d), min(w, x + d + 1)
+    for c in range(nc):
+        acc = 0.0
+        for i in range(lo, hi):
+            acc += lin[row, i, c]
+        out[y, x + pad, c] = min(acc / (hi - lo), most)
+
+
+@cuda.jit
+def _continue_columns(pad, most, out):
+    """The columns left and right of the middle ones (:func:`_continue_rows`), from its first and last column, at
+    most *most*."""
+    y, x = cuda.grid(2)
+    hh, ww, nc = out.shape
+    if y >= hh or x >= 2 * pad:
+        return
+    col, d, dst = (pad, pad - x, x) if x < pad else (ww - pad - 1, x - pad + 1, ww - pad + x - pad)
+    lo, hi = max(0, y - d), min(hh, y + d + 1)
+    for c in range(nc):
+        acc = 0.0
+        for i in range(lo, hi):
+            acc += out[i, col, c]
+        out[y, dst, c] = min(acc / (hi - lo), most)
+
+
+def continued_border(lin, pad: int, most: float | None = None, stream=0):
+    """The (H, W, C) device image *lin* widened by *pad* on every side, its colour beyond the edge continued (no
+    brighter than *most*, None: no limit) as :func:`pcdof.stages.render.border.continue_border` says:
+    (H + 2 pad, W + 2 pad, C) float32 device array."""
+    h, w, nc = lin.shape
+    cap = np.float32(np.inf if most is None else most)
+    out = cuda.device_array((h + 2 * pad, w + 2 * pad, nc), np.float32, stream=stream)
+    blocks, threads = grid_2d(h + 2 * pad, w)
+    _continue_rows[blocks, threads, stream](lin, int(pad), cap, out)
+    if pad > 0:
+        blocks, threads = grid_2d(h + 2 * pad, 2 * pad)
+        _continue_columns[blocks, threads, stream](int(pad), cap, out)
+    return out
+
+
 def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: bool = True, stream=0):
     """Physical depth of field in linear light on the device (the rules of :mod:`pcdof.stages.render.reference`).
 

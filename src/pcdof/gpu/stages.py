@@ -28,7 +28,7 @@ from .color import decode, encode
 from .fill import count_holes, fill_depth
 from .launch import thread_stream, to_device
 from .register import register_depth
-from .render import clamped_window, render_layers_linear
+from .render import clamped_window, continued_border, render_layers_linear
 
 
 class _Stage:
@@ -143,11 +143,13 @@ def _render_physical(frame, color_dev, opts, lens, signed, cmax, source_linear, 
             lin = to_device(np.ascontiguousarray(source_linear, np.float32), stream)
         else:
             lin = decode(color_dev, linear=opts.linear, stream=stream)
-        # the scene beyond the frame continues its edge pixels: rendered widened, then cut back
+        # what lies beyond the frame is continued from its edge: rendered widened, then cut back
         h, w = frame.color.shape[:2]
         pad = border_px(min(cmax, MAX_COC_PX))
         wide = (h + 2 * pad, w + 2 * pad)
-        out_lin, layers = render_layers_linear(clamped_window(lin, -pad, -pad, wide, stream),
+        # light above white estimated by the highlights stage is not continued beyond the frame
+        most = 1.0 if source_linear is not None else None
+        out_lin, layers = render_layers_linear(continued_border(lin, pad, most, stream),
                                                clamped_window(signed, -pad, -pad, wide, stream),
                                                aperture_for(lens), stream=stream)
         out_lin = clamped_window(out_lin, pad, pad, (h, w), stream)

@@ -2,7 +2,7 @@
 
 Two renderers with one signature, registered in :data:`METHODS` (:mod:`.methods`)::
 
-    fn(color, depth_m, lens, *, fx, max_range_m, linear, quality, signed_coc, plan) -> (image, info)
+    fn(color, depth_m, lens, *, fx, max_range_m, linear, quality, signed_coc, plan, border_most) -> (image, info)
 
 ``color`` is (H, W, 3) of any supported dtype, ``depth_m`` the registered and filled depth
 (H, W) in metres; ``image`` has the dtype and shape of ``color``; ``info`` is a plain dict

@@ -27,11 +27,13 @@ def check_method(method) -> None:
 
 
 def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.0, linear=False,
-                 quality="balanced", signed_coc=None, plan=None):
+                 quality="balanced", signed_coc=None, plan=None, border_most=None):
     """Render a registered, hole-free RGB-D pair. Returns (image, info); see :data:`METHODS`.
 
     *plan* (physical method only): a :class:`pcdof.plans.RenderPlan` that overrides the one
     :func:`pcdof.plans.plan_render` makes from *quality*; ``info["plan"]`` records the plan used.
+    *border_most* (physical method only): the brightest linear colour continued beyond the frame's edge
+    (:mod:`pcdof.stages.render.border`; None: no limit).
 
     Raises
     ------
@@ -48,7 +50,7 @@ def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.
     if signed_coc is not None and np.shape(signed_coc) != depth_m.shape:
         raise InputError(f"signed_coc must be (H, W) = {depth_m.shape}; got {np.shape(signed_coc)}")
     return METHODS[method](color, depth_m, lens, fx=fx, max_range_m=max_range_m, linear=linear, quality=quality,
-                           signed_coc=signed_coc, plan=plan)
+                           signed_coc=signed_coc, plan=plan, border_most=border_most)
 
 
 def warmup() -> None:

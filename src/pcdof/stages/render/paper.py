@@ -27,10 +27,11 @@ def paper_lens_for(lens) -> PaperLens:
 
 
 def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=False, quality=None, signed_coc=None,
-                 plan=None):
+                 plan=None, border_most=None):
     """The seed paper's method: Gaussian blur + eq. 2 (or eq. 1) weight + linear blend (eq. 3).
 
-    One OpenCV blur and numpy arithmetic: no schedule to choose, so *plan* must be None."""
+    One OpenCV blur and numpy arithmetic: no schedule to choose, so *plan* must be None; *border_most* (the
+    physical method's) is not read: the blur mirrors the image at its edge, as the paper's OpenCV blur does."""
     if plan is not None:
         raise InputError(f"plan must be None for the paper method (it has no schedule); got {type(plan).__name__}")
     plens = paper_lens_for(lens)

@@ -8,9 +8,9 @@ area-exact, anti-aliased coverage, normalised to carry exactly its energy -- and
 composited front to back with the "over" operator, the layer's coverage being its opacity. So a
 blurred foreground spreads softly over what lies behind it, and an in-focus subject (opaque)
 receives nothing from behind. The result is divided by the accumulated opacity, so every output
-pixel is a convex combination of input pixels: a uniform image stays uniform. Beyond the frame the
-scene is taken to continue its edge pixels (:mod:`pcdof.stages.render.border`): the frame is rendered
-widened by the reach of its largest blur, its border replicated, and cut back.
+pixel is a convex combination of input pixels: a uniform image stays uniform. What lies beyond the frame
+is continued from its edge (:mod:`pcdof.stages.render.border`): the frame is rendered widened by the reach
+of its largest blur, and cut back.
 
 The scatter is written as a gather over output rows (each source row's span on that output row),
 so rows run in parallel with no write conflicts and no per-layer image buffers are needed.
@@ -32,7 +32,7 @@ from ...plans import RenderPlan, as_dict, check_quality, check_render_plan, plan
 from ...runtime.threads import threads_for
 from . import classify, composite, serial
 from .aperture import RenderAperture, cached_aperture_table
-from .border import border_px, replicate_border
+from .border import border_px, continue_border, replicate_border
 from .classify import LAYER_EDGES_PX, SHARP_COC_PX, across_jumps
 from .composite import copy_tiles
 from .extend import NO_PIXELS
@@ -214,12 +214,14 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
 
 
 def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False, quality="balanced",
-                    signed_coc=None, plan=None):
+                    signed_coc=None, plan=None, border_most=None):
     """Thin-lens depth of field (see the module docstring). Returns (image, info).
 
     *signed_coc* (H, W) float32 pixels, if given, is ``lens.signed_coc_px(depth_m, fx)`` already
     computed by the caller (the pipeline's CoC stage), so it is not computed twice. *plan*: a
     :class:`pcdof.plans.RenderPlan`, or None for :func:`pcdof.plans.plan_render` of *quality*.
+    *border_most*: the brightest linear colour continued beyond the frame's edge (None: no limit; the pipeline
+    gives 1.0 when the highlights stage estimated light above white, :mod:`pcdof.stages.render.border`).
     """
     plan = plan_render(quality=quality) if plan is None else check_render_plan(plan)
     if not isinstance(lens, ThinLens):
@@ -235,9 +237,9 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     src = as_channels(color)
     lin = to_float(src) if linear else decode_to_linear(src)  # read only: the render never writes its input
     tiles = classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
-    # the scene beyond the frame continues its edge pixels: rendered widened by the largest reach, then cut back
+    # the scene beyond the frame is continued from its edge: rendered widened by the largest reach, then cut back
     pad = border_px(min(cmax, MAX_COC_PX))
-    wide_lin = replicate_border(np.ascontiguousarray(lin, np.float32), pad)
+    wide_lin = continue_border(lin, pad, most=border_most)
     del lin
     out_lin, info = render_layers_linear(wide_lin, replicate_border(coc, pad), aperture=aperture_for(lens),
                                          quality=quality, plan=plan)

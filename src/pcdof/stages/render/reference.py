@@ -242,8 +242,26 @@ def render_layers_linear(lin, signed_coc, *, blades: int = 0, rotation_deg: floa
     return np.where(lit[:, :, None], acc / np.where(lit, acc_a, 1.0)[:, :, None], lin)
 
 
-def render_physical(color, depth_m, lens, *, fx: float, linear: bool = False) -> np.ndarray:
+def _continued(lin: np.ndarray, pad: int, most: float | None = None) -> np.ndarray:
+    """*lin* (H, W, C) widened by *pad*: beyond the edge, the pixel d away is the mean of the edge's pixels
+    within d of its foot along the edge (rows above and below first, then the columns beside them), at most
+    *most* (None: no limit)."""
+    cap = np.inf if most is None else most
+
+    def beyond(edge, d):
+        n = edge.shape[0]
+        return np.minimum(np.stack([edge[max(0, i - d):min(n, i + d + 1)].mean(axis=0) for i in range(n)]), cap)
+
+    tall = np.concatenate([np.stack([beyond(lin[0].astype(np.float64), d) for d in range(pad, 0, -1)]), lin,
+                           np.stack([beyond(lin[-1].astype(np.float64), d) for d in range(1, pad + 1)])])
+    left = np.stack([beyond(tall[:, 0], d) for d in range(pad, 0, -1)], axis=1)
+    right = np.stack([beyond(tall[:, -1], d) for d in range(1, pad + 1)], axis=1)
+    return np.concatenate([left, tall, right], axis=1)
+
+
+def render_physical(color, depth_m, lens, *, fx: float, linear: bool = False, border_most=None) -> np.ndarray:
     """Thin-lens depth of field of an sRGB (or, with *linear*, linear) image; float64 in the image's encoding.
+    Beyond the frame the colour is continued from its edge, no brighter than *border_most* (None: no limit).
 
     The image is returned unchanged when the largest |CoC| is below ``SHARP_COC_PX``. Decoding and
     encoding are those of :mod:`pcdof.color`; the result is not rounded to the input's dtype.
@@ -253,10 +271,9 @@ def render_physical(color, depth_m, lens, *, fx: float, linear: bool = False) ->
     if np.abs(coc).max() < SHARP_COC_PX:
         return to_float(src).astype(np.float64)
     lin = to_float(src) if linear else decode_to_linear(src)
-    # the scene beyond the frame continues its edge pixels (pcdof.stages.render.border)
+    # what lies beyond the frame is continued from its edge (pcdof.stages.render.border)
     pad = border_px(min(float(np.abs(coc).max()), MAX_COC_PX))
-    edge = ((pad, pad), (pad, pad))
-    out = render_layers_linear(np.pad(lin, edge + ((0, 0),), mode="edge"), np.pad(coc, edge, mode="edge"),
+    out = render_layers_linear(_continued(lin, pad, border_most), np.pad(coc, pad, mode="edge"),
                                aperture=aperture_for(lens))[pad:-pad, pad:-pad]
     if linear:
         return out

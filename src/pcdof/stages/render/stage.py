@@ -23,12 +23,13 @@ class RenderStage(Stage):
     def run(self, state: FrameState, plan, options) -> StageOutput:
         from . import render_image
 
+        estimated = state.source is not state.color  # light above white estimated by the highlights stage
         image, info = render_image(state.source, state.filled_m, state.lens, fx=state.fx_px,
                                    method=options.method, max_range_m=state.max_range_m,
                                    linear=state.source_linear, quality=options.quality,
-                                   signed_coc=state.signed_coc_px)
+                                   signed_coc=state.signed_coc_px, border_most=1.0 if estimated else None)
         skipped = bool(info.pop("skipped", False))
-        if state.source is not state.color:  # rendered from reconstructed linear light: back to the input's encoding
+        if estimated:  # rendered from reconstructed linear light: back to the input's encoding
             from ...color import encode_from_linear
 
             image = state.color.copy() if skipped else encode_from_linear(image, state.color.dtype)

@@ -26,6 +26,7 @@ from pcdof.stages.fill.directional import fill_directional
 import pcdof.stages.render as renderer
 from pcdof.camera import Intrinsics, Rig
 from pcdof.color import decode_to_linear, srgb_to_linear
+from pcdof.errors import InputError
 from pcdof.lens import PaperLens, ThinLens
 from pcdof.plans import plan_render
 from pcdof.stages.coc import reference as ref_coc
@@ -696,3 +697,29 @@ class TestBorderAboveWhite:
         run_pipeline(frame, lens)
         run_pipeline(frame, lens, highlights="off")
         assert seen == [1.0, None]
+
+
+class TestRenderPhysicalArguments:
+    def test_border_most_is_checked(self):
+        color = np.zeros((8, 9, 3), np.uint8)
+        lens = ThinLens(focal_length_mm=50, f_number=1.4, focus_distance_m=1.0)
+        for bad in (0.0, -1.0, float("nan"), float("inf"), True, "1"):
+            with pytest.raises(InputError, match="border_most must be None or a finite number > 0"):
+                renderer.render_physical(color, np.full((8, 9), 4.0, np.float32), lens, fx=400.0, border_most=bad)
+
+    def test_unknown_coc_is_in_focus(self):
+        color = np.random.default_rng(2).integers(0, 256, (8, 9, 3), dtype=np.uint8)
+        lens = ThinLens(focal_length_mm=50, f_number=1.4, focus_distance_m=1.0)
+        depth = np.full((8, 9), 4.0, np.float32)
+        out, info = renderer.render_physical(color, depth, lens, fx=400.0, signed_coc=np.full((8, 9), np.nan, np.float32))
+        assert info["skipped"] and np.array_equal(out, color)
+        coc = lens.signed_coc_px(depth, 400.0)
+        coc[0, :3] = np.nan
+        out, info = renderer.render_physical(color, depth, lens, fx=400.0, signed_coc=coc, quality="exact")
+        assert not info["skipped"] and info["border_px"] == border_px_of(coc)
+
+
+def border_px_of(coc):
+    from pcdof.stages.render.border import border_px
+
+    return border_px(float(np.nanmax(np.abs(coc))))

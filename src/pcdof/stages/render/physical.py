@@ -226,8 +226,11 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     plan = plan_render(quality=quality) if plan is None else check_render_plan(plan)
     if not isinstance(lens, ThinLens):
         raise LensError(f"the physical method needs a ThinLens; got {type(lens).__name__}")
+    if border_most is not None and (isinstance(border_most, bool) or not isinstance(border_most, (int, float, np.number))
+                                    or not math.isfinite(border_most) or border_most <= 0):
+        raise InputError(f"border_most must be None or a finite number > 0; got {border_most!r}")
     coc = lens.signed_coc_px(depth_m, fx) if signed_coc is None else signed_coc
-    cmax = float(np.abs(coc).max()) if coc.size else 0.0
+    cmax = float(np.fmax.reduce(np.abs(coc), axis=None, initial=0.0))  # NaN is unknown depth: in focus
     if cmax < SHARP_COC_PX:
         return color.copy(), {"skipped": True, "reason": f"largest circle of confusion {cmax:.3f} px < "
                                                          f"{SHARP_COC_PX} px: nothing to blur",

@@ -104,7 +104,7 @@ docs:
 	@$(call timed,building the documentation site into out/site/,NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict -d out/site)
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) $(BLENDER_VENV) out .pytest_cache
 
 # numba's on-disk cache is keyed on each kernel's own source file: after editing a helper that a kernel of
 # another module inlines, the cached kernel still holds the old helper until this clears it

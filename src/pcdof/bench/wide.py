@@ -164,15 +164,17 @@ def render_variant(variant, sf, lens) -> np.ndarray:
 
 def _render_reconstructed(frame, lens, options: dict, *, quality: str) -> np.ndarray:
     """*frame* registered and filled as :func:`pcdof.pipeline.run` does, its colour reconstructed with
-    :func:`pcdof.stages.highlights.reconstruct_highlights` (*options*), rendered as linear light."""
+    :func:`pcdof.stages.highlights.reconstruct_highlights` (*options*), rendered as linear light as the
+    pipeline's render stage renders it (the estimated light above white not continued beyond the frame)."""
     from ..stages.highlights import reconstruct_highlights
-    from ..pipeline import prepare_depth, render_from_depth
+    from ..stages.render import render_image
+    from ..pipeline import prepare_depth
 
     _registered, filled, _trace = prepare_depth(frame, lens)
     fx = frame.rig.color.fx
     lin = reconstruct_highlights(decode_to_linear(frame.color), coc_px=lens.coc_px(filled, fx), **options)
-    return render_from_depth(lin, filled, lens, fx, max_range_m=frame.rig.max_range_m, linear=True,
-                             quality=quality)[0]
+    return render_image(lin, filled, lens, fx=fx, max_range_m=frame.rig.max_range_m, linear=True, quality=quality,
+                        border_most=1.0)[0]
 
 
 def bucket_sums(err, coc, band) -> dict:

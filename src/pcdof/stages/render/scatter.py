@@ -213,15 +213,14 @@ def pack_sources(lin, radius, member, share, unit_area, min_radius):
 
     Returns column (float32), footprint radius (at least *min_radius*), values (colour zero-padded
     to 3 channels, then coverage 1, all times share / footprint area: (N, 4) float32) and per-row
-    offsets (H + 1,) so that row y's sources are offsets[y]:offsets[y+1]. Rows are counted, then packed,
+    offsets (H + 1,) so that row y's sources are offsets[y]:offsets[y+1]. Rows are counted (numpy), then packed
     in tasks of :data:`PACK_ROWS` rows on the threads (the same values whatever the split).
     """
     h, w = member.shape
     n_tasks = -(-h // PACK_ROWS)
     threads = 1 if h * w < serial.SERIAL_BELOW_PX else current_threads()
     offsets = np.zeros(h + 1, np.int64)
-    run_tasks(_count_tasks, threads, n_tasks, member, offsets)
-    np.cumsum(offsets, out=offsets)
+    np.cumsum(np.count_nonzero(member, axis=1), out=offsets[1:])
     total = int(offsets[h])
     xs = np.empty(total, np.float32)
     src_r = np.empty(total, np.float32)
@@ -229,22 +228,6 @@ def pack_sources(lin, radius, member, share, unit_area, min_radius):
     run_tasks(_pack_tasks, threads, n_tasks, lin, radius, member, share, unit_area, min_radius, offsets, xs, src_r,
               values)
     return xs, src_r, values, offsets
-
-
-@njit(cache=True, nogil=True)
-def _count_tasks(counter, n_tasks, member, counts):
-    """:func:`pack_sources`' first pass: ``counts[y + 1]`` = the members of row y, in tasks of rows."""
-    h, w = member.shape
-    while True:
-        ya, yb = next_chunk(counter, n_tasks, PACK_ROWS, h)
-        if ya < 0:
-            return
-        for y in range(ya, yb):
-            n = 0
-            for x in range(w):
-                if member[y, x]:
-                    n += 1
-            counts[y + 1] = n
 
 
 @njit(cache=True, nogil=True)

@@ -94,9 +94,9 @@ class TestStages:
             kernels.check_stages(["render", "paint"])
         assert isinstance(err.value, PcdofError) and "paint" in str(err.value)
 
-    def test_estimate_runs_longest_first_one_per_core(self):
-        """At most one stage per core, longest first, the next one starting as one ends; every busy process
-        (these and the load) shares the cores equally, at most one core each."""
+    def test_estimate_runs_every_stage_at_once(self):
+        """Every stage in its own process, all at once; every busy process (these and the load) shares the
+        cores equally, at most one core each; on one core the stages run one after the other."""
         cpu = kernels.COMPILE_CPU_S
         three = list(kernels.STAGES)
         a, b, c = sorted(cpu[s] for s in three)
@@ -105,8 +105,9 @@ class TestStages:
         assert kernels.estimate_seconds(["fill", "render"], workers=1, load=0) == pytest.approx(
             cpu["fill"] + cpu["render"])  # one core: all the work, one after the other
         assert kernels.estimate_seconds(three, workers=4, load=0) == pytest.approx(c)  # a core each
-        # 2 cores: the longest on one, the two others one after the other on the other
-        assert kernels.estimate_seconds(three, workers=2, load=0) == pytest.approx(max(c, a + b))
+        # 2 cores: three processes at 2/3 of a core each until the shortest ends, then a core each
+        assert kernels.estimate_seconds(three, workers=2, load=0) == pytest.approx(1.5 * a + (c - a))
+        assert kernels.estimate_seconds(three, workers=2, load=0) <= max(c, a + b)  # never worse than grouped
         # one stage on one core beside 3 busy processes gets a quarter of it
         assert kernels.estimate_seconds(["render"], workers=1, load=3) == pytest.approx(4 * cpu["render"])
         # 2 cores, 2 busy processes besides: the first two stages get half a core each until the shorter ends
@@ -115,39 +116,29 @@ class TestStages:
         loads = [kernels.estimate_seconds(three, workers=2, load=x) for x in (0.0, 0.5, 2.0, 6.0)]
         assert loads == sorted(loads) and loads[0] < loads[-1]
 
-    def test_groups_balance_the_cores(self):
-        """Longest first, each stage to the process with the least work so far; never more processes than cores."""
-        cpu = kernels.COMPILE_CPU_S
-        three = list(kernels.STAGES)
-        for workers in (1, 2, 3, 8):
-            groups = kernels._compile_groups(three, workers)
-            assert sorted(s for g in groups for s in g) == sorted(three) and len(groups) == min(workers, 3)
-        longest = max(three, key=cpu.get)
-        assert [longest] in kernels._compile_groups(three, 2)  # the longest alone, the two others together
-        assert kernels._compile_groups(["fill"], 4) == [["fill"]]
-
-    def test_compile_apart_reports_each_stage_as_it_ends(self, monkeypatch):
-        """One process per group, each printing a line per stage; every stage is reported once, with its seconds."""
+    def test_compile_apart_starts_a_process_per_stage(self, monkeypatch):
+        """One process per stage, each printing its stage's line; every stage is reported once, with its seconds."""
         import subprocess
 
         started = []
 
         class Proc:
             def __init__(self, cmd, **kwargs):
-                group = eval(cmd[-1].split("for stage in ")[1].split(":")[0])
-                started.append(group)
-                self.stdout = iter(f"{stage} {1.5 + i}\n" for i, stage in enumerate(group))
+                stage = cmd[-1].split("print(")[1].split(",")[0].strip("'\"")
+                started.append(stage)
+                self.stdout = iter([f"{stage} {1.5 + len(started)}\n"])
 
             def wait(self):
                 return 0
 
         monkeypatch.setattr(subprocess, "Popen", Proc)
         monkeypatch.setattr(kernels.os, "cpu_count", lambda: 2)
-        lines = []
-        seconds = kernels._compile_apart(["register", "fill", "render"], lines.append, 0.0)
-        assert started == kernels._compile_groups(["register", "fill", "render"], 2)
-        assert seconds == {g[i]: 1.5 + i for g in started for i in range(len(g))}
+        lines, then = [], []
+        seconds = kernels._compile_apart(["register", "fill", "render"], lines.append, 0.0, then=then.append)
+        assert started == ["register", "fill", "render"]
+        assert seconds == {stage: 2.5 + i for i, stage in enumerate(started)}
         assert len(lines) == 3 and lines[-1].startswith("  [3/3] ")
+        assert sorted(then) == sorted(started)  # each stage handed on as it ends, to be loaded here
 
     def test_warm_stages_are_checked_once_and_silently(self, monkeypatch):
         import io

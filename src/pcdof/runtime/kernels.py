@@ -34,9 +34,10 @@ STAGES = {
 }
 
 #: CPU seconds each stage's ``warmup()`` takes to compile with an empty cache, measured on the project's 2-core
-#: machine with ``scripts/profile_compile.py`` (each stage in a fresh interpreter; other load on the cores adds
-#: 10-30 %); only for the estimate printed before compiling and for sharing the stages out (``_compile_groups``).
-COMPILE_CPU_S = {"register": 13.0, "fill": 23.0, "render": 24.0}
+#: machine with ``scripts/profile_compile.py`` (each stage in a fresh interpreter, its start and imports included;
+#: other load on the cores adds 10-30 %, and slower days measured up to 1.7 times these); only for the estimate
+#: printed before compiling.
+COMPILE_CPU_S = {"register": 8.6, "fill": 13.6, "render": 14.5}
 
 #: stages this process has checked (or compiled): each is checked once per process
 _checked: set = set()
@@ -117,9 +118,9 @@ def estimate_seconds(stages, workers: int | None = None, load: float | None = No
     """Wall seconds to compile *stages* on *workers* cores (default: this machine's) while other work
     keeps *load* processes busy (default: the 1-minute load average), from :data:`COMPILE_CPU_S`.
 
-    Stages run as :func:`_compile_apart` runs them: in at most *workers* processes, shared out by
-    :func:`_compile_groups`, each running its stages one after the other; every busy process (these and
-    the *load*) gets an equal share of the cores, at most one core.
+    Stages run as :func:`_compile_apart` runs them: each in its own process, all at once (on one core, one
+    after the other, as :func:`warmup` then compiles them); every busy process (these and the *load*) gets an
+    equal share of the cores, at most one core.
     """
     stages = check_stages(stages)
     workers = max(1, workers or os.cpu_count() or 1)
@@ -128,9 +129,11 @@ def estimate_seconds(stages, workers: int | None = None, load: float | None = No
             load = os.getloadavg()[0]
         except (AttributeError, OSError):  # not on this platform
             load = 0.0
-    left = [sum(COMPILE_CPU_S[s] for s in group) for group in _compile_groups(stages, workers)]
+    left = [COMPILE_CPU_S[s] for s in stages]  # CPU seconds left per running process
+    if workers == 1:
+        left = [sum(left)] if left else []
     wall = 0.0
-    while left:  # CPU seconds left per running process
+    while left:
         share = min(1.0, workers / (len(left) + max(0.0, float(load))))
         step = min(left)
         wall += step / share
@@ -170,22 +173,15 @@ def warm_stage(stage: str, whole_process: bool = False) -> float:
     return time.perf_counter() - t0
 
 
-def _compile_groups(stages, workers: int) -> list[list[str]]:
-    """*stages* shared among at most *workers* processes so they end close together: longest compile first,
-    each to the process with the least so far (on 2 cores: the renderer in one, the fill then registration in
-    the other). Each process runs its stages one after the other."""
-    groups: list[list[str]] = [[] for _ in range(max(1, min(workers, len(stages))))]
-    for stage in sorted(stages, key=lambda stage: -COMPILE_CPU_S[stage]):
-        min(groups, key=lambda group: sum(COMPILE_CPU_S[s] for s in group)).append(stage)
-    return [group for group in groups if group]
-
-
-def _compile_apart(stages, say, t0: float) -> dict:
-    """Compile *stages* in fresh interpreters, at most one per core (numba compiles one function at a time
-    per process, and the stages share no kernel; three processes sharing two cores would leave the longest
-    last, alone), as :func:`_compile_groups` shares them out, each writing numba's on-disk cache. *say* gets
-    a line as each stage ends (seconds since *t0*). Returns seconds per stage that succeeded; a stage that
-    failed or could not start there is left to this process."""
+def _compile_apart(stages, say, t0: float, then=None) -> dict:
+    """Compile *stages* in fresh interpreters, one per stage, all at once, each writing numba's on-disk cache
+    (numba compiles one function at a time per process, and the stages share no kernel). More processes than
+    cores is what keeps every core busy to the end: stages of unequal length grouped into one process per core
+    left one core idle for the last seconds (on 2 cores, the three stages took 20.5-21.2 s apart against
+    22.2-23.2 s grouped, alternated). *say* gets a line as each stage ends (seconds since *t0*), and *then*
+    (None, or a callable taking the stage's name) is called with it then, here, while the others compile.
+    Returns seconds per stage that succeeded; a stage that failed or could not start there is left to this
+    process."""
     import queue
     import subprocess
     import threading
@@ -201,9 +197,9 @@ def _compile_apart(stages, say, t0: float) -> dict:
         lines.put(None)
 
     running = 0
-    for group in _compile_groups(stages, os.cpu_count() or 1):
+    for stage in stages:
         code = ("from pcdof.runtime.kernels import warm_stage\n"
-                f"for stage in {group!r}:\n    print(stage, warm_stage(stage, whole_process=True), flush=True)")
+                f"print({stage!r}, warm_stage({stage!r}, whole_process=True), flush=True)")
         try:
             proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                     text=True)
@@ -219,6 +215,8 @@ def _compile_apart(stages, say, t0: float) -> dict:
             continue
         seconds[item[0]] = item[1]
         say(f"  [{len(seconds)}/{len(stages)}] {item[0]} compiled ({time.perf_counter() - t0:.0f} s)")
+        if then is not None:
+            then(item[0])
     return seconds
 
 
@@ -230,8 +228,8 @@ def warmup(stages=tuple(STAGES), *, progress=None, processes: bool = False) -> d
     stages : iterable of keys of :data:`STAGES`
     progress : callable taking one line of text, or None; called as each stage starts and ends
     processes : bool, compile the stages that are not in numba's cache (:func:`cold_stages`) side by
-        side in fresh interpreters first (numba compiles one function at a time per process), then
-        load them here
+        side in fresh interpreters first (numba compiles one function at a time per process), loading
+        each here as it ends
 
     Returns
     -------
@@ -241,10 +239,18 @@ def warmup(stages=tuple(STAGES), *, progress=None, processes: bool = False) -> d
     say = progress or (lambda line: None)
     t0 = time.perf_counter()
     cold = cold_stages(stages) if processes and (os.cpu_count() or 1) > 1 else []
-    apart = _compile_apart(cold, say, t0) if len(cold) > 1 else {}
+    loaded = {}  # stages compiled apart and loaded here as each ended (while the others still compiled)
+
+    def load(stage):
+        loaded[stage] = warm_stage(stage)
+
+    apart = _compile_apart(cold, say, t0, then=load) if len(cold) > 1 else {}
     seconds = {}
     byte_compile()
     for i, stage in enumerate(stages, 1):
+        if stage in loaded:
+            seconds[stage] = apart[stage] + loaded[stage]
+            continue
         if stage not in apart:
             say(f"  [{i}/{len(stages)}] {stage} ...")
         seconds[stage] = apart.get(stage, 0.0) + warm_stage(stage)

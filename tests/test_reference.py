@@ -698,6 +698,94 @@ class TestBorderAboveWhite:
         run_pipeline(frame, lens, highlights="off")
         assert seen == [1.0, None]
 
+    def test_the_highlights_stage_hands_its_estimate_over_widened_and_keeps_no_other_copy(self, monkeypatch):
+        """The estimated radiance reaches the render widened by the render's border (so the render copies nothing),
+        and the colour that the stage's early half decoded is not kept through the render."""
+        import gc
+
+        import pcdof.stages.render as render_pkg
+        from pcdof.camera import RGBDFrame
+        from pcdof.pipeline import run as run_pipeline
+        from pcdof.stages.highlights import ClippedColor
+        from pcdof.stages.render.border import border_px
+        from pcdof.synth.rig import pinhole
+
+        seen = []
+        real = render_pkg.render_image
+
+        def spy(color, depth_m, *args, **kwargs):
+            gc.collect()
+            alive = sum(isinstance(o, ClippedColor) for o in gc.get_objects())
+            seen.append((color.shape, depth_m.shape, kwargs.get("source_border_px"), alive))
+            return real(color, depth_m, *args, **kwargs)
+
+        monkeypatch.setattr(render_pkg, "render_image", spy)
+        color = np.full((40, 60, 3), 90, np.uint8)
+        color[0:3, 20:26] = 255
+        rig = Rig.registered(pinhole((60, 40), 60.0), max_range_m=10.0)
+        depth = np.full((40, 60), 4.0, np.float32)
+        lens = ThinLens(focal_length_mm=50, f_number=1.4, focus_distance_m=1.0)
+        got = run_pipeline(RGBDFrame(color, depth, rig), lens)
+        want = run_pipeline(RGBDFrame(color, depth, rig), lens, highlights="off")
+        b = border_px(float(got.coc_px.max()))
+        assert seen[0] == ((40 + 2 * b, 60 + 2 * b, 3), (40, 60), b, 0)
+        assert seen[1] == ((40, 60, 3), (40, 60), 0, 0)
+        assert got.image.shape == want.image.shape == color.shape
+
+
+class TestColourGivenWidened:
+    """``render_image(..., source_border_px=b)``: a colour whose border is continued already renders as its frame."""
+
+    @staticmethod
+    def _scene(seed):
+        rng = np.random.default_rng(seed)
+        lin = rng.uniform(0.0, 1.0, (30, 44, 3)).astype(np.float32)
+        lin[0, 10:14] = 6.0  # light above white at the edge: capped beyond it
+        depth = rng.uniform(0.8, 6.0, (30, 44)).astype(np.float32)
+        depth[8:20, 12:30] = 1.0
+        return lin, depth, ThinLens(focal_length_mm=50, f_number=1.4, focus_distance_m=1.0)
+
+    @pytest.mark.parametrize("seed", [0, 1, 2])
+    def test_the_same_bits_as_the_frame_continued_by_the_render(self, seed):
+        from pcdof.stages.render import render_image
+        from pcdof.stages.render.border import border_px, continue_border
+
+        lin, depth, lens = self._scene(seed)
+        fx = 300.0
+        want, _ = render_image(lin, depth, lens, fx=fx, linear=True, quality="exact", border_most=1.0)
+        pad = border_px(float(lens.coc_px(depth, fx).max()))
+        for b in (pad, pad + 3, pad - 1, 1):  # the render's own border is read as it is; any other is cut and redone
+            wide = continue_border(lin, b, most=1.0)
+            got, info = render_image(wide, depth, lens, fx=fx, linear=True, quality="exact", border_most=1.0,
+                                     source_border_px=b)
+            assert got.shape == lin.shape and info["border_px"] == pad
+            np.testing.assert_array_equal(got, want)
+        paper, _ = render_image(lin, depth, lens, fx=fx, method="paper", linear=True)
+        got, _ = render_image(continue_border(lin, 5), depth, lens, fx=fx, method="paper", linear=True,
+                              source_border_px=5)
+        np.testing.assert_array_equal(got, paper)
+
+    def test_nothing_to_blur_returns_the_frame(self):
+        from pcdof.stages.render import render_image
+        from pcdof.stages.render.border import continue_border
+
+        lin, depth, lens = self._scene(3)
+        depth[:] = lens.focus_distance_m
+        got, info = render_image(continue_border(lin, 4), depth, lens, fx=300.0, linear=True, source_border_px=4)
+        assert info["skipped"]
+        np.testing.assert_array_equal(got, lin)
+
+    def test_bad_borders_are_one_line(self):
+        from pcdof.stages.render import render_image
+
+        lin, depth, lens = self._scene(4)
+        for bad in (-1, True, 1.5, "2", None):
+            with pytest.raises(InputError, match="source_border_px must be an int >= 0"):
+                render_image(lin, depth, lens, fx=300.0, linear=True, source_border_px=bad)
+        with pytest.raises(InputError, match=r"depth_m must be \(H, W\) = \(26, 40\) \(the colour's \(30, 44\) less "
+                                             r"its border of 2 px\)"):
+            render_image(lin, depth, lens, fx=300.0, linear=True, source_border_px=2)
+
 
 class TestRenderPhysicalArguments:
     def test_border_most_is_checked(self):

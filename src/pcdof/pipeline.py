@@ -150,11 +150,16 @@ def run_stages(state: FrameState, options, *, stages=None, trace: list | None = 
             early.setdefault(stage.starts_before, []).append(stage)
     for stage in stages:
         for starter in early.get(stage.name, ()):
-            waiter = starter.start(state, options)
-            if waiter is not None:
-                state = state.replace(started={**state.started, starter.name: waiter})
+            state = _started(starter, state, options)
         state = _record(stage, state, options, trace)
     return state, trace
+
+
+def _started(stage, state: FrameState, options) -> FrameState:
+    """*state* with *stage*'s early work started (``stage.start``), its waiter in ``state.started``: held there
+    only, so that the stage can drop it, and what it returned, once joined."""
+    waiter = stage.start(state, options)
+    return state if waiter is None else state.replace(started={**state.started, stage.name: waiter})
 
 
 def initial_state(frame: RGBDFrame) -> FrameState:

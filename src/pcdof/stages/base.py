@@ -45,6 +45,9 @@ class FrameState:
         paper method); its size is ``abs(signed_coc_px)`` (the result's ``coc_px``, derived once the stages ran)
     coc_max_px : float, the largest size (coc)
     source, source_linear : the colour the renderer blurs and whether it is linear light (highlights)
+    source_border_px : int, how far *source* reaches beyond the frame on every side (highlights: the estimated
+        radiance comes widened by the render's border, :func:`pcdof.stages.render.border.bordered_source`, so the
+        render does not copy it again; 0 for the input colour itself)
     image : the render, like ``color`` (render)
     started : stage name -> the waiter its ``start`` returned (see the module docstring)
     """
@@ -61,6 +64,7 @@ class FrameState:
     coc_max_px: float | None = None
     source: np.ndarray | None = None
     source_linear: bool | None = None
+    source_border_px: int = 0
     image: np.ndarray | None = None
     started: dict = field(default_factory=dict)
 

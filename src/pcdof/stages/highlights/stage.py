@@ -70,10 +70,16 @@ class HighlightsStage(Stage):
         return reason or None
 
     def passthrough(self, state: FrameState, options) -> dict:
-        return {"source": state.color, "source_linear": options.linear}
+        return {"source": state.color, "source_linear": options.linear, "started": self._joined(state)}
+
+    def _joined(self, state: FrameState) -> dict:
+        """*state*'s started work without this stage's waiter: once joined, the colour it decoded (12 bytes a pixel,
+        held by the waiter's result) is not kept through the render."""
+        return {name: waiter for name, waiter in state.started.items() if name != self.name}
 
     def run(self, state: FrameState, plan, options) -> StageOutput:
         from . import parse_highlights, prepare_highlights, reconstruct_prepared
+        from ..render.border import bordered_source
 
         how, gain = parse_highlights(options.highlights)
         waiter = state.started.get(self.name)
@@ -88,6 +94,10 @@ class HighlightsStage(Stage):
             return StageOutput(self.passthrough(state, options), "nothing clipped", skipped=True)
         n = found.clipped_pixels
         source = reconstruct_prepared(found, method=how, gain=gain, coc_px=state.signed_coc_px)  # the sign is ignored
-        return StageOutput({"source": source, "source_linear": True},
+        del found
+        # handed over widened by the render's border: the render reads it as it is, and only one copy is kept
+        source, border = bordered_source(source, state.coc_max_px)
+        return StageOutput({"source": source, "source_linear": True, "source_border_px": border,
+                            "started": self._joined(state)},
                            f"{how}{f' (gain {gain:g})' if how in ('gain', 'rim') else ''}: {n} clipped pixels",
                            {"method": how, "gain": gain, "clipped_pixels": n, **overlap})

@@ -83,6 +83,22 @@ def continue_border(image: np.ndarray, pad_px: int, *, most: float | None = None
     return out
 
 
+def bordered_source(lin: np.ndarray, max_coc_px: float) -> tuple[np.ndarray, int]:
+    """Estimated linear radiance *lin* (H, W, C) float32 (the highlights stage's), widened by the border a render of a
+    frame whose largest |CoC| is *max_coc_px* needs, no brighter than white beyond the edge (the module docstring):
+    ((H + 2 b, W + 2 b, C) float32, b). What :func:`pcdof.stages.render.render_image` would make of it with
+    ``border_most=1.0``, made before the render so that the frame and its widened copy are not both in memory."""
+    from ...lens import MAX_COC_PX
+
+    pad = border_px(min(float(max_coc_px), MAX_COC_PX))
+    return continue_border(lin, pad, most=1.0), pad
+
+
+def interior(image: np.ndarray, border: int) -> np.ndarray:
+    """The frame inside *image* (H + 2 border, W + 2 border[, C]): a view, (H, W[, C])."""
+    return image[border:image.shape[0] - border, border:image.shape[1] - border] if border else image
+
+
 def _at_most(most, *parts) -> None:
     """Clip each array of *parts* to *most* in place (nothing when *most* is None)."""
     if most is not None:

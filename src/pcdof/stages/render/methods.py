@@ -27,13 +27,16 @@ def check_method(method) -> None:
 
 
 def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.0, linear=False,
-                 quality="balanced", signed_coc=None, plan=None, border_most=None):
+                 quality="balanced", signed_coc=None, plan=None, border_most=None, source_border_px=0):
     """Render a registered, hole-free RGB-D pair. Returns (image, info); see :data:`METHODS`.
 
     *plan* (physical method only): a :class:`pcdof.plans.RenderPlan` that overrides the one
     :func:`pcdof.plans.plan_render` makes from *quality*; ``info["plan"]`` records the plan used.
     *border_most* (physical method only): the brightest linear colour continued beyond the frame's edge
     (:mod:`pcdof.stages.render.border`; None: no limit).
+    *source_border_px*: an int b >= 0; *color* is (H + 2 b, W + 2 b[, C]) for *depth_m* (H, W), the frame's border
+    continued b pixels beyond it (:func:`pcdof.stages.render.border.continue_border`); the image returned is the
+    frame's, (H, W[, C]).
 
     Raises
     ------
@@ -45,12 +48,18 @@ def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.
     check_quality(quality)
     color = check_color(color)
     depth_m = np.asarray(depth_m, np.float32)
-    if depth_m.shape != color.shape[:2]:
-        raise InputError(f"depth_m must be (H, W) = {color.shape[:2]}; got {depth_m.shape}")
+    b = source_border_px
+    if isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 0:
+        raise InputError(f"source_border_px must be an int >= 0; got {short_repr(b)}")
+    frame = (color.shape[0] - 2 * b, color.shape[1] - 2 * b)
+    if depth_m.shape != frame:
+        raise InputError(f"depth_m must be (H, W) = {frame}" + (f" (the colour's {color.shape[:2]} less its "
+                                                                 f"border of {b} px)" if b else "")
+                         + f"; got {depth_m.shape}")
     if signed_coc is not None and np.shape(signed_coc) != depth_m.shape:
         raise InputError(f"signed_coc must be (H, W) = {depth_m.shape}; got {np.shape(signed_coc)}")
     return METHODS[method](color, depth_m, lens, fx=fx, max_range_m=max_range_m, linear=linear, quality=quality,
-                           signed_coc=signed_coc, plan=plan, border_most=border_most)
+                           signed_coc=signed_coc, plan=plan, border_most=border_most, source_border_px=int(b))
 
 
 def warmup() -> None:

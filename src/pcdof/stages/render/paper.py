@@ -14,6 +14,7 @@ import numpy as np
 from ...color import from_float, to_float
 from ...errors import InputError, LensError
 from ...lens import PaperLens, ThinLens
+from .border import interior
 from .frame import as_channels
 
 
@@ -27,13 +28,15 @@ def paper_lens_for(lens) -> PaperLens:
 
 
 def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=False, quality=None, signed_coc=None,
-                 plan=None, border_most=None):
+                 plan=None, border_most=None, source_border_px=0):
     """The seed paper's method: Gaussian blur + eq. 2 (or eq. 1) weight + linear blend (eq. 3).
 
     One OpenCV blur and numpy arithmetic: no schedule to choose, so *plan* must be None; *border_most* (the
-    physical method's) is not read: the blur mirrors the image at its edge, as the paper's OpenCV blur does."""
+    physical method's) is not read: the blur mirrors the image at its edge, as the paper's OpenCV blur does, so a
+    colour given with a border (*source_border_px*) is cut to its frame first."""
     if plan is not None:
         raise InputError(f"plan must be None for the paper method (it has no schedule); got {type(plan).__name__}")
+    color = interior(color, source_border_px)
     plens = paper_lens_for(lens)
     src = to_float(as_channels(color))
     # the kernel reaches 3 sigma, each axis's sigma limited to what the image can show (PaperLens.blur_kernel);

@@ -32,7 +32,7 @@ from ...plans import RenderPlan, as_dict, check_quality, check_render_plan, plan
 from ...runtime.threads import threads_for
 from . import classify, composite, serial
 from .aperture import RenderAperture, cached_aperture_table
-from .border import border_px, continue_border, replicate_border
+from .border import border_px, continue_border, interior, replicate_border
 from .classify import LAYER_EDGES_PX, SHARP_COC_PX, across_jumps
 from .composite import copy_tiles
 from .extend import NO_PIXELS
@@ -197,6 +197,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     with threads_for(plan):
         coc, radius, layer, keys, counts, r_maxes, boxes = classify.classify_layers(
             np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX, LAYER_EDGES_PX)
+        del signed_coc  # this function's reference: a CoC widened for the render is freed here (4 bytes a pixel)
         tiles = _tiles_for(coc, tiles, plan)
         # where surfaces end, for the extension behind nearer layers (an int8 map, a quarter of the CoC's size)
         across = across_jumps(coc, layer) if extend_behind and keys.size > 1 else None
@@ -214,7 +215,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
 
 
 def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False, quality="balanced",
-                    signed_coc=None, plan=None, border_most=None):
+                    signed_coc=None, plan=None, border_most=None, source_border_px=0):
     """Thin-lens depth of field (see the module docstring). Returns (image, info).
 
     *signed_coc* (H, W) float32 pixels, if given, is ``lens.signed_coc_px(depth_m, fx)`` already
@@ -222,6 +223,10 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     :class:`pcdof.plans.RenderPlan`, or None for :func:`pcdof.plans.plan_render` of *quality*.
     *border_most*: the brightest linear colour continued beyond the frame's edge (None: no limit; the pipeline
     gives 1.0 when the highlights stage estimated light above white, :mod:`pcdof.stages.render.border`).
+    *source_border_px*: *color* is (H + 2 b, W + 2 b[, C]) for a depth map (H, W), the frame's border already
+    continued b pixels beyond it (:func:`pcdof.stages.render.border.continue_border`, as the pipeline's highlights
+    stage hands it over); taken as it is when b is the border this render needs, so the widened colour is not
+    copied again (else the frame inside it is continued anew, with *border_most*).
     """
     plan = plan_render(quality=quality) if plan is None else check_render_plan(plan)
     if not isinstance(lens, ThinLens):
@@ -229,6 +234,8 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     if border_most is not None and (isinstance(border_most, bool) or not isinstance(border_most, (int, float, np.number))
                                     or not math.isfinite(border_most) or border_most <= 0):
         raise InputError(f"border_most must be None or a finite number > 0; got {border_most!r}")
+    given = color
+    color = interior(given, source_border_px)
     coc = lens.signed_coc_px(depth_m, fx) if signed_coc is None else signed_coc
     cmax = float(np.fmax.reduce(np.abs(coc), axis=None, initial=0.0))  # NaN is unknown depth: in focus
     if cmax < SHARP_COC_PX:
@@ -238,12 +245,16 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     if cmax > MAX_COC_PX:
         warnings.warn(f"circle of confusion up to {cmax:.0f} px clamped to {MAX_COC_PX:.0f} px", stacklevel=3)
     src = as_channels(color)
-    lin = to_float(src) if linear else decode_to_linear(src)  # read only: the render never writes its input
     tiles = classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
     # the scene beyond the frame is continued from its edge: rendered widened by the largest reach, then cut back
     pad = border_px(min(cmax, MAX_COC_PX))
-    wide_lin = continue_border(lin, pad, most=border_most)
-    del lin
+    if source_border_px == pad:  # continued by the caller: read as it is (read only: never written)
+        wide = as_channels(given)
+        wide_lin = to_float(wide) if linear else decode_to_linear(wide)
+    else:
+        lin = to_float(src) if linear else decode_to_linear(src)
+        wide_lin = continue_border(lin, pad, most=border_most)
+        del lin
     out_lin, info = render_layers_linear(wide_lin, replicate_border(coc, pad), aperture=aperture_for(lens),
                                          quality=quality, plan=plan)
     del wide_lin

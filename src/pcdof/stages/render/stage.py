@@ -27,7 +27,8 @@ class RenderStage(Stage):
         image, info = render_image(state.source, state.filled_m, state.lens, fx=state.fx_px,
                                    method=options.method, max_range_m=state.max_range_m,
                                    linear=state.source_linear, quality=options.quality,
-                                   signed_coc=state.signed_coc_px, border_most=1.0 if estimated else None)
+                                   signed_coc=state.signed_coc_px, border_most=1.0 if estimated else None,
+                                   source_border_px=state.source_border_px)
         skipped = bool(info.pop("skipped", False))
         if estimated:  # rendered from reconstructed linear light: back to the input's encoding
             from ...color import encode_from_linear

@@ -178,6 +178,9 @@ def refocus_threads(*, size=(1920, 1080), blur_px: float = 64.0, depth_size=(512
 #: run in a fresh interpreter by :func:`peak_memory`: load the frame, note the resident memory, reset the
 #: peak (Linux's clear_refs), run the pipeline, print the baseline and the peak in bytes as JSON
 _MEMORY_CHILD = r"""
+from pcdof.runtime.process import tune_process
+
+tune_process()  # as the pcdof command runs: before anything else loads (numpy's threads included)
 import json, resource, sys
 import numpy as np
 from pcdof.io.calibration import read_calibration
@@ -185,9 +188,7 @@ from pcdof.camera import RGBDFrame as Frame
 from pcdof.lens import ThinLens
 from pcdof.pipeline import run
 from pcdof.runtime.kernels import ensure_warm
-from pcdof.runtime.process import tune_process
 
-tune_process()  # as the pcdof command runs
 folder = sys.argv[1]
 ensure_warm()
 rig = read_calibration(folder + "/calib.json")

@@ -320,7 +320,12 @@ class TestCompositeUnder:
         f = np.where(on, t * alpha / np.where(on, c, 1.0), 0.0)
         want_acc[win] += f[:, :, None] * layer[:, :, :nc]
         want_a[win] += np.where(on, t * alpha, 0.0)
+        before_acc, before_a = acc.copy(), opacity.copy()
+        wide = np.concatenate([layer, rng.random((hb, 3, nc + 1)).astype(np.float32)], axis=1)  # 3 columns beyond
+        renderer.composite.composite_under(wide, 3, 2, before_acc, before_a, width=wb)  # reads the first wb only
         renderer.composite.composite_under(layer, 3, 2, acc, opacity)
+        np.testing.assert_array_equal(before_acc, acc)
+        np.testing.assert_array_equal(before_a, opacity)
         np.testing.assert_allclose(acc, want_acc, rtol=1e-6, atol=1e-7)
         np.testing.assert_allclose(opacity, want_a, rtol=1e-6, atol=1e-7)
         full = np.zeros((h, w), bool)

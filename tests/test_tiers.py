@@ -59,6 +59,13 @@ class TestUpsampleCells:
             next_row = y0 + strip.shape[0]
         assert next_row == h
         np.testing.assert_array_equal(got, want)
+        w = 7 * s - s // 2 - 1  # the last cell's columns cropped: the strips keep them, the first w are the layer's
+        cropped = renderer.upsample_cells(cells, s, h, w)
+        for y0, strip in upsampled_strips(cells, s, h, w, rows):
+            assert strip.shape[1] == 7 * s and strip.flags.c_contiguous
+            np.testing.assert_array_equal(strip[:, :w], cropped[y0:y0 + strip.shape[0]])
+        with pytest.raises(InputError, match="upsampled_strips needs 0 < w <= ws s"):
+            next(upsampled_strips(cells, s, h, 7 * s + 1, rows))
 
     @pytest.mark.parametrize("s, h, w", [(0, 4, 4), (3, 4, 4), (2.0, 4, 4), (2, 11, 4), (2, 4, 0)])
     def test_bad_sizes_are_refused(self, s, h, w):

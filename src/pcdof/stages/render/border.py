@@ -56,10 +56,18 @@ def edge_continuation(edge: np.ndarray, pad_px: int) -> np.ndarray:
     n = edge.shape[0]
     sums = np.zeros((n + 1,) + edge.shape[1:], np.float64)
     np.cumsum(edge, axis=0, dtype=np.float64, out=sums[1:])
-    d = np.arange(1, pad_px + 1)[:, None]
-    i = np.arange(n)[None, :]
-    lo, hi = np.clip(i - d, 0, n), np.clip(i + d + 1, 0, n)
-    return ((sums[hi] - sums[lo]) / (hi - lo)[..., None]).astype(np.float32)
+    out = np.empty((pad_px, n) + edge.shape[1:], np.float32)
+    i = np.arange(n)
+    for d in range(1, pad_px + 1):
+        line = out[d - 1]
+        a, b = min(d, n), max(n - d, min(d, n))  # pixels a..b-1 have their whole window inside the edge
+        if b > a:
+            line[a:b] = (sums[a + d + 1:b + d + 1] - sums[a - d:b - d]) / (2 * d + 1)
+        for part in (slice(0, a), slice(b, n)):  # the window cut by the edge's ends
+            k = i[part]
+            lo, hi = np.maximum(k - d, 0), np.minimum(k + d + 1, n)
+            line[part] = (sums[hi] - sums[lo]) / (hi - lo).reshape((-1,) + (1,) * (edge.ndim - 1))
+    return out
 
 
 def continue_border(image: np.ndarray, pad_px: int, *, most: float | None = None) -> np.ndarray:

@@ -15,8 +15,9 @@ from .tiles import TileMap
 TASK_ROWS = 16
 
 
-def composite_under(layer_buf, y0, x0, acc, opacity):
-    """Composite a scattered layer (placed at row y0, column x0) behind what is already there.
+def composite_under(layer_buf, y0, x0, acc, opacity, width=None):
+    """Composite a scattered layer (placed at row y0, column x0) behind what is already there: its first *width*
+    columns (None: all; a strip of :func:`pcdof.stages.render.grids.upsampled_strips` is wider than its layer).
 
     Front-to-back "over": the layer's coverage is its opacity, clipped to 1; its colour is
     normalised by its coverage, so overlapping sources within a layer average. *acc* (H, W, C) is the
@@ -25,13 +26,16 @@ def composite_under(layer_buf, y0, x0, acc, opacity):
     whatever the rounding of 1 - opacity). A pixel covered fully is opaque (1) exactly. Rows of the layer run
     as tasks on the threads (:func:`_under_tasks`).
     """
-    run_tasks(_under_tasks, current_threads(), -(-layer_buf.shape[0] // TASK_ROWS), layer_buf, y0, x0, acc, opacity)
+    wb = layer_buf.shape[1] if width is None else min(int(width), layer_buf.shape[1])
+    run_tasks(_under_tasks, current_threads(), -(-layer_buf.shape[0] // TASK_ROWS), layer_buf, wb, y0, x0, acc,
+              opacity)
 
 
 @njit(cache=True, nogil=True)
-def _under_tasks(counter, n_tasks, layer_buf, y0, x0, acc, opacity):
-    """:func:`composite_under` in tasks of :data:`TASK_ROWS` rows of the layer claimed from *counter*."""
-    hb, wb, nc1 = layer_buf.shape
+def _under_tasks(counter, n_tasks, layer_buf, wb, y0, x0, acc, opacity):
+    """:func:`composite_under` of the first *wb* columns in tasks of :data:`TASK_ROWS` rows of the layer claimed
+    from *counter*."""
+    hb, nc1 = layer_buf.shape[0], layer_buf.shape[2]
     nc = nc1 - 1
     while True:
         ya, yb = next_chunk(counter, n_tasks, TASK_ROWS, hb)

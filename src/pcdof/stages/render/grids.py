@@ -185,11 +185,18 @@ def upsample_cells(buf: np.ndarray, s: int, h: int, w: int) -> np.ndarray:
             or not (0 < h <= hs * s and 0 < w <= ws * s):
         raise InputError(f"upsample_cells needs s a power of two and 0 < (h, w) <= (hs s, ws s) = "
                          f"{(hs * s, ws * s)}; got s={s!r}, (h, w)={(h, w)}")
+    return np.ascontiguousarray(_doubled(buf, s)[:h, :w])
+
+
+def _doubled(buf: np.ndarray, s: int) -> np.ndarray:
+    """:func:`upsample_cells` of *buf* (hs, ws, C) at its whole size, (hs s, ws s, C) float32 C-contiguous (*s* checked
+    by the caller)."""
+    hs, _, nc = buf.shape
     out = np.ascontiguousarray(buf, np.float32)
     while out.shape[0] < hs * s:
         out = cv2.resize(out, (2 * out.shape[1], 2 * out.shape[0]), interpolation=cv2.INTER_LINEAR)
         out = out.reshape(out.shape[0], out.shape[1], nc)  # OpenCV drops a channel axis of length 1
-    return np.ascontiguousarray(out[:h, :w])
+    return out
 
 
 #: cells each side of a strip that :func:`upsampled_strips` upsamples beyond the rows it keeps: the repeated
@@ -199,19 +206,24 @@ STRIP_MARGIN_CELLS = 2
 
 def upsampled_strips(buf: np.ndarray, s: int, h: int, w: int, rows: int = 256):
     """:func:`upsample_cells` of *buf* (hs, ws, C) float32 in strips of about *rows* full-resolution rows (a whole
-    number of cells): yields (row0, strip), each strip (rows', w, C) float32 the rows row0:row0 + rows' of
-    ``upsample_cells(buf, s, h, w)``, value for value, without the whole upsampled layer in memory.
+    number of cells): yields (row0, strip), each strip (rows', ws s, C) float32 C-contiguous whose first *w* columns
+    are the rows row0:row0 + rows' of ``upsample_cells(buf, s, h, w)``, value for value, without the whole upsampled
+    layer in memory. The columns beyond *w* (less than a cell) are the last cell's upsampling, left in place rather
+    than copied away: the caller reads the first *w* (:func:`pcdof.stages.render.composite.composite_under`'s
+    *width*).
 
     Each strip is upsampled from its cells and :data:`STRIP_MARGIN_CELLS` more each side, and cut to its rows:
     the border that the doubling repeats at the cut reaches less than a cell into the margin."""
-    hs = buf.shape[0]
+    hs, ws = buf.shape[:2]
+    if not 0 < w <= ws * s:
+        raise InputError(f"upsampled_strips needs 0 < w <= ws s = {ws * s}; got w={w!r}")
     step = max(1, rows // s)
     for c0 in range(0, hs, step):
         c1 = min(hs, c0 + step)
         if c0 * s >= h:
             break
         m0, m1 = max(0, c0 - STRIP_MARGIN_CELLS), min(hs, c1 + STRIP_MARGIN_CELLS)
-        part = upsample_cells(buf[m0:m1], s, (m1 - m0) * s, w)
+        part = _doubled(buf[m0:m1], s)
         y0, y1 = c0 * s, min(h, c1 * s)
         yield y0, part[y0 - m0 * s:y1 - m0 * s]
 

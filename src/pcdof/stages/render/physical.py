@@ -120,7 +120,7 @@ def _blur_layer(frame: RenderFrame, canvas: Canvas, li: int, key: int, n_members
     strips = [(0, buf)] if s == 1 else upsampled_strips(buf, s, h, w)
     for y0, strip in strips:
         with serial.serial_if(strip.shape[0] * strip.shape[1] < serial.SERIAL_BELOW_PX):
-            composite.composite_under(strip, box[0].start + y0, box[1].start, canvas.acc, canvas.opacity)
+            composite.composite_under(strip, box[0].start + y0, box[1].start, canvas.acc, canvas.opacity, width=w)
     return {"key": int(key), "coc_px": [lo, hi], "pixels": n_members, "blurred": True,
             "side": "front" if key < 0 else "back", "scale": s, "extended": extended,
             "uniform_tiles": int(uniform.sum()), "kernels": n_kernels, "sources_scattered": n_scattered}

@@ -57,16 +57,14 @@ def edge_continuation(edge: np.ndarray, pad_px: int) -> np.ndarray:
     sums = np.zeros((n + 1,) + edge.shape[1:], np.float64)
     np.cumsum(edge, axis=0, dtype=np.float64, out=sums[1:])
     out = np.empty((pad_px, n) + edge.shape[1:], np.float32)
-    i = np.arange(n)
-    for d in range(1, pad_px + 1):
-        line = out[d - 1]
-        a, b = min(d, n), max(n - d, min(d, n))  # pixels a..b-1 have their whole window inside the edge
-        if b > a:
-            line[a:b] = (sums[a + d + 1:b + d + 1] - sums[a - d:b - d]) / (2 * d + 1)
-        for part in (slice(0, a), slice(b, n)):  # the window cut by the edge's ends
-            k = i[part]
-            lo, hi = np.maximum(k - d, 0), np.minimum(k + d + 1, n)
-            line[part] = (sums[hi] - sums[lo]) / (hi - lo).reshape((-1,) + (1,) * (edge.ndim - 1))
+    # the pixels within pad_px of the edge's ends, whose windows the ends may cut: every line at once
+    ends = np.unique(np.concatenate([np.arange(min(pad_px, n)), np.arange(max(n - pad_px, 0), n)]))
+    d = np.arange(1, pad_px + 1)[:, None]
+    lo, hi = np.clip(ends - d, 0, n), np.clip(ends + d + 1, 0, n)
+    out[:, ends] = (sums[hi] - sums[lo]) / (hi - lo).reshape(hi.shape + (1,) * (edge.ndim - 1))
+    for k in range(1, pad_px + 1):  # the others, whole windows: a difference of two slices a line
+        if n - k > k:
+            out[k - 1, k:n - k] = (sums[2 * k + 1:] - sums[:n - 2 * k]) / (2 * k + 1)
     return out
 
 

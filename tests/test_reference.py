@@ -902,6 +902,11 @@ class TestColourGivenWidened:
         with pytest.raises(InputError, match=r"depth_m must be \(H, W\) = \(26, 40\) \(the colour's \(30, 44\) less "
                                              r"its border of 2 px\)"):
             render_image(lin, depth, lens, fx=300.0, linear=True, source_border_px=2)
+        for render in (renderer.render_physical, renderer.render_paper):  # the methods themselves check it too
+            with pytest.raises(InputError, match="source_border_px must be an int >= 0"):
+                render(lin, depth, lens, fx=300.0, linear=True, source_border_px=-2)
+            with pytest.raises(InputError, match="depth_m must be"):
+                render(lin, depth, lens, fx=300.0, linear=True, source_border_px=3)
 
 
 class TestRenderPhysicalArguments:

@@ -96,7 +96,7 @@ class HighlightsStage(Stage):
         source = reconstruct_prepared(found, method=how, gain=gain, coc_px=state.signed_coc_px)  # the sign is ignored
         del found
         # handed over widened by the render's border: the render reads it as it is, and only one copy is kept
-        source, border = bordered_source(source, state.coc_max_px)
+        source, border = (source, 0) if state.coc_max_px is None else bordered_source(source, state.coc_max_px)
         return StageOutput({"source": source, "source_linear": True, "source_border_px": border,
                             "started": self._joined(state)},
                            f"{how}{f' (gain {gain:g})' if how in ('gain', 'rim') else ''}: {n} clipped pixels",

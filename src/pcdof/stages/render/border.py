@@ -105,6 +105,24 @@ def interior(image: np.ndarray, border: int) -> np.ndarray:
     return image[border:image.shape[0] - border, border:image.shape[1] - border] if border else image
 
 
+def check_source_border(color_shape, depth_shape, border) -> int:
+    """*border* checked as the ``source_border_px`` of a render of a colour of *color_shape* ((H + 2 b, W + 2 b[, C]))
+    for a depth map of *depth_shape* ((H, W)): an int b >= 0 that makes them agree. Returns b; InputError naming the
+    argument otherwise."""
+    from ...errors import InputError
+    from ...validate import short_repr
+
+    if isinstance(border, bool) or not isinstance(border, (int, np.integer)) or border < 0:
+        raise InputError(f"source_border_px must be an int >= 0; got {short_repr(border)}")
+    b = int(border)
+    frame = (color_shape[0] - 2 * b, color_shape[1] - 2 * b)
+    if tuple(depth_shape) != frame:
+        raise InputError(f"depth_m must be (H, W) = {frame}" + (f" (the colour's {tuple(color_shape[:2])} less its "
+                                                                 f"border of {b} px)" if b else "")
+                         + f"; got {tuple(depth_shape)}")
+    return b
+
+
 def _at_most(most, *parts) -> None:
     """Clip each array of *parts* to *most* in place (nothing when *most* is None)."""
     if most is not None:

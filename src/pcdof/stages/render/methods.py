@@ -12,6 +12,7 @@ from ...validate import short_repr
 from ...errors import InputError
 from ...lens import ThinLens
 from ...plans import RenderPlan, check_quality, plan_render
+from .border import check_source_border
 from .paper import render_paper
 from .physical import render_physical
 
@@ -48,18 +49,11 @@ def render_image(color, depth_m, lens, *, fx, method="physical", max_range_m=10.
     check_quality(quality)
     color = check_color(color)
     depth_m = np.asarray(depth_m, np.float32)
-    b = source_border_px
-    if isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 0:
-        raise InputError(f"source_border_px must be an int >= 0; got {short_repr(b)}")
-    frame = (color.shape[0] - 2 * b, color.shape[1] - 2 * b)
-    if depth_m.shape != frame:
-        raise InputError(f"depth_m must be (H, W) = {frame}" + (f" (the colour's {color.shape[:2]} less its "
-                                                                 f"border of {b} px)" if b else "")
-                         + f"; got {depth_m.shape}")
+    b = check_source_border(color.shape, depth_m.shape, source_border_px)
     if signed_coc is not None and np.shape(signed_coc) != depth_m.shape:
         raise InputError(f"signed_coc must be (H, W) = {depth_m.shape}; got {np.shape(signed_coc)}")
     return METHODS[method](color, depth_m, lens, fx=fx, max_range_m=max_range_m, linear=linear, quality=quality,
-                           signed_coc=signed_coc, plan=plan, border_most=border_most, source_border_px=int(b))
+                           signed_coc=signed_coc, plan=plan, border_most=border_most, source_border_px=b)
 
 
 def warmup() -> None:

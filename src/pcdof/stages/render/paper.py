@@ -14,7 +14,7 @@ import numpy as np
 from ...color import from_float, to_float
 from ...errors import InputError, LensError
 from ...lens import PaperLens, ThinLens
-from .border import interior
+from .border import check_source_border, interior
 from .frame import as_channels
 
 
@@ -36,7 +36,7 @@ def render_paper(color, depth_m, lens, *, fx=None, max_range_m=10.0, linear=Fals
     colour given with a border (*source_border_px*) is cut to its frame first."""
     if plan is not None:
         raise InputError(f"plan must be None for the paper method (it has no schedule); got {type(plan).__name__}")
-    color = interior(color, source_border_px)
+    color = interior(color, check_source_border(np.shape(color), np.shape(depth_m), source_border_px))
     plens = paper_lens_for(lens)
     src = to_float(as_channels(color))
     # the kernel reaches 3 sigma, each axis's sigma limited to what the image can show (PaperLens.blur_kernel);

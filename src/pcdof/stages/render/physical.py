@@ -32,7 +32,7 @@ from ...plans import RenderPlan, as_dict, check_quality, check_render_plan, plan
 from ...runtime.threads import threads_for
 from . import classify, composite, serial
 from .aperture import RenderAperture, cached_aperture_table
-from .border import border_px, continue_border, interior, replicate_border
+from .border import border_px, check_source_border, continue_border, interior, replicate_border
 from .classify import LAYER_EDGES_PX, SHARP_COC_PX, across_jumps
 from .composite import copy_tiles
 from .extend import NO_PIXELS
@@ -234,6 +234,7 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     if border_most is not None and (isinstance(border_most, bool) or not isinstance(border_most, (int, float, np.number))
                                     or not math.isfinite(border_most) or border_most <= 0):
         raise InputError(f"border_most must be None or a finite number > 0; got {border_most!r}")
+    source_border_px = check_source_border(np.shape(color), np.shape(depth_m), source_border_px)
     given = color
     color = interior(given, source_border_px)
     coc = lens.signed_coc_px(depth_m, fx) if signed_coc is None else signed_coc

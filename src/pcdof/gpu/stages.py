@@ -20,7 +20,7 @@ import numpy as np
 from ..camera import RGBDFrame
 from ..errors import InputError
 from ..focus import resolve_lens
-from ..lens import MAX_COC_PX, ThinLens, aperture_for
+from ..lens import ThinLens, aperture_for
 from ..stages.render import SHARP_COC_PX
 from ..stages.render.border import border_px
 from .coc import coc_maps
@@ -145,7 +145,7 @@ def _render_physical(frame, color_dev, opts, lens, signed, cmax, source_linear, 
             lin = decode(color_dev, linear=opts.linear, stream=stream)
         # what lies beyond the frame is continued from its edge: rendered widened, then cut back
         h, w = frame.color.shape[:2]
-        pad = border_px(min(cmax, MAX_COC_PX))
+        pad = border_px(cmax)
         wide = (h + 2 * pad, w + 2 * pad)
         # light above white estimated by the highlights stage is not continued beyond the frame
         most = 1.0 if source_linear is not None else None

@@ -33,14 +33,17 @@ import math
 import cv2
 import numpy as np
 
+from ...lens import MAX_COC_PX
+
 #: pixels added beyond the largest footprint radius: its anti-aliased edge and rounding
 BORDER_MARGIN_PX = 2
 
 
 def border_px(max_coc_px: float) -> int:
     """How far beyond the frame a source can reach into it: the largest footprint radius (half of
-    *max_coc_px*, the largest |CoC| diameter in pixels) and :data:`BORDER_MARGIN_PX`, in whole pixels."""
-    return int(math.ceil(0.5 * float(max_coc_px))) + BORDER_MARGIN_PX
+    *max_coc_px*, the largest |CoC| diameter in pixels, clamped as the render clamps it to
+    :data:`pcdof.lens.MAX_COC_PX`) and :data:`BORDER_MARGIN_PX`, in whole pixels."""
+    return int(math.ceil(0.5 * min(float(max_coc_px), MAX_COC_PX))) + BORDER_MARGIN_PX
 
 
 def replicate_border(image: np.ndarray, pad_px: int) -> np.ndarray:
@@ -94,9 +97,7 @@ def bordered_source(lin: np.ndarray, max_coc_px: float) -> tuple[np.ndarray, int
     frame whose largest |CoC| is *max_coc_px* needs, no brighter than white beyond the edge (the module docstring):
     ((H + 2 b, W + 2 b, C) float32, b). What :func:`pcdof.stages.render.render_image` would make of it with
     ``border_most=1.0``, made before the render so that the frame and its widened copy are not both in memory."""
-    from ...lens import MAX_COC_PX
-
-    pad = border_px(min(float(max_coc_px), MAX_COC_PX))
+    pad = border_px(max_coc_px)
     return continue_border(lin, pad, most=1.0), pad
 
 

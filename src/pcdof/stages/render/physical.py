@@ -248,7 +248,7 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     src = as_channels(color)
     tiles = classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
     # the scene beyond the frame is continued from its edge: rendered widened by the largest reach, then cut back
-    pad = border_px(min(cmax, MAX_COC_PX))
+    pad = border_px(cmax)
     if source_border_px == pad:  # continued by the caller: read as it is (read only: never written)
         wide = as_channels(given)
         wide_lin = to_float(wide) if linear else decode_to_linear(wide)
@@ -259,7 +259,7 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     out_lin, info = render_layers_linear(wide_lin, replicate_border(coc, pad), aperture=aperture_for(lens),
                                          quality=quality, plan=plan)
     del wide_lin
-    out_lin = np.ascontiguousarray(out_lin[pad:-pad, pad:-pad])
+    out_lin = np.ascontiguousarray(interior(out_lin, pad))
     info["border_px"] = pad
     if linear:
         out = out_lin if color.dtype.kind == "f" else from_float(out_lin, color.dtype)

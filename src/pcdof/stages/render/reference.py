@@ -272,7 +272,7 @@ def render_physical(color, depth_m, lens, *, fx: float, linear: bool = False, bo
         return to_float(src).astype(np.float64)
     lin = to_float(src) if linear else decode_to_linear(src)
     # what lies beyond the frame is continued from its edge (pcdof.stages.render.border)
-    pad = border_px(min(float(np.abs(coc).max()), MAX_COC_PX))
+    pad = border_px(float(np.abs(coc).max()))
     out = render_layers_linear(_continued(lin, pad, border_most), np.pad(coc, pad, mode="edge"),
                                aperture=aperture_for(lens))[pad:-pad, pad:-pad]
     if linear:

@@ -346,3 +346,36 @@ def test_transforms_of_the_cut_window_are_the_windows_own(seed):
     np.testing.assert_array_equal(f_cut[near], f_win[near])
     assert (keep[0].start >= cut[0] and keep[0].stop <= cut[1] and keep[1].start >= cut[2]
             and keep[1].stop <= cut[3])
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), threads=st.integers(1, 2))
+def test_continued_pixels_of_an_earlier_mask_cut_to_the_later_one_are_the_later_answer(seed, threads):
+    """A layer's continued pixels found ahead (the mask taken before a nearer layer made more pixels opaque) and
+    cut to the pixels still hidden are those found on the later mask: each pixel's answer is its own."""
+    from pcdof.plans import plan_render
+    from pcdof.stages.render.frame import Canvas, RenderFrame
+
+    rng, layer, li, box, _, reach = _layer_case(seed)
+    ys, xs = np.nonzero(layer == li)
+    if ys.size == 0:
+        return
+    bbox = (ys.min(), ys.max(), xs.min(), xs.max())
+    box = (slice(min(box[0].start, bbox[0]), max(box[0].stop, bbox[1] + 1)),
+           slice(min(box[1].start, bbox[2]), max(box[1].stop, bbox[3] + 1)))
+    h, w = layer.shape
+    across = rng.integers(-1, int(layer.max()) + 1, (h, w)).astype(np.int8) if rng.random() < 0.5 else None
+    frame = RenderFrame(None, None, layer.astype(np.int8), None, plan_render(threads=threads), None, True, across)
+    early = np.where(rng.random((h, w)) < 0.3, 1.0, rng.random((h, w)) * 0.99).astype(np.float32)
+    late = np.where(rng.random((h, w)) < rng.choice([0.1, 0.5]), 1.0, early).astype(np.float32)
+    ownership = renderer.ownership
+    found_early = ownership.continued_pixels(frame, ownership.hidden_pixels(frame, Canvas(None, early), li, box), li,
+                                             box, bbox, reach)
+    cut = ownership.still_hidden(found_early, Canvas(None, late), box)
+    want = ownership.continued_pixels(frame, ownership.hidden_pixels(frame, Canvas(None, late), li, box), li, box,
+                                      bbox, reach)
+    assert (cut is None) == (want is None)
+    if want is not None:
+        order, want_order = np.argsort(cut.dst), np.argsort(want.dst)
+        np.testing.assert_array_equal(cut.dst[order], want.dst[want_order])
+        np.testing.assert_array_equal(cut.src[order], want.src[want_order])

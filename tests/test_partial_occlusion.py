@@ -7,15 +7,18 @@ surface, cut into many thin layers, must be continued as deep as one layer of it
 
 from __future__ import annotations
 
+import threading
 from unittest import mock
 
 import cv2
 import hypothesis.strategies as st
+import numba
 import numpy as np
 import pytest
 from hypothesis import given, settings
 
 import pcdof.stages.render as renderer
+from pcdof.plans import plan_render
 from pcdof.stages.render import reference as ref
 from pcdof.stages.render import render_layers_linear
 
@@ -185,3 +188,37 @@ def test_ownership_sees_a_farther_layer_beyond_the_hidden_pixels_reach():
     assert not out.any() and not _owned_whole(layer, 1, box, None, hidden, 20.0).any()
     layer[50, 36] = 0  # with no farther layer the pixel is owned
     assert renderer.ownership.owned_mask(layer, 1, box, (50, 50, 25, 25), hidden, 20.0)[50, 10]
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two numba threads")
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), quality=st.sampled_from(["exact", "balanced"]))
+def test_ownership_found_a_layer_ahead_renders_as_found_in_turn(seed, quality):
+    """With two threads each layer's continued pixels are found on a helper thread while the layer before it
+    renders (a mask taken one layer early, cut when used): the render is bit for bit the one-thread render, which
+    finds them in turn."""
+    _render_ahead_and_in_turn(*_random_frame(seed), quality)
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two numba threads")
+def test_ownership_ahead_runs_on_the_helper_thread():
+    """The lamp and the background behind a blurred foreground are each continued from a mask found ahead."""
+    assert _render_ahead_and_in_turn(*_scene(1.0), "exact") == 2
+
+
+def _render_ahead_and_in_turn(lin, coc, quality):
+    """Render with one thread and with two; assert they agree bit for bit and that every layer's continued pixels
+    found with two threads were found on the helper. Returns how many were."""
+    serial, _ = render_layers_linear(lin, coc, quality=quality, plan=plan_render(quality=quality, threads=1))
+    threads = []
+    find = renderer.ownership.OwnershipAhead._find
+
+    def spy(self, li, hidden, n):
+        threads.append(threading.current_thread() is not threading.main_thread())
+        return find(self, li, hidden, n)
+
+    with mock.patch.object(renderer.ownership.OwnershipAhead, "_find", spy):
+        ahead, _ = render_layers_linear(lin, coc, quality=quality, plan=plan_render(quality=quality, threads=2))
+    np.testing.assert_array_equal(ahead, serial)
+    assert all(threads)
+    return len(threads)

@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit
 
 from ...runtime.kernels import read_only
+from ...runtime.threads import worker_pool
 from .extend import Behind, behind_sources
 from .frame import Canvas, RenderFrame
 
@@ -265,14 +266,25 @@ def _in_thread(fn):
     return result
 
 
-def continued_pixels(frame: RenderFrame, canvas: Canvas, li: int, box, bbox, reach_px: float, cell_px: int = 1):
-    """The pixels of nearer layers that are not yet opaque and that this layer continues, and the pixel of the
-    layer each one copies (:func:`owners_of_hidden`): a :class:`Behind` with flat indices into *box*, or None."""
-    hidden = (frame.layer[box] < li) & (canvas.opacity[box] < 1)
+def hidden_pixels(frame: RenderFrame, canvas: Canvas, li: int, box) -> np.ndarray:
+    """The pixels of *box* that layer *li* may continue: those of nearer layers not yet opaque on *canvas*
+    ((H_box, W_box) bool). Opacity only grows, so the mask taken before a nearer layer is composited holds every
+    pixel of the mask taken after it."""
+    return (frame.layer[box] < li) & (canvas.opacity[box] < 1)
+
+
+def continued_pixels(frame: RenderFrame, hidden: np.ndarray, li: int, box, bbox, reach_px: float, cell_px: int = 1,
+                     threads: int | None = None):
+    """The pixels of *hidden* (:func:`hidden_pixels`) that this layer continues, and the pixel of the layer each
+    one copies (:func:`owners_of_hidden`): a :class:`Behind` with flat indices into *box*, or None.
+
+    Each pixel's answer depends on that pixel alone (the windows :func:`owners_of_hidden` cuts only bound the
+    work), so the answer for a mask taken early, cut to the pixels still hidden later (:func:`still_hidden`), is
+    the answer for the later mask. *threads*: None for the plan's (from about 0.2 Mpx of *box*)."""
     if not hidden.any():
         return None
-    # a second thread pays for itself from about 0.2 Mpx
-    threads = frame.plan.threads if hidden.size >= 200_000 else 1
+    if threads is None:  # a second thread pays for itself from about 0.2 Mpx
+        threads = frame.plan.threads if hidden.size >= 200_000 else 1
     found = owners_of_hidden(frame.layer, li, box, bbox, hidden, reach_px, cell_px, threads, frame.across)
     if isinstance(found, np.ndarray):  # their nearest pixels of the layer still to be found
         found = behind_sources(frame.layer[box] == li, found, reach_px, threads=threads)
@@ -284,3 +296,57 @@ def continued_pixels(frame: RenderFrame, canvas: Canvas, li: int, box, bbox, rea
     dst, src, d = found
     near = d <= reach_px
     return Behind(dst[near], src[near]) if near.any() else None
+
+
+def still_hidden(found: Behind | None, canvas: Canvas, box) -> Behind | None:
+    """*found* (:func:`continued_pixels` of a mask taken earlier) cut to the pixels of *box* not opaque on
+    *canvas* now; None when none is left."""
+    if found is None:
+        return None
+    keep = (canvas.opacity[box] < 1).ravel()[found.dst]
+    if keep.all():
+        return found
+    return Behind(found.dst[keep], found.src[keep]) if keep.any() else None
+
+
+class OwnershipAhead:
+    """Each layer's :func:`continued_pixels` found on a thread of its own while the layer before it renders.
+
+    The mask of a layer's hidden pixels is taken when the layer before it starts (opacity then is at most what it
+    will be when the layer renders), and the answer is cut to the pixels still hidden when it is used
+    (:func:`still_hidden`): the same answer as found then, so the render is bit for bit the one found in turn.
+    With one thread (*ahead* False) each layer's pixels are found when it renders.
+
+    Parameters
+    ----------
+    frame, canvas : the render's frame and canvas
+    windows : per layer, ``(box, bbox, reach_px)`` to extend it behind nearer layers, or None where it is not
+        extended
+    ahead : find the next layer's pixels on a helper thread (one core) while a layer renders
+    """
+
+    def __init__(self, frame: RenderFrame, canvas: Canvas, windows, ahead: bool):
+        self.frame, self.canvas, self.windows, self.ahead = frame, canvas, list(windows), bool(ahead)
+        self._pending = {}  # layer -> a future of its Behind
+
+    def _find(self, li: int, hidden: np.ndarray, threads: int | None):
+        box, bbox, reach = self.windows[li]
+        return continued_pixels(self.frame, hidden, li, box, bbox, reach, threads=threads)
+
+    def _start(self, li: int) -> None:
+        if li < len(self.windows) and self.windows[li] is not None and li not in self._pending:
+            hidden = hidden_pixels(self.frame, self.canvas, li, self.windows[li][0])
+            self._pending[li] = worker_pool("ownership", 1).submit(self._find, li, hidden, 1)
+
+    def continued(self, li: int) -> Behind | None:
+        """Layer *li*'s continued pixels, on the canvas as it is now (every nearer layer composited); with
+        *ahead*, the next layer's are started first."""
+        window = self.windows[li]
+        pending = self._pending.pop(li, None)
+        if self.ahead:
+            self._start(li + 1)
+        if window is None:
+            return None
+        if pending is None:
+            return continued_pixels(self.frame, hidden_pixels(self.frame, self.canvas, li, window[0]), li, *window)
+        return still_hidden(pending.result(), self.canvas, window[0])

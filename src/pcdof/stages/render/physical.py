@@ -38,22 +38,22 @@ from .composite import copy_tiles
 from .extend import NO_PIXELS
 from .frame import Canvas, RenderFrame, as_channels
 from .grids import full_grid, reduced_grid, upsample_cells, upsampled_strips
-from .ownership import continued_pixels
+from .ownership import OwnershipAhead
 from .scatter import scatter_sources
 from .tiles import TileMap, classify_tiles
 from .uniform import UniformTiles, convolve_uniform, convolved_cells
 
 
 def _layer_window(frame: RenderFrame, li: int, r_max: float, r_front: float, bbox):
-    """The window a layer's work needs (its box with the reach of its blur and of its extension),
-    its member mask there, the hidden pixels it may extend into (or None) and the extension's reach."""
+    """The window a layer's work needs: its box with the reach of its blur and of its extension, and the
+    extension's reach (0 when the layer is not extended behind nearer layers)."""
     h, w = frame.layer.shape
     extend = frame.extend_behind and li > 0 and r_front > 0
     ext_reach = int(math.ceil(r_front + r_max + 1)) if extend else 0
     margin = ext_reach + int(math.ceil(r_max + 0.5)) + 1
     y0, y1, x0, x1 = (int(v) for v in bbox)
     box = (slice(max(0, y0 - margin), min(h, y1 + margin + 1)), slice(max(0, x0 - margin), min(w, x1 + margin + 1)))
-    return box, frame.layer[box] == li, ext_reach, extend
+    return box, ext_reach
 
 
 def scatter_layer(lin, radius, member, s, aperture: RenderAperture, hidden=None, reach_px=0, fast=None,
@@ -87,26 +87,23 @@ def scatter_layer(lin, radius, member, s, aperture: RenderAperture, hidden=None,
     return buf, grid.extended, len(groups), n_scattered
 
 
-def _sharp_layer(frame: RenderFrame, canvas: Canvas, li: int, n_members: int, r_max: float, r_front: float,
-                 bbox) -> dict:
-    """Composite the in-focus layer: an opaque copy, no blur (extended behind nearer layers), read in place
-    from the frame (nothing is copied)."""
-    box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
-    found = continued_pixels(frame, canvas, li, box, bbox, ext_reach) if extend else None
+def _sharp_layer(frame: RenderFrame, canvas: Canvas, li: int, n_members: int, box, found) -> dict:
+    """Composite the in-focus layer: an opaque copy, no blur (extended behind nearer layers to the pixels
+    *found*, a :class:`Behind` or None), read in place from the frame (nothing is copied)."""
     dst, src = (found.dst, found.src) if found is not None else (NO_PIXELS, NO_PIXELS)
-    composite.composite_sharp(read_only(frame.lin), m, box[0].start, box[1].start, dst, src, canvas.acc,
-                              canvas.opacity)
+    composite.composite_sharp(read_only(frame.lin), frame.layer[box] == li, box[0].start, box[1].start, dst, src,
+                              canvas.acc, canvas.opacity)
     return {"key": 0, "coc_px": [0.0, 1.0], "pixels": n_members, "blurred": False, "scale": 1}
 
 
-def _blur_layer(frame: RenderFrame, canvas: Canvas, li: int, key: int, n_members: int, r_max: float, r_front: float,
-                bbox) -> dict:
-    """Scatter one blur layer (at the plan's resolution, uniform tiles convolved) and composite it behind."""
-    box, m, ext_reach, extend = _layer_window(frame, li, r_max, r_front, bbox)
+def _blur_layer(frame: RenderFrame, canvas: Canvas, li: int, key: int, n_members: int, r_max: float, box,
+                ext_reach: int, hidden) -> dict:
+    """Scatter one blur layer (at the plan's resolution, uniform tiles convolved; extended behind nearer layers
+    to the pixels *hidden*, a :class:`Behind` or None) and composite it behind."""
+    m = frame.layer[box] == li
     lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
     plan = frame.plan
     s = plan.scale(lo)
-    hidden = continued_pixels(frame, canvas, li, box, bbox, ext_reach) if extend else None
     # uniform tiles: everything within the layer's reach (plus the reduced grid's spread) in this layer
     uniform = np.zeros_like(frame.tiles.copy)
     if plan.convolve_uniform and lo / (2 * s) >= plan.uniform_min_radius_px:
@@ -128,16 +125,27 @@ def _blur_layer(frame: RenderFrame, canvas: Canvas, li: int, key: int, n_members
 
 def _composite_layers(frame: RenderFrame, canvas: Canvas, keys, counts, r_maxes, boxes) -> list:
     """Render and composite every layer, near to far (per layer: pixel count, largest radius, bounding box);
-    returns one record per layer."""
-    r_front = 0.0  # largest blur radius of the layers composited so far
+    returns one record per layer.
+
+    Which hidden pixels a layer continues (:class:`OwnershipAhead`) is found for the next layer on a thread of its
+    own while a layer renders, when the plan has more than one thread: the same answer, in the layers' shadow."""
+    windows, reaches = [], []
+    r_front = 0.0  # largest blur radius of the layers nearer than this one
+    for li, key in enumerate(keys):
+        box, ext_reach = _layer_window(frame, li, float(r_maxes[li]), r_front, boxes[li])
+        windows.append((box, boxes[li], ext_reach) if ext_reach else None)
+        reaches.append((box, ext_reach))
+        if key != 0:
+            r_front = max(r_front, float(r_maxes[li]))
+    ownership = OwnershipAhead(frame, canvas, windows, ahead=frame.plan.threads > 1)
     layers_run = []
     for li, key in enumerate(keys):
-        n_members, r_max = int(counts[li]), float(r_maxes[li])
+        (box, ext_reach), found = reaches[li], ownership.continued(li)
         if key == 0:
-            layers_run.append(_sharp_layer(frame, canvas, li, n_members, r_max, r_front, boxes[li]))
+            layers_run.append(_sharp_layer(frame, canvas, li, int(counts[li]), box, found))
         else:
-            layers_run.append(_blur_layer(frame, canvas, li, int(key), n_members, r_max, r_front, boxes[li]))
-            r_front = max(r_front, r_max)
+            layers_run.append(_blur_layer(frame, canvas, li, int(key), int(counts[li]), float(r_maxes[li]), box,
+                                          ext_reach, found))
     return layers_run
 
 

@@ -222,3 +222,26 @@ def _render_ahead_and_in_turn(lin, coc, quality):
     np.testing.assert_array_equal(ahead, serial)
     assert all(threads)
     return len(threads)
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two numba threads")
+def test_a_render_that_fails_drops_what_was_found_ahead():
+    """A layer that fails stops the render with its error, and the next layer's job found ahead is dropped
+    (cancelled, or finished and not kept), so nothing of the failed render is left pending."""
+    lin, coc = _scene(1.0)
+    made = []
+    real = renderer.ownership.OwnershipAhead
+
+    class Recorded(real):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            made.append(self)
+
+    def fail(*a, **k):
+        raise RuntimeError("layer failed")
+
+    with mock.patch.object(renderer.physical, "OwnershipAhead", Recorded), \
+            mock.patch.object(renderer.physical, "_blur_layer", fail):
+        with pytest.raises(RuntimeError, match="layer failed"):
+            render_layers_linear(lin, coc, quality="exact", plan=plan_render(quality="exact", threads=2))
+    assert len(made) == 1 and made[0]._pending == {}

@@ -350,3 +350,10 @@ class OwnershipAhead:
         if pending is None:
             return continued_pixels(self.frame, hidden_pixels(self.frame, self.canvas, li, window[0]), li, *window)
         return still_hidden(pending.result(), self.canvas, window[0])
+
+    def close(self) -> None:
+        """Drop what was found ahead and not used (a render that stopped early): a job not started is cancelled,
+        one running finishes on its own."""
+        for pending in self._pending.values():
+            pending.cancel()
+        self._pending.clear()

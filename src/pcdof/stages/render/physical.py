@@ -139,13 +139,16 @@ def _composite_layers(frame: RenderFrame, canvas: Canvas, keys, counts, r_maxes,
             r_front = max(r_front, float(r_maxes[li]))
     ownership = OwnershipAhead(frame, canvas, windows, ahead=frame.plan.threads > 1)
     layers_run = []
-    for li, key in enumerate(keys):
-        (box, ext_reach), found = reaches[li], ownership.continued(li)
-        if key == 0:
-            layers_run.append(_sharp_layer(frame, canvas, li, int(counts[li]), box, found))
-        else:
-            layers_run.append(_blur_layer(frame, canvas, li, int(key), int(counts[li]), float(r_maxes[li]), box,
-                                          ext_reach, found))
+    try:
+        for li, key in enumerate(keys):
+            (box, ext_reach), found = reaches[li], ownership.continued(li)
+            if key == 0:
+                layers_run.append(_sharp_layer(frame, canvas, li, int(counts[li]), box, found))
+            else:
+                layers_run.append(_blur_layer(frame, canvas, li, int(key), int(counts[li]), float(r_maxes[li]), box,
+                                              ext_reach, found))
+    finally:
+        ownership.close()
     return layers_run
 
 

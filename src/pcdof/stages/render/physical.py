@@ -129,19 +129,19 @@ def _composite_layers(frame: RenderFrame, canvas: Canvas, keys, counts, r_maxes,
 
     Which hidden pixels a layer continues (:class:`OwnershipAhead`) is found for the next layer on a thread of its
     own while a layer renders, when the plan has more than one thread: the same answer, in the layers' shadow."""
-    windows, reaches = [], []
+    extents, windows = [], []  # per layer: (its window, the extension's reach); what ownership needs, or None
     r_front = 0.0  # largest blur radius of the layers nearer than this one
     for li, key in enumerate(keys):
         box, ext_reach = _layer_window(frame, li, float(r_maxes[li]), r_front, boxes[li])
+        extents.append((box, ext_reach))
         windows.append((box, boxes[li], ext_reach) if ext_reach else None)
-        reaches.append((box, ext_reach))
         if key != 0:
             r_front = max(r_front, float(r_maxes[li]))
     ownership = OwnershipAhead(frame, canvas, windows, ahead=frame.plan.threads > 1)
     layers_run = []
     try:
         for li, key in enumerate(keys):
-            (box, ext_reach), found = reaches[li], ownership.continued(li)
+            (box, ext_reach), found = extents[li], ownership.continued(li)
             if key == 0:
                 layers_run.append(_sharp_layer(frame, canvas, li, int(counts[li]), box, found))
             else:

@@ -245,3 +245,18 @@ def test_a_render_that_fails_drops_what_was_found_ahead():
         with pytest.raises(RuntimeError, match="layer failed"):
             render_layers_linear(lin, coc, quality="exact", plan=plan_render(quality="exact", threads=2))
     assert len(made) == 1 and made[0]._pending == {}
+
+
+def test_ownership_ahead_falls_back_to_in_turn_when_no_thread_can_start():
+    """At interpreter exit a pool takes no new work (RuntimeError): the layers find their pixels in turn, and the
+    render is the same."""
+    lin, coc = _scene(1.0)
+    want, _ = render_layers_linear(lin, coc, quality="exact", plan=plan_render(quality="exact", threads=1))
+
+    class Closed:
+        def submit(self, *a, **k):
+            raise RuntimeError("cannot schedule new futures after interpreter shutdown")
+
+    with mock.patch.object(renderer.ownership, "worker_pool", lambda *a, **k: Closed()):
+        got, _ = render_layers_linear(lin, coc, quality="exact", plan=plan_render(quality="exact", threads=2))
+    np.testing.assert_array_equal(got, want)

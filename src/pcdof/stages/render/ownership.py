@@ -336,7 +336,10 @@ class OwnershipAhead:
     def _start(self, li: int) -> None:
         if li < len(self.windows) and self.windows[li] is not None and li not in self._pending:
             hidden = hidden_pixels(self.frame, self.canvas, li, self.windows[li][0])
-            self._pending[li] = worker_pool("ownership", 1).submit(self._find, li, hidden, 1)
+            try:
+                self._pending[li] = worker_pool("ownership", 1).submit(self._find, li, hidden, 1)
+            except RuntimeError:  # interpreter shutting down: no new threads; the layer finds its pixels in turn
+                self.ahead = False
 
     def continued(self, li: int) -> Behind | None:
         """Layer *li*'s continued pixels, on the canvas as it is now (every nearer layer composited); with

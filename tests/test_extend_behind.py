@@ -243,6 +243,17 @@ def test_in_focus_layer_composited_in_place_is_the_extended_copy(seed):
         np.testing.assert_array_equal(g, x)
 
 
+def _holding_bbox(layer, li, box):
+    """(bbox, box): layer *li*'s bounding box (row0, row1, col0, col1 inclusive) and *box* widened to hold it, as
+    the renderer's box does; None when the layer has no pixel."""
+    ys, xs = np.nonzero(layer == li)
+    if ys.size == 0:
+        return None
+    bbox = (ys.min(), ys.max(), xs.min(), xs.max())
+    return bbox, (slice(min(box[0].start, bbox[0]), max(box[0].stop, bbox[1] + 1)),
+                  slice(min(box[1].start, bbox[2]), max(box[1].stop, bbox[3] + 1)))
+
+
 @settings(max_examples=300, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), threads=st.integers(1, 3))
 def test_ownership_transform_labels_the_pixel_the_extension_copies(seed, threads):
@@ -250,13 +261,10 @@ def test_ownership_transform_labels_the_pixel_the_extension_copies(seed, threads
     that ownership's transform labels nearest, and that is the pixel the transform of the layer's pixels
     alone (on the extension's own window) labels nearest, ties included, on every thread's strip."""
     rng, layer, li, box, hidden, reach = _layer_case(seed)
-    ys, xs = np.nonzero(layer == li)
-    if ys.size == 0:
+    placed = _holding_bbox(layer, li, box)
+    if placed is None:
         return
-    bbox = (ys.min(), ys.max(), xs.min(), xs.max())
-    # the renderer's box holds the layer's bounding box
-    box = (slice(min(box[0].start, bbox[0]), max(box[0].stop, bbox[1] + 1)),
-           slice(min(box[1].start, bbox[2]), max(box[1].stop, bbox[3] + 1)))
+    bbox, box = placed
     hidden = (layer[box] < li) & (rng.random((box[0].stop - box[0].start, box[1].stop - box[1].start)) < 0.9)
     found = renderer.ownership.owners_of_hidden(layer, li, box, bbox, hidden, reach, 1, threads)
     if found is None or isinstance(found, np.ndarray):
@@ -357,12 +365,10 @@ def test_continued_pixels_of_an_earlier_mask_cut_to_the_later_one_are_the_later_
     from pcdof.stages.render.frame import Canvas, RenderFrame
 
     rng, layer, li, box, _, reach = _layer_case(seed)
-    ys, xs = np.nonzero(layer == li)
-    if ys.size == 0:
+    placed = _holding_bbox(layer, li, box)
+    if placed is None:
         return
-    bbox = (ys.min(), ys.max(), xs.min(), xs.max())
-    box = (slice(min(box[0].start, bbox[0]), max(box[0].stop, bbox[1] + 1)),
-           slice(min(box[1].start, bbox[2]), max(box[1].stop, bbox[3] + 1)))
+    bbox, box = placed
     h, w = layer.shape
     across = rng.integers(-1, int(layer.max()) + 1, (h, w)).astype(np.int8) if rng.random() < 0.5 else None
     frame = RenderFrame(None, None, layer.astype(np.int8), None, plan_render(threads=threads), None, True, across)

@@ -1,16 +1,17 @@
 """Where the renderer's time goes, layer by layer and pass by pass, on the benchmark's speed frames.
 
-    python scripts/profile_render.py --sizes 640x480,1920x1080 --repeats 7
+    python scripts/profile_render.py --sizes 640x480,1920x1080 --repeats 7 [--blur 64]
 
-The pipeline renders the speed frame (synthetic portrait, 512x424 depth, the scene's default lens) once to
-warm up, then *repeats* times with the renderer's passes wrapped by timers: per layer (near to far) its
+The pipeline renders the speed frame (synthetic portrait, 512x424 depth, the scene's default lens; with
+``--blur``, a lens focused alike that blurs the background by that many pixels, as the refocus benchmark opens
+it) once to warm up, then *repeats* times with the renderer's passes wrapped by timers: per layer (near to far) its
 window, grid scale and the medians (ms) of the passes it ran: ``hidden`` (the wait for which hidden pixels the
 layer continues, :meth:`pcdof.stages.render.ownership.OwnershipAhead.continued`: with more than one thread they are
 found on a thread of their own while the layer before renders, so this is what the layer waits beyond that;
 OpenCV's transforms that find them are counted apart as ``transforms``, wherever they ran, summed over the threads
 that run them), ``extend`` (the extended copy), ``reduce`` (cell
-means), ``plan`` (uniform tiles' cells and kernels), ``scatter``, ``convolve``, ``upsample`` and
-``composite``. Other processes on the machine inflate every number alike: compare rows of one run, not runs.
+means), ``plan`` (uniform tiles' cells and kernels), ``scatter``, ``convolve``, ``upsample`` (a reduced layer's
+strips brought to full resolution) and ``composite``. Other processes on the machine inflate every number alike: compare rows of one run, not runs.
 """
 
 import argparse
@@ -27,7 +28,8 @@ PASSES = {("grids", "extended_layer"): "extend",
           ("grids", "found_behind"): "extend",
           ("grids", "reduce_cells"): "reduce", ("physical", "convolved_cells"): "plan",
           ("physical", "scatter_sources"): "scatter", ("physical", "convolve_uniform"): "convolve",
-          ("physical", "upsample_cells"): "upsample", ("composite", "composite_under"): "composite",
+          ("physical", "upsample_cells"): "upsample", ("grids", "_doubled"): "upsample",
+          ("composite", "composite_under"): "composite",
           ("composite", "composite_sharp"): "composite"}
 
 
@@ -108,10 +110,14 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="640x480,1920x1080")
     ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--blur", type=float, default=None,
+                    help="background blur in px (a lens focused where the scene's default is, as the refocus "
+                         "benchmark makes it); default: the scene's default lens")
     args = ap.parse_args(argv)
 
     import pcdof.pipeline as pipeline
     import pcdof.stages.render as renderer
+    from pcdof.bench.refocus import lens_for_background_blur
     from pcdof.synth import generate_scene
 
     timers = _Timers(renderer)
@@ -119,11 +125,15 @@ def main(argv=None) -> None:
                "composite"]
     for size in [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]:
         sf = generate_scene("portrait", color_size=size, depth_size=(512, 424), seed=0)
-        pipeline.run(sf.frame, sf.default_lens)  # warm-up
+        lens = sf.default_lens
+        if args.blur is not None:
+            filled = pipeline.run(sf.frame, lens).depth_filled_m
+            lens = lens_for_background_blur(filled, sf.rig.color.fx, lens.focus_distance_m, args.blur)
+        pipeline.run(sf.frame, lens)  # warm-up
         runs = []
         for _ in range(args.repeats):
             timers.times.clear()
-            stages = {t.name: t.seconds for t in pipeline.run(sf.frame, sf.default_lens).trace}
+            stages = {t.name: t.seconds for t in pipeline.run(sf.frame, lens).trace}
             runs.append((dict(timers.times), stages["render"]))
         print(f"{size[0]}x{size[1]}: render {statistics.median(r for _, r in runs) * 1e3:.1f} ms, medians of "
               f"{args.repeats} (ms)")

@@ -777,6 +777,31 @@ class TestFrameBorder:
         assert replicate_border(one, 2).shape == (6, 7, 1)
         assert border_px(0.0) == 2 and border_px(9.0) == 7
 
+    @pytest.mark.parametrize("shape", [(9, 11, 3), (9, 11), (40, 6, 1), (6, 40, 3)])
+    def test_interior_in_place_is_the_interior_without_a_copy(self, shape):
+        from pcdof.stages.render.border import interior, interior_in_place
+
+        for b in (0, 1, 2):
+            a = np.random.default_rng(b).random(shape).astype(np.float32)
+            want = interior(a, b).copy()
+            got = interior_in_place(a, b)
+            assert got.flags.c_contiguous and np.shares_memory(got, a)
+            np.testing.assert_array_equal(got, want)
+
+    def test_widened_coc_given_as_the_frames_is_the_same_render(self):
+        from pcdof.stages.render.border import continue_border, replicate_border
+
+        rng = np.random.default_rng(4)
+        lin = continue_border(rng.random((30, 40, 3)).astype(np.float32), 6)
+        coc = np.where(rng.random((30, 40)) < 0.5, 9.0, -4.0).astype(np.float32)
+        coc[3, 4] = np.nan
+        want, _ = renderer.render_layers_linear(lin, replicate_border(coc, 6), quality="exact")
+        got, _ = renderer.render_layers_linear(lin, coc, quality="exact", coc_border_px=6)
+        np.testing.assert_array_equal(got, want)
+        for bad, border in ((coc, 5), (coc, -1), (coc, True), (replicate_border(coc, 6), 6), (coc[:, :-1], 6)):
+            with pytest.raises(InputError, match="signed_coc must be"):
+                renderer.render_layers_linear(lin, bad, coc_border_px=border)
+
 
 class TestBorderAboveWhite:
     def test_light_above_white_is_continued_only_without_a_limit(self):

@@ -74,6 +74,17 @@ class TestClassify:
         window = (slice(5, 19), slice(30, 35))
         np.testing.assert_array_equal(tiles.pixel_mask(sel, window), mask[window])
 
+    @pytest.mark.parametrize("seed", range(4))
+    def test_boxes_cover_the_pixel_mask(self, seed):
+        rng = np.random.default_rng(seed)
+        tiles = classify_tiles(np.zeros((rng.integers(1, 70), rng.integers(1, 90)), np.float32), tile_px=8)
+        sel = rng.random(tiles.copy.shape) < 0.5
+        covered = np.zeros(tiles.shape, int)
+        for box in tiles.boxes(sel):
+            covered[box] += 1
+        np.testing.assert_array_equal(covered, tiles.pixel_mask(sel).astype(int))  # each pixel once
+        assert len(tiles.boxes(sel)) <= sel.sum()
+
     @pytest.mark.parametrize("kwargs, name", [
         ({"signed_coc": np.zeros((4, 4, 2), np.float32)}, "signed_coc"),
         ({"signed_coc": np.zeros((4, 4), np.int32)}, "signed_coc"),

@@ -90,25 +90,11 @@ def composite_sharp(lin, member, y0, x0, dst, src, acc, opacity):
             opacity[y, x] = 1.0
 
 
-@njit(cache=True)
-def _copy_tiles(src, copy, tile, out):
-    """out[tile] = src[tile] for every tile set in *copy* ((th, tw) bool); src and out are (H, W, C)."""
-    h, w = src.shape[0], src.shape[1]
-    for ty in range(copy.shape[0]):
-        for tx in range(copy.shape[1]):
-            if copy[ty, tx]:
-                for y in range(ty * tile, min(h, (ty + 1) * tile)):
-                    for x in range(tx * tile, min(w, (tx + 1) * tile)):
-                        for c in range(src.shape[2]):  # not out[y, x] = src[y, x]: slice assignment compiles slowly
-                            out[y, x, c] = src[y, x, c]
-
-
 def copy_tiles(src: np.ndarray, tiles: TileMap, out: np.ndarray) -> None:
-    """Copy the copy tiles of *tiles* from *src* into *out* (same shape, (H, W) or (H, W, C))."""
-    if tiles.copy.any():
-        # copied as bytes: bit-exact for every dtype (float16 included), one compiled kernel for all
-        _copy_tiles(np.ascontiguousarray(src).view(np.uint8).reshape(src.shape[0], src.shape[1], -1), tiles.copy,
-                    tiles.tile_px, out.view(np.uint8).reshape(out.shape[0], out.shape[1], -1))
+    """Copy the copy tiles of *tiles* from *src* into *out* (same shape, (H, W) or (H, W, C); either may be a view),
+    a box per run of copy tiles: bit-exact for every dtype."""
+    for box in tiles.boxes(tiles.copy):
+        out[box] = src[box]
 
 
 def normalise(acc, opacity, lin, out):

@@ -45,10 +45,10 @@ class Canvas:
         h, w, nc = lin.shape
         acc = np.zeros((h, w, nc), np.float32)
         opacity = np.zeros((h, w), np.float32)
-        if copy_tiles and tiles.copy.any():
-            copied = tiles.pixel_mask(tiles.copy)
-            opacity[copied] = 1.0
-            acc[copied] = lin[copied]
+        if copy_tiles:
+            for box in tiles.boxes(tiles.copy):
+                opacity[box] = 1.0
+                acc[box] = lin[box]
         return cls(acc, opacity)
 
 

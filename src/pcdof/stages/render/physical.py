@@ -32,7 +32,7 @@ from ...plans import RenderPlan, as_dict, check_quality, check_render_plan, plan
 from ...runtime.threads import threads_for
 from . import classify, composite, serial
 from .aperture import RenderAperture, cached_aperture_table
-from .border import border_px, check_source_border, continue_border, interior, replicate_border
+from .border import border_px, check_source_border, continue_border, interior, interior_in_place, replicate_border
 from .classify import LAYER_EDGES_PX, SHARP_COC_PX, across_jumps
 from .composite import copy_tiles
 from .extend import NO_PIXELS
@@ -175,7 +175,7 @@ def _shape_of(aperture, blades, rotation_deg) -> Aperture:
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
                          rotation_deg: float = 0.0, aperture: Aperture | None = None, quality: str = "balanced",
                          extend_behind: bool = True, tiles: TileMap | None = None,
-                         plan: RenderPlan | None = None) -> tuple[np.ndarray, dict]:
+                         plan: RenderPlan | None = None, coc_border_px: int = 0) -> tuple[np.ndarray, dict]:
     """Physical depth of field in linear light.
 
     Parameters
@@ -193,6 +193,9 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
         its copy tiles are left out of every layer and come out as the input, exactly
     plan : :class:`pcdof.plans.RenderPlan` or None (:func:`pcdof.plans.plan_render` of *quality*):
         threads, tiles, reduced-resolution layers, convolution of uniform tiles
+    coc_border_px : int b >= 0; *signed_coc* is the frame's, (H - 2 b, W - 2 b), its edge continued b pixels
+        outward as *lin*'s is (each edge pixel repeated): the widened map lives only while the layers are
+        classified (4 bytes a pixel less through the render)
 
     Returns
     -------
@@ -204,11 +207,16 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     shape = _shape_of(aperture, blades, rotation_deg)
     plan = plan_render(quality=quality) if plan is None else check_render_plan(plan)
     h, w, _ = lin.shape
+    b = coc_border_px
+    if isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 0 or 2 * b >= min(h, w) \
+            or np.shape(signed_coc) != (h - 2 * b, w - 2 * b):
+        raise InputError(f"signed_coc must be (H - 2 b, W - 2 b) = ({h} - 2 b, {w} - 2 b) for lin {lin.shape} "
+                         f"and coc_border_px b, an int >= 0; got {np.shape(signed_coc)} and b = {b!r}")
     lin = np.ascontiguousarray(lin, np.float32)
     with threads_for(plan):
         coc, radius, layer, keys, counts, r_maxes, boxes = classify.classify_layers(
-            np.ascontiguousarray(signed_coc, np.float32), MAX_COC_PX, LAYER_EDGES_PX)
-        del signed_coc  # this function's reference: a CoC widened for the render is freed here (4 bytes a pixel)
+            replicate_border(np.asarray(signed_coc, np.float32), int(b)), MAX_COC_PX, LAYER_EDGES_PX)
+        del signed_coc
         tiles = _tiles_for(coc, tiles, plan)
         # where surfaces end, for the extension behind nearer layers (an int8 map, a quarter of the CoC's size)
         across = across_jumps(coc, layer) if extend_behind and keys.size > 1 else None
@@ -267,10 +275,10 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
         lin = to_float(src) if linear else decode_to_linear(src)
         wide_lin = continue_border(lin, pad, most=border_most)
         del lin
-    out_lin, info = render_layers_linear(wide_lin, replicate_border(coc, pad), aperture=aperture_for(lens),
-                                         quality=quality, plan=plan)
+    out_lin, info = render_layers_linear(wide_lin, coc, aperture=aperture_for(lens), quality=quality, plan=plan,
+                                         coc_border_px=pad)
     del wide_lin
-    out_lin = np.ascontiguousarray(interior(out_lin, pad))
+    out_lin = interior_in_place(out_lin, pad)  # the render's own buffer: the frame without another copy of it
     info["border_px"] = pad
     if linear:
         out = out_lin if color.dtype.kind == "f" else from_float(out_lin, color.dtype)

@@ -142,6 +142,19 @@ class TileMap:
         full = np.repeat(np.repeat(sub, t, axis=0), t, axis=1)
         return full[y0 - (y0 // t) * t:y1 - (y0 // t) * t, x0 - (x0 // t) * t:x1 - (x0 // t) * t]
 
+    def boxes(self, tiles: np.ndarray) -> list:
+        """The pixels of the tiles set in *tiles* ((th, tw) bool) as boxes: one (rows, columns) pair of slices per
+        run of set tiles along a row of tiles, cut at the map's edge."""
+        t = self.tile_px
+        h, w = self.shape
+        out = []
+        for ty in np.flatnonzero(tiles.any(axis=1)):
+            row = np.concatenate(([False], tiles[ty], [False]))
+            edges = np.flatnonzero(row[1:] != row[:-1])  # starts and ends of the runs, alternately
+            rows = slice(int(ty) * t, min(h, (int(ty) + 1) * t))
+            out += [(rows, slice(int(a) * t, min(w, int(b) * t))) for a, b in zip(edges[::2], edges[1::2])]
+        return out
+
     def summary(self) -> dict:
         """Plain counts for the pipeline trace."""
         return {"tile_px": self.tile_px, "tiles": self.n_tiles, "copy_tiles": int(self.copy.sum())}

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 import pcdof.stages.render as renderer
 from pcdof.stages.render import tiles
+from pcdof.errors import InputError
 from pcdof.lens import MAX_COC_PX
 
 
@@ -35,14 +36,15 @@ def _coc_map(rng, h, w, kind):
     return raw
 
 
-def _classify_plainly(raw):
-    """What _classify_layers returns, from its docstring, with numpy."""
-    edges = renderer.LAYER_EDGES_PX
+def _classify_plainly(raw, edges=None):
+    """What _classify_layers returns, from its docstring, with numpy (*edges*: (2, n), front then back)."""
+    edges = np.stack([renderer.LAYER_EDGES_PX] * 2) if edges is None else edges
     coc = np.clip(np.nan_to_num(raw, nan=0.0, posinf=np.inf, neginf=-np.inf), -MAX_COC_PX, MAX_COC_PX)
     coc = coc.astype(np.float32)
     a = np.abs(coc)
-    j = np.searchsorted(edges, a.astype(np.float64), side="right")  # edges[j-1] <= |c| < edges[j]
-    key = np.where(coc < 0, -j, j)
+    front = np.searchsorted(edges[0], a.astype(np.float64), side="right")  # edges[j-1] <= |c| < edges[j]
+    back = np.searchsorted(edges[1], a.astype(np.float64), side="right")
+    key = np.where(coc < 0, -front, back)
     keys = np.unique(key)
     layer = np.searchsorted(keys, key).astype(np.int8)
     count = np.array([np.count_nonzero(key == k) for k in keys], np.int64)
@@ -74,6 +76,71 @@ class TestClassifyLayers:
         got = renderer.classify.classify_layers(raw, MAX_COC_PX, renderer.LAYER_EDGES_PX)
         for g, e in zip(got, _classify_plainly(raw)):
             np.testing.assert_array_equal(g, e)
+
+    @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 80), w=st.integers(1, 80),
+           kind=st.sampled_from(["noise", "runs", "levels"]))
+    def test_property_the_frames_edges_on_each_side(self, seed, h, w, kind):
+        rng = np.random.default_rng(seed)
+        raw = _coc_map(rng, h, w, kind)
+        # values on the nominal edges and on the steps beside them: what the lookup per 1/8 px must get right
+        on = rng.random((h, w)) < 0.3
+        raw[on] = (rng.choice(renderer.LAYER_EDGES_PX[:-1], on.sum()) + rng.integers(-2, 3, on.sum()) / 8.0) * \
+            rng.choice([-1, 1], on.sum())
+        edges = renderer.classify.frame_edges(raw)
+        got = renderer.classify.classify_layers(raw, MAX_COC_PX, edges)
+        for g, e in zip(got, _classify_plainly(raw, edges)):
+            np.testing.assert_array_equal(g, e)
+
+    def test_edges_off_the_eighth_pixel_grid_are_refused(self):
+        edges = renderer.LAYER_EDGES_PX.copy()
+        edges[3] = 3.1
+        with pytest.raises(InputError, match="edges must be multiples of 1/8 px"):
+            renderer.classify.classify_layers(np.zeros((4, 4), np.float32), MAX_COC_PX, edges)
+
+
+class TestFrameEdges:
+    """The frame's layer edges: the nominal ones moved off the blur sizes the frame is full of."""
+
+    def test_a_map_with_nothing_near_an_edge_keeps_the_nominal_edges(self):
+        rng = np.random.default_rng(0)
+        mids = (renderer.LAYER_EDGES_PX[1:-2] + renderer.LAYER_EDGES_PX[2:-1]) / 2  # half-way between edges
+        raw = (rng.choice(mids, (60, 80)) * rng.choice([-1, 1], (60, 80))).astype(np.float32)
+        raw[0, :5] = [np.nan, np.inf, -np.inf, 0.0, 0.3]
+        edges = renderer.classify.frame_edges(raw)
+        np.testing.assert_array_equal(edges, np.stack([renderer.LAYER_EDGES_PX] * 2))
+
+    @pytest.mark.parametrize("edge", [2.0, 4.0, 16.0, 64.0, 181.0])
+    @pytest.mark.parametrize("side", [-1, 1])
+    def test_a_wall_on_an_edge_is_one_layer(self, edge, side):
+        rng = np.random.default_rng(int(edge))
+        wall = (edge * (1 + rng.uniform(-0.01, 0.01, (64, 96)))).astype(np.float32)  # a wall whose blur is on the edge
+        raw = side * wall
+        raw[:, :20] = -side * 5.0  # something on the other side, far from this edge
+        edges = renderer.classify.frame_edges(raw)
+        mine, other = edges[(side + 1) // 2], edges[(1 - side) // 2]
+        keys = np.unique(renderer.classify.classify_layers(raw, MAX_COC_PX, edges)[3])
+        assert np.count_nonzero(np.sign(keys) == side) == 1  # the whole wall in one layer
+        k = list(renderer.LAYER_EDGES_PX).index(edge)
+        assert mine[k] != edge and abs(np.log(mine[k] / edge)) <= np.log(renderer.classify.EDGE_MOVE) + 1e-12
+        assert other[k] == edge  # the other side's edges are the other side's pixels' affair
+
+    @settings(max_examples=60, deadline=None)
+    @given(seed=st.integers(0, 2 ** 32 - 1), kind=st.sampled_from(["noise", "runs", "levels"]))
+    def test_property_edges_stay_in_order_near_their_place_on_the_grid(self, seed, kind):
+        raw = _coc_map(np.random.default_rng(seed), 50, 70, kind)
+        edges = renderer.classify.frame_edges(raw, sample=1)
+        nominal = renderer.LAYER_EDGES_PX
+        for side in edges:
+            assert side[0] == nominal[0] and side[-1] == np.inf
+            assert np.all(np.diff(side) > 0)
+            np.testing.assert_array_equal(side[:-1] * 8, np.round(side[:-1] * 8))
+            ratio = np.abs(np.log(side[1:-1] / nominal[1:-1]))
+            assert np.all(ratio <= np.log(renderer.classify.EDGE_MOVE) + 1e-12)
+
+    def test_non_maps_are_refused(self):
+        with pytest.raises(InputError, match="signed_coc must be"):
+            renderer.classify.frame_edges(np.zeros(5, np.float32))
 
 
 def _reduce_plainly(lin, radius, member, s):

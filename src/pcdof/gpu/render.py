@@ -27,20 +27,19 @@ from ..apertures import Aperture
 from ..errors import InputError
 from ..lens import MAX_COC_PX
 from ..stages.render import LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, aperture_table
-from ..stages.render.classify import JUMP_COC_PX
+from ..stages.render.classify import JUMP_COC_PX, frame_edges
 from .launch import grid_1d, grid_2d, on_device, to_device, zeros
 
 _N_EDGES = len(LAYER_EDGES_PX)
-_EDGES = np.asarray(LAYER_EDGES_PX, np.float64)
 #: layer keys run over -_N_EDGES .. _N_EDGES; bin = key + _N_EDGES
 N_BINS = 2 * _N_EDGES + 1
 _G_SAMPLES = 4096
 
 
 @cuda.jit
-def _classify(coc_in, max_coc, radius, key_bin, count, r_max):
-    """Cleaned radius (|c| / 2, NaN as 0, clipped), the layer bin of each pixel, and per bin its pixel count and
-    largest radius (atomics)."""
+def _classify(coc_in, max_coc, edges, radius, key_bin, count, r_max):
+    """Cleaned radius (|c| / 2, NaN as 0, clipped), the layer bin of each pixel (*edges* (2, n): the frame's layer
+    edges in front of the focus and behind it), and per bin its pixel count and largest radius (atomics)."""
     y, x = cuda.grid(2)
     H, W = coc_in.shape
     if y >= H or x >= W:
@@ -50,9 +49,10 @@ def _classify(coc_in, max_coc, radius, key_bin, count, r_max):
         c = 0.0
     c = min(max(c, -max_coc), max_coc)
     a = abs(c)
+    side = 0 if c < 0 else 1
     k = 0
     for e in range(_N_EDGES):
-        if _EDGES[e] <= a:
+        if edges[side, e] <= a:
             k += 1
     b = _N_EDGES - k if c < 0 else _N_EDGES + k
     r = np.float32(0.5 * a)
@@ -292,19 +292,25 @@ def aperture_on_device(aperture: Aperture, stream=0) -> ApertureOnDevice:
     return _APERTURES[aperture]
 
 
-def classify_layers(signed_coc, stream=0):
+def classify_layers(signed_coc, stream=0, edges=None):
     """(radius (H, W) float32, bin (H, W) int32 device arrays, counts (N_BINS,) int64, r_max (N_BINS,) float32 host
-    arrays) of a signed CoC map; bin - ``N_BINS // 2`` is the layer key of :func:`pcdof.stages.render.reference.layer_keys`.
+    arrays) of a signed CoC map; bin - ``N_BINS // 2`` is the layer key of
+    :func:`pcdof.stages.render.reference.layer_keys` with *edges* ((2, n) px: in front of the focus, behind it;
+    None: the frame's, :func:`pcdof.stages.render.classify.frame_edges`, from a copy of the map on the host).
     The per-bin counts come back to the host (a few hundred bytes) to plan the layers."""
     coc = to_device(signed_coc if on_device(signed_coc) else np.asarray(signed_coc, np.float32), stream)
     if len(coc.shape) != 2:
         raise InputError(f"signed_coc must be (H, W); got shape {tuple(coc.shape)}")
+    if edges is None:
+        edges = frame_edges(coc.copy_to_host(stream=stream) if on_device(signed_coc)
+                            else np.asarray(signed_coc, np.float32))
     radius = cuda.device_array(coc.shape, np.float32, stream=stream)
     key_bin = cuda.device_array(coc.shape, np.int32, stream=stream)
     count = zeros(N_BINS, np.int64, stream)
     r_max = zeros(N_BINS, np.float32, stream)
     blocks, threads = grid_2d(*coc.shape)
-    _classify[blocks, threads, stream](coc, MAX_COC_PX, radius, key_bin, count, r_max)
+    _classify[blocks, threads, stream](coc, MAX_COC_PX, to_device(np.asarray(edges, np.float64), stream), radius,
+                                       key_bin, count, r_max)
     return radius, key_bin, count.copy_to_host(stream=stream), r_max.copy_to_host(stream=stream)
 
 

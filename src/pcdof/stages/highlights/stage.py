@@ -79,6 +79,7 @@ class HighlightsStage(Stage):
 
     def run(self, state: FrameState, plan, options) -> StageOutput:
         from . import parse_highlights, prepare_highlights, reconstruct_prepared
+        from ...plans import plan_render
         from ..render.border import bordered_source
 
         how, gain = parse_highlights(options.highlights)
@@ -96,7 +97,8 @@ class HighlightsStage(Stage):
         source = reconstruct_prepared(found, method=how, gain=gain, coc_px=state.signed_coc_px)  # the sign is ignored
         del found
         # handed over widened by the render's border: the render reads it as it is, and only one copy is kept
-        source, border = (source, 0) if state.coc_max_px is None else bordered_source(source, state.coc_max_px)
+        source, border = (source, 0) if state.coc_max_px is None else bordered_source(
+            source, state.coc_max_px, plan_render(quality=options.quality))
         return StageOutput({"source": source, "source_linear": True, "source_border_px": border,
                             "started": self._joined(state)},
                            f"{how}{f' (gain {gain:g})' if how in ('gain', 'rim') else ''}: {n} clipped pixels",

@@ -39,11 +39,19 @@ from ...lens import MAX_COC_PX
 BORDER_MARGIN_PX = 2
 
 
-def border_px(max_coc_px: float) -> int:
+def border_px(max_coc_px: float, plan=None) -> int:
     """How far beyond the frame a source can reach into it: the largest footprint radius (half of
     *max_coc_px*, the largest |CoC| diameter in pixels, clamped as the render clamps it to
-    :data:`pcdof.lens.MAX_COC_PX`) and :data:`BORDER_MARGIN_PX`, in whole pixels."""
-    return int(math.ceil(0.5 * min(float(max_coc_px), MAX_COC_PX))) + BORDER_MARGIN_PX
+    :data:`pcdof.lens.MAX_COC_PX`) and :data:`BORDER_MARGIN_PX`, in whole pixels; with a render *plan*
+    (:class:`pcdof.plans.RenderPlan`), rounded up to a multiple of the coarsest grid the plan computes a layer of
+    this frame on (:meth:`~pcdof.plans.RenderPlan.scale`), so that every reduced grid's cells start at the frame's
+    corner whatever the border (a focus pull does not shift them by a pixel from one frame to the next)."""
+    c = min(float(max_coc_px), MAX_COC_PX)
+    pad = int(math.ceil(0.5 * c)) + BORDER_MARGIN_PX
+    if plan is None:
+        return pad
+    s = plan.scale(c)
+    return -(-pad // s) * s
 
 
 def replicate_border(image: np.ndarray, pad_px: int) -> np.ndarray:
@@ -92,12 +100,13 @@ def continue_border(image: np.ndarray, pad_px: int, *, most: float | None = None
     return out
 
 
-def bordered_source(lin: np.ndarray, max_coc_px: float) -> tuple[np.ndarray, int]:
+def bordered_source(lin: np.ndarray, max_coc_px: float, plan) -> tuple[np.ndarray, int]:
     """Estimated linear radiance *lin* (H, W, C) float32 (the highlights stage's), widened by the border a render of a
-    frame whose largest |CoC| is *max_coc_px* needs, no brighter than white beyond the edge (the module docstring):
-    ((H + 2 b, W + 2 b, C) float32, b). What :func:`pcdof.stages.render.render_image` would make of it with
-    ``border_most=1.0``, made before the render so that the frame and its widened copy are not both in memory."""
-    pad = border_px(max_coc_px)
+    frame whose largest |CoC| is *max_coc_px* needs with *plan* (:func:`border_px`), no brighter than white beyond
+    the edge (the module docstring): ((H + 2 b, W + 2 b, C) float32, b). What
+    :func:`pcdof.stages.render.render_image` would make of it with ``border_most=1.0``, made before the render so
+    that the frame and its widened copy are not both in memory."""
+    pad = border_px(max_coc_px, plan)
     return continue_border(lin, pad, most=1.0), pad
 
 

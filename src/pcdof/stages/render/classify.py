@@ -1,15 +1,20 @@
-"""Layer classification: the signed circle of confusion cut into depth layers at :data:`LAYER_EDGES_PX`,
-in one pass with each layer's pixel count, largest radius and bounding box."""
+"""Layer classification: the signed circle of confusion cut into depth layers at :data:`LAYER_EDGES_PX`, each edge
+moved a little for the frame (:func:`frame_edges`), in one pass with each layer's pixel count, largest radius and
+bounding box."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
 
+from ...errors import InputError
 from ...runtime.tasks import next_chunk, run_tasks
 from ...runtime.threads import current_threads
 
-#: |CoC| layer edges in pixels; |c| < 1 is the in-focus layer, copied without blur.
+#: |CoC| layer edges in pixels, as a frame's edges start (:func:`frame_edges`); |c| < 1 is the in-focus layer,
+#: copied without blur.
 LAYER_EDGES_PX = np.array([1, 1.5, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 91, 128, 181, 256, np.inf])
 
 #: Below this largest CoC (pixels) the renderer returns the input unchanged: every pixel would fall
@@ -26,10 +31,75 @@ MIN_SOURCE_RADIUS_PX = 0.5
 #: surface crosses a layer edge every few pixels, and a depth map's steps on it stay well below this.
 JUMP_COC_PX = 2.0
 
+#: layer edges are multiples of 1 / EDGE_STEPS px (:func:`classify_layers` finds a pixel's layer by a lookup per
+#: step)
+EDGE_STEPS = 8
+
 #: rows of a task of :func:`classify_layers`'s first pass and of :func:`across_jumps` (tasks on the threads:
 #: :func:`pcdof.runtime.tasks.run_tasks`), and of its relabelling (a lookup per pixel: less work a row)
 TASK_ROWS = 16
 RELABEL_ROWS = 32
+
+
+#: how far a layer edge may move from its place in :data:`LAYER_EDGES_PX` (a factor of up to this either way) to
+#: where the frame has fewer pixels (:func:`frame_edges`)
+EDGE_MOVE = 2.0 ** (1 / 6)
+#: the band around an edge whose pixels an edge splits, relative to the edge (:func:`frame_edges`)
+EDGE_BAND = 0.04
+
+
+def frame_edges(signed_coc: np.ndarray, edges: np.ndarray = LAYER_EDGES_PX, *, sample: int = 2) -> np.ndarray:
+    """The layer edges for one frame, in front of the focus and behind it: each finite edge of *edges* past the
+    first moved, by up to a factor of :data:`EDGE_MOVE`, to where the fewest of that side's pixels have a |CoC|
+    within :data:`EDGE_BAND` of it (nearest to its place among equals), in steps of 1 / :data:`EDGE_STEPS` px.
+
+    A surface whose blur sits on an edge (a wall at one depth) would be cut into two layers, each with pixels
+    of the other within its reach: no tile of it uniform, and two passes over it. The edge is moved off it.
+    Counted on every *sample*-th pixel of every *sample*-th row. The first edge (the sharp limit) stays.
+    Returns float64 (2, len(edges)): the edges in front of the focus (negative CoC), then behind; each ascending.
+    """
+    c = np.asarray(signed_coc, np.float32)
+    if c.ndim != 2:
+        raise InputError(f"signed_coc must be (H, W); got shape {c.shape}")
+    c = c[::sample, ::sample].ravel()
+    return np.stack([_side_edges(-c[c < 0], edges), _side_edges(c[c > 0], edges)])
+
+
+def check_edges(edges) -> np.ndarray:
+    """*edges* as (2, n) float64 layer edges (in front of the focus, behind it; (n,): both sides), n =
+    ``len(LAYER_EDGES_PX)``: each side ascending, starting at ``LAYER_EDGES_PX[0]`` (the sharp limit), ending at
+    inf, the others multiples of 1 / :data:`EDGE_STEPS` px; an :class:`InputError` naming *edges* otherwise."""
+    e = np.array(edges, np.float64)
+    n = len(LAYER_EDGES_PX)
+    e = np.stack([e, e]) if e.shape == (n,) else e
+    if e.shape != (2, n) or not np.all(np.diff(e, axis=1) > 0) or not np.all(e[:, 0] == LAYER_EDGES_PX[0]) \
+            or not np.all(e[:, -1] == np.inf) or not np.array_equal(e[:, :-1] * EDGE_STEPS, np.round(e[:, :-1] * EDGE_STEPS)):
+        raise InputError(f"edges must be ({n},) or (2, {n}) ascending |CoC| layer edges from {LAYER_EDGES_PX[0]:g} "
+                         f"px to inf, the others multiples of 1/{EDGE_STEPS} px; got {np.shape(edges)} {edges!r:.120}")
+    return e
+
+
+def _side_edges(a: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """:func:`frame_edges` of one side, from its pixels' |CoC| *a* (N,)."""
+    steps = EDGE_STEPS
+    top = float(edges[-2]) * EDGE_MOVE * (1 + EDGE_BAND) + 1
+    counts = np.bincount((np.minimum(a, top) * steps).astype(np.int64), minlength=int(top * steps) + 2)
+    cum = np.concatenate(([0], np.cumsum(counts)))
+
+    def between(lo, hi):  # pixels with lo <= |c| < hi (on the 1/steps grid)
+        i = np.clip(np.floor(lo * steps).astype(np.int64), 0, cum.size - 1)
+        j = np.clip(np.floor(hi * steps).astype(np.int64), 0, cum.size - 1)
+        return cum[j] - cum[i]
+
+    out = np.array(edges, np.float64)
+    for k in range(1, len(edges) - 1):
+        e = float(edges[k])
+        cand = np.arange(math.ceil(e / EDGE_MOVE * steps), math.floor(e * EDGE_MOVE * steps) + 1) / steps
+        cand = cand[cand > out[k - 1]]
+        cost = between(cand * (1 - EDGE_BAND), cand * (1 + EDGE_BAND))
+        best = np.flatnonzero(cost == cost.min())
+        out[k] = cand[best[np.argmin(np.abs(np.log(cand[best] / e)))]]
+    return out
 
 
 @njit(cache=True, inline="always")
@@ -48,24 +118,30 @@ def classify_layers(raw, max_coc, edges):
     """One pass over a signed CoC map (H, W): cleaned CoC, footprint radius, layer ids and per-layer statistics.
 
     The CoC is cleaned as NaN -> 0 and clipped to +-max_coc; the footprint radius is |c| / 2. The
-    signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k] (*edges*
-    ascending; negative in front of focus); layers number the keys present from near to far. Bands of
+    signed key of a pixel is 0 for |c| < edges[0] and +-k for edges[k-1] <= |c| < edges[k] (negative in front
+    of focus; *edges*: (n,) for both sides or (2, n), in front of the focus and behind it (:func:`frame_edges`),
+    ascending multiples of 1 / :data:`EDGE_STEPS` px but the last); layers number the keys present from near to
+    far. Bands of
     :data:`TASK_ROWS` rows are tasks on the threads (:func:`_band_tasks`) and note, per key, the pixel count,
     largest radius and bounding box (once per run of equal keys along a row, not per pixel); the bands are
     merged exactly (counts, maxima and bounds do not depend on the order, :func:`_merge_bands`), then the
     keys are replaced by layer ids, rows again as tasks (:func:`_relabel_tasks`).
 
-    Returns (coc, radius) float32 (H, W), layer (H, W) int8 (at most 2 len(edges) + 1 layers), keys (L,) int64
-    ascending, and per
-    layer: count (L,) int64, largest radius (L,) float32, box (L, 4) int64 (row0, row1, col0, col1; inclusive).
+    Returns (coc, radius) float32 (H, W), layer (H, W) int8 (at most 2 n + 1 layers), keys (L,) int64
+    ascending, and per layer: count (L,) int64, largest radius (L,) float32, box (L, 4) int64 (row0, row1, col0, col1; inclusive).
     """
     h, w = raw.shape
-    n = edges.size
+    edges = np.asarray(edges, np.float64)
+    sides = edges if edges.ndim == 2 else np.stack([edges, edges])  # front, back
+    n = sides.shape[1]
     n_keys = 2 * n + 1
-    # every finite edge is a multiple of 1/2 px: the layer is constant on [i/2, (i+1)/2); its key's size is the
-    # number of edges at or below i/2
-    n_half = int(2 * edges[n - 2]) + 1
-    by_half = np.searchsorted(edges, 0.5 * np.arange(n_half), side="right").astype(np.int32)
+    # every finite edge is a multiple of 1/EDGE_STEPS px: the layer is constant on [i/steps, (i+1)/steps); its
+    # key's size is the number of edges at or below i/steps
+    steps = EDGE_STEPS
+    if not np.array_equal(sides[:, :-1] * steps, np.round(sides[:, :-1] * steps)):
+        raise InputError(f"edges must be multiples of 1/{steps} px but the last; got {edges.tolist()}")
+    n_step = int(steps * sides[:, n - 2].max()) + 1
+    by_step = np.stack([np.searchsorted(e, np.arange(n_step) / steps, side="right") for e in sides]).astype(np.int32)
     coc = np.empty((h, w), np.float32)
     radius = np.empty((h, w), np.float32)
     layer = np.empty((h, w), np.int8)  # 1 byte a pixel: at most 37 keys
@@ -74,19 +150,20 @@ def classify_layers(raw, max_coc, edges):
     r_max = np.empty((n_bands, n_keys), np.float32)
     box = np.empty((n_bands, n_keys, 4), np.int64)
     threads = current_threads()
-    run_tasks(_band_tasks, threads, n_bands, raw, max_coc, by_half, n, coc, radius, layer, count, r_max, box)
+    run_tasks(_band_tasks, threads, n_bands, raw, max_coc, by_step, steps, n, coc, radius, layer, count, r_max,
+              box)
     lookup, keys, total, r_all, box_all = _merge_bands(count, r_max, box, h, w, n)
     run_tasks(_relabel_tasks, threads, -(-h // RELABEL_ROWS), layer, lookup)
     return coc, radius, layer, keys, total, r_all, box_all
 
 
 @njit(cache=True, nogil=True)
-def _band_tasks(counter, n_tasks, raw, max_coc, by_half, n, coc, radius, layer, count, r_max, box):
+def _band_tasks(counter, n_tasks, raw, max_coc, by_step, steps, n, coc, radius, layer, count, r_max, box):
     """:func:`classify_layers`'s bands of :data:`TASK_ROWS` rows, each claimed from *counter*: band b's cleaned
     CoC, radius and keys, and its statistics per key in ``count[b]``, ``r_max[b]``, ``box[b]``."""
     h, w = raw.shape
     n_keys = count.shape[1]
-    n_half = by_half.size
+    n_step = by_step.shape[1]
     lim = np.float32(max_coc)
     while True:
         y0, y1 = next_chunk(counter, n_tasks, TASK_ROWS, h)
@@ -110,8 +187,8 @@ def _band_tasks(counter, n_tasks, raw, max_coc, by_half, n, coc, radius, layer, 
                 r = a * np.float32(0.5)
                 coc[y, x] = c
                 radius[y, x] = r
-                i = int(2.0 * a) if a < 0.5 * (n_half - 1) else n_half - 1
-                j = by_half[i]
+                i = int(steps * a) if a < (n_step - 1) / steps else n_step - 1
+                j = by_step[0 if c < 0 else 1, i]
                 k = n + (-j if c < 0 else j)
                 layer[y, x] = k
                 if k == run_k:

@@ -15,9 +15,10 @@ from .tiles import TileMap
 @dataclass(frozen=True)
 class RenderFrame:
     """What every layer of a render reads: linear colour (H, W, C) float32, footprint radius (H, W),
-    layer ids (H, W) int8, the tile map, the plan, the aperture, whether layers extend behind, and where
+    layer ids (H, W) int8, the tile map, the plan, the aperture, whether layers extend behind, where
     surfaces end (:func:`pcdof.stages.render.classify.across_jumps`: (H, W) int8, or None when nothing is
-    extended)."""
+    extended) and the frame's layer edges (:func:`pcdof.stages.render.classify.frame_edges`: (2, n) px, in
+    front of the focus and behind it)."""
 
     lin: np.ndarray
     radius: np.ndarray
@@ -26,7 +27,8 @@ class RenderFrame:
     plan: RenderPlan
     aperture: RenderAperture
     extend_behind: bool
-    across: np.ndarray | None = None
+    across: np.ndarray | None
+    edges: np.ndarray
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,8 @@
 
 Every pixel is a small disc (or aperture polygon) of diameter c(z) = A*fx*|1/d_f - 1/z| pixels
 in linear light. Pixels are grouped into depth layers by their signed circle of confusion (layer
-edges at |c| = 1, 1.5, 2, 3, 4, 6, 8, 11, ... px, so only the blur sizes present are computed).
+edges near |c| = 1, 1.5, 2, 3, 4, 6, 8, 11, ... px, each moved a little off the blur sizes the frame is full of,
+so that a surface at one depth is one layer; only the blur sizes present are computed).
 Each layer is scattered exactly -- every source spreads its radiance over its own disc with
 area-exact, anti-aliased coverage, normalised to carry exactly its energy -- and layers are
 composited front to back with the "over" operator, the layer's coverage being its opacity. So a
@@ -44,15 +45,23 @@ from .tiles import TileMap, classify_tiles
 from .uniform import UniformTiles, convolve_uniform, convolved_cells
 
 
-def _layer_window(frame: RenderFrame, li: int, r_max: float, r_front: float, bbox):
-    """The window a layer's work needs: its box with the reach of its blur and of its extension, and the
-    extension's reach (0 when the layer is not extended behind nearer layers)."""
+def _layer_range(frame: RenderFrame, key: int) -> tuple[float, float]:
+    """The |CoC| range [lo, hi) of the blur layer *key* (nonzero) on the frame's edges of its side, pixels."""
+    side = frame.edges[0 if key < 0 else 1]
+    return float(side[abs(key) - 1]), float(min(side[abs(key)], MAX_COC_PX))
+
+
+def _layer_window(frame: RenderFrame, li: int, r_max: float, r_front: float, bbox, s: int = 1):
+    """The window a layer's work needs: its box with the reach of its blur and of its extension, starting on a
+    multiple of its grid's cell *s* (the frame's border is one, :func:`~pcdof.stages.render.border.border_px`), and
+    the extension's reach (0 when the layer is not extended behind nearer layers)."""
     h, w = frame.layer.shape
     extend = frame.extend_behind and li > 0 and r_front > 0
     ext_reach = int(math.ceil(r_front + r_max + 1)) if extend else 0
     margin = ext_reach + int(math.ceil(r_max + 0.5)) + 1
     y0, y1, x0, x1 = (int(v) for v in bbox)
-    box = (slice(max(0, y0 - margin), min(h, y1 + margin + 1)), slice(max(0, x0 - margin), min(w, x1 + margin + 1)))
+    y0, x0 = max(0, y0 - margin), max(0, x0 - margin)
+    box = (slice(y0 - y0 % s, min(h, y1 + margin + 1)), slice(x0 - x0 % s, min(w, x1 + margin + 1)))
     return box, ext_reach
 
 
@@ -101,7 +110,7 @@ def _blur_layer(frame: RenderFrame, canvas: Canvas, li: int, key: int, n_members
     """Scatter one blur layer (at the plan's resolution, uniform tiles convolved; extended behind nearer layers
     to the pixels *hidden*, a :class:`Behind` or None) and composite it behind."""
     m = frame.layer[box] == li
-    lo, hi = float(LAYER_EDGES_PX[abs(key) - 1]), float(min(LAYER_EDGES_PX[abs(key)], MAX_COC_PX))
+    lo, hi = _layer_range(frame, key)
     plan = frame.plan
     s = plan.scale(lo)
     # uniform tiles: everything within the layer's reach (plus the reduced grid's spread) in this layer
@@ -132,7 +141,8 @@ def _composite_layers(frame: RenderFrame, canvas: Canvas, keys, counts, r_maxes,
     extents, windows = [], []  # per layer: (its window, the extension's reach); what ownership needs, or None
     r_front = 0.0  # largest blur radius of the layers nearer than this one
     for li, key in enumerate(keys):
-        box, ext_reach = _layer_window(frame, li, float(r_maxes[li]), r_front, boxes[li])
+        s = 1 if key == 0 else frame.plan.scale(_layer_range(frame, int(key))[0])
+        box, ext_reach = _layer_window(frame, li, float(r_maxes[li]), r_front, boxes[li], s)
         extents.append((box, ext_reach))
         windows.append((box, boxes[li], ext_reach) if ext_reach else None)
         if key != 0:
@@ -175,7 +185,8 @@ def _shape_of(aperture, blades, rotation_deg) -> Aperture:
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
                          rotation_deg: float = 0.0, aperture: Aperture | None = None, quality: str = "balanced",
                          extend_behind: bool = True, tiles: TileMap | None = None,
-                         plan: RenderPlan | None = None, coc_border_px: int = 0) -> tuple[np.ndarray, dict]:
+                         plan: RenderPlan | None = None, coc_border_px: int = 0,
+                         edges: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """Physical depth of field in linear light.
 
     Parameters
@@ -196,6 +207,8 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
     coc_border_px : int b >= 0; *signed_coc* is the frame's, (H - 2 b, W - 2 b), its edge continued b pixels
         outward as *lin*'s is (each edge pixel repeated): the widened map lives only while the layers are
         classified (4 bytes a pixel less through the render)
+    edges : (2, n) float, the layer edges in front of the focus and behind it, pixels (None:
+        :func:`pcdof.stages.render.classify.frame_edges` of *signed_coc* as given)
 
     Returns
     -------
@@ -214,15 +227,18 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
                          f"and coc_border_px b, an int >= 0; got {np.shape(signed_coc)} and b = {b!r}")
     lin = np.ascontiguousarray(lin, np.float32)
     with threads_for(plan):
-        coc, radius, layer, keys, counts, r_maxes, boxes = classify.classify_layers(
-            replicate_border(np.asarray(signed_coc, np.float32), int(b)), MAX_COC_PX, LAYER_EDGES_PX)
+        # (front, back): the nominal edges moved off the blur sizes the frame is full of
+        edges = classify.frame_edges(signed_coc) if edges is None else classify.check_edges(edges)
+        wide_coc = replicate_border(np.asarray(signed_coc, np.float32), int(b))
         del signed_coc
+        coc, radius, layer, keys, counts, r_maxes, boxes = classify.classify_layers(wide_coc, MAX_COC_PX, edges)
+        del wide_coc  # the widened map lives only while the layers are classified
         tiles = _tiles_for(coc, tiles, plan)
         # where surfaces end, for the extension behind nearer layers (an int8 map, a quarter of the CoC's size)
         across = across_jumps(coc, layer) if extend_behind and keys.size > 1 else None
         del coc  # the layers read the radius and the layer ids: the cleaned CoC is not kept through them
         render_aperture = RenderAperture(shape.symmetric, cached_aperture_table(shape))
-        frame = RenderFrame(lin, radius, layer, tiles, plan, render_aperture, extend_behind, across)
+        frame = RenderFrame(lin, radius, layer, tiles, plan, render_aperture, extend_behind, across, edges)
         canvas = Canvas.start(lin, tiles, plan.copy_tiles)
         layers_run = _composite_layers(frame, canvas, keys, counts, r_maxes, boxes)
         out = canvas.acc  # normalised in place: no other full-size image
@@ -267,7 +283,7 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     src = as_channels(color)
     tiles = classify_tiles(coc, tile_px=plan.tile_px, sharp_px=float(LAYER_EDGES_PX[0]))
     # the scene beyond the frame is continued from its edge: rendered widened by the largest reach, then cut back
-    pad = border_px(cmax)
+    pad = border_px(cmax, plan)
     if source_border_px == pad:  # continued by the caller: read as it is (read only: never written)
         wide = as_channels(given)
         wide_lin = to_float(wide) if linear else decode_to_linear(wide)

@@ -5,7 +5,9 @@ Physical renderer, the rules stated here (those of :func:`pcdof.stages.render.re
 1. The signed CoC is cleaned (NaN -> 0, clipped to +-``MAX_COC_PX``); a source's footprint radius is
    max(|c| / 2, ``MIN_SOURCE_RADIUS_PX``).
 2. Layers: key 0 for |c| < ``LAYER_EDGES_PX[0]``, +-k for ``edges[k-1] <= |c| < edges[k]`` (negative in
-   front of focus); layers are visited by ascending key, i.e. from near to far.
+   front of focus, with the edges of that side); the edges are the frame's (``frame_edges`` of the signed CoC
+   as given: :data:`LAYER_EDGES_PX` moved off the blur sizes the frame is full of); layers are visited by
+   ascending key, i.e. from near to far.
 3. Each source spreads weight (colour, 1) / (aperture area) over its footprint: the aperture shape
    (:mod:`pcdof.apertures`: a disc, the regular polygon with ``blades`` vertices at angles
    rotation - 90 deg + 360 deg i / blades, or any registered shape) at circumradius r.
@@ -46,7 +48,7 @@ from ...color import decode_to_linear, encode_from_linear, to_float
 from ...lens import MAX_COC_PX, aperture_for
 from ..coc.reference import paper_alpha, signed_coc_px
 from .border import border_px
-from .classify import JUMP_COC_PX, LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, SHARP_COC_PX
+from .classify import JUMP_COC_PX, LAYER_EDGES_PX, MIN_SOURCE_RADIUS_PX, SHARP_COC_PX, frame_edges
 
 
 # ----------------------------------------------------------------------------- aperture footprint
@@ -90,10 +92,14 @@ def footprint(r: float, aperture, rotation_rad: float = 0.0) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- layers
-def layer_keys(signed_coc: np.ndarray) -> np.ndarray:
-    """Signed layer key per pixel: 0 for |c| < edges[0], +-k for edges[k-1] <= |c| < edges[k]."""
-    k = np.searchsorted(LAYER_EDGES_PX, np.abs(signed_coc), side="right")
-    return np.where(signed_coc < 0, -k, k)
+def layer_keys(signed_coc: np.ndarray, edges: np.ndarray | None = None) -> np.ndarray:
+    """Signed layer key per pixel: 0 for |c| < edges[0], +-k for edges[k-1] <= |c| < edges[k], with *edges*
+    (2, n) (in front of the focus, behind it) or (n,) (both sides; None: :data:`LAYER_EDGES_PX`)."""
+    edges = np.stack([LAYER_EDGES_PX] * 2) if edges is None else np.asarray(edges)
+    edges = edges if edges.ndim == 2 else np.stack([edges, edges])
+    front = np.searchsorted(edges[0], np.abs(signed_coc), side="right")
+    back = np.searchsorted(edges[1], np.abs(signed_coc), side="right")
+    return np.where(signed_coc < 0, -front, back)
 
 
 def scatter(lin: np.ndarray, radius: np.ndarray, member: np.ndarray, aperture: Aperture) -> np.ndarray:
@@ -196,7 +202,8 @@ def _composite_layer(buf, acc, acc_a, trans) -> None:
 
 
 def render_layers_linear(lin, signed_coc, *, blades: int = 0, rotation_deg: float = 0.0,
-                         aperture: Aperture | None = None, extend_behind_layers: bool = True) -> np.ndarray:
+                         aperture: Aperture | None = None, extend_behind_layers: bool = True,
+                         edges=None) -> np.ndarray:
     """Physical depth of field in linear light (the rules of the module docstring).
 
     Parameters
@@ -206,6 +213,8 @@ def render_layers_linear(lin, signed_coc, *, blades: int = 0, rotation_deg: floa
     blades, rotation_deg : aperture polygon (0 = disc), as :class:`pcdof.lens.ThinLens` has them
     aperture : a :class:`pcdof.apertures.Aperture` instead of *blades* and *rotation_deg* (any shape)
     extend_behind_layers : continue each layer behind nearer, not yet opaque layers (partial occlusion)
+    edges : (2, n) layer edges in front of the focus and behind it, pixels (None: ``frame_edges`` of
+        *signed_coc*)
 
     Returns
     -------
@@ -215,7 +224,7 @@ def render_layers_linear(lin, signed_coc, *, blades: int = 0, rotation_deg: floa
     coc = np.clip(np.nan_to_num(np.asarray(signed_coc, np.float32).astype(np.float64), nan=0.0),
                   -MAX_COC_PX, MAX_COC_PX)
     radius = 0.5 * np.abs(coc)
-    keys = layer_keys(coc)
+    keys = layer_keys(coc, frame_edges(np.asarray(signed_coc, np.float32)) if edges is None else edges)
     shape = aperture_from_blades(blades, rotation_deg) if aperture is None else as_aperture(aperture)
     h, w, nc = lin.shape
     acc, acc_a, trans = np.zeros((h, w, nc)), np.zeros((h, w)), np.ones((h, w))
@@ -274,7 +283,7 @@ def render_physical(color, depth_m, lens, *, fx: float, linear: bool = False, bo
     # what lies beyond the frame is continued from its edge (pcdof.stages.render.border)
     pad = border_px(float(np.abs(coc).max()))
     out = render_layers_linear(_continued(lin, pad, border_most), np.pad(coc, pad, mode="edge"),
-                               aperture=aperture_for(lens))[pad:-pad, pad:-pad]
+                               aperture=aperture_for(lens), edges=frame_edges(coc))[pad:-pad, pad:-pad]
     if linear:
         return out
     return to_float(encode_from_linear(out.astype(np.float32), np.float32)).astype(np.float64)

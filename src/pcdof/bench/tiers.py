@@ -38,21 +38,27 @@ def _psnr(sse: float, n: int) -> float:
     return float("nan") if n == 0 else (float("inf") if sse == 0 else float(-10 * np.log10(sse / n)))
 
 
-def _layer_scale(coc_abs: np.ndarray, m: float) -> np.ndarray:
-    """Resolution divisor of each pixel's layer (1 in focus and at full resolution) under threshold *m*."""
+def _layer_scale(signed_coc: np.ndarray, m: float) -> np.ndarray:
+    """Resolution divisor of each pixel's layer (1 in focus and at full resolution) under threshold *m*, the layers
+    cut at the frame's edges as the renderer cuts them (:func:`pcdof.stages.render.classify.frame_edges`)."""
     from ..plans import RenderPlan
-    from ..stages.render import LAYER_EDGES_PX
+    from ..stages.render.classify import frame_edges
 
     plan = RenderPlan(threads=1, reduce_min_coc_px=m)
-    k = np.searchsorted(LAYER_EDGES_PX, coc_abs, side="right")  # layer k: edges[k-1] <= c < edges[k]
-    lo = np.where(k > 0, LAYER_EDGES_PX[np.maximum(k - 1, 0)], 0.0)
+    edges = frame_edges(signed_coc)
+    coc_abs = np.abs(signed_coc)
+    lo = np.zeros(coc_abs.shape)
+    for side, where in ((edges[0], signed_coc < 0), (edges[1], signed_coc >= 0)):
+        k = np.searchsorted(side, coc_abs, side="right")  # layer k: edges[k-1] <= c < edges[k]
+        lo = np.where(where & (k > 0), side[np.maximum(k - 1, 0)], lo)
     scales = {float(v): plan.scale(float(v)) for v in np.unique(lo)}
-    return np.vectorize(lambda v: scales[float(v)], otypes=[np.int64])(lo) if scales else np.ones_like(k)
+    return np.vectorize(lambda v: scales[float(v)], otypes=[np.int64])(lo) if scales else np.ones(lo.shape, np.int64)
 
 
-def _case_curve(err_t, err_x, coc_abs, m) -> dict:
+def _case_curve(err_t, err_x, signed_coc, m) -> dict:
     """{(s, cell bucket): (sse tier, sse exact, pixels)} of the reduced pixels of one case."""
-    s = _layer_scale(coc_abs, m)
+    s = _layer_scale(signed_coc, m)
+    coc_abs = np.abs(signed_coc)
     out = {}
     cells = coc_abs / s
     for sv in np.unique(s[s > 1]):
@@ -65,7 +71,7 @@ def _case_curve(err_t, err_x, coc_abs, m) -> dict:
 
 
 def _renders(sf, lens, ladder):
-    """(filled depth's exact render, {m: render}, |CoC| of the filled depth) of one case, measured input."""
+    """(filled depth's exact render, {m: render}, signed CoC of the filled depth) of one case, measured input."""
     from ..camera import RGBDFrame
     from ..pipeline import run
     from ..plans import plan_render
@@ -77,7 +83,7 @@ def _renders(sf, lens, ladder):
     for m in (math.inf, *ladder):
         out[m] = render_image(sf.color, depth, lens, fx=fx, max_range_m=sf.rig.max_range_m, quality="exact",
                               plan=replace(exact, reduce_min_coc_px=m))[0]
-    return out.pop(math.inf), out, np.abs(lens.signed_coc_px(depth, fx))
+    return out.pop(math.inf), out, lens.signed_coc_px(depth, fx)
 
 
 def run_tiers(*, kinds=None, seeds=(0, 1, 2, 3, 4), blurs=(16, 64), reference_width_px=640, size=(256, 192),
@@ -116,7 +122,7 @@ def run_tiers(*, kinds=None, seeds=(0, 1, 2, 3, 4), blurs=(16, 64), reference_wi
                                key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2])
         gt = linear_to_srgb(np.clip(gt_lin, 0, 1))
         band = depth_edge_band(sf.depth_color_m, max(3, int(round(blur / 2))))
-        exact, reduced, coc_abs = _renders(sf, lens, ladder)
+        exact, reduced, signed_coc = _renders(sf, lens, ladder)
         err_x = np.mean((encode_srgb8(exact) - gt) ** 2, axis=2)
         row = {"scene": kind, "seed": seed, "focus": focus, "blur_px": blur,
                "psnr_exact": _psnr(float(err_x.sum()), err_x.size),
@@ -125,7 +131,7 @@ def run_tiers(*, kinds=None, seeds=(0, 1, 2, 3, 4), blurs=(16, 64), reference_wi
             err_t = np.mean((encode_srgb8(img) - gt) ** 2, axis=2)
             row["delta"][m] = _psnr(float(err_t.sum()), err_t.size) - row["psnr_exact"]
             row["delta_edge"][m] = _psnr(float(err_t[band].sum()), int(band.sum())) - row["psnr_edge_exact"]
-            for key, (st, sx, n) in _case_curve(err_t, err_x, coc_abs, m).items():
+            for key, (st, sx, n) in _case_curve(err_t, err_x, signed_coc, m).items():
                 acc = curve.setdefault((m, *key), [0.0, 0.0, 0])
                 acc[0] += st
                 acc[1] += sx

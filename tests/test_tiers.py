@@ -189,3 +189,19 @@ def test_cli_tiers_part(tmp_path):
     assert chosen["fast"] <= chosen["balanced"] <= chosen["high"]  # a looser tolerance never needs a larger threshold
     md = (out / "report.md").read_text()
     assert "Quality tiers: thresholds from the measured curve" in md and "wide" not in report
+
+
+@pytest.mark.parametrize("blur", [15.0, 16.0, 17.0, 31.5, 32.0, 64.0])
+def test_the_tiers_bench_gives_each_pixel_the_grid_its_layer_had(blur):
+    """The bench's grid per pixel is the one the renderer's trace reports for the layer (layers cut at the
+    frame's edges, which move off a blur the frame is full of: a wall 16 px out of focus is one layer)."""
+    rng = np.random.default_rng(int(blur))
+    coc = np.full((64, 96), blur, np.float32) * (1 + rng.uniform(-0.005, 0.005, (64, 96))).astype(np.float32)
+    coc[:, :30] = -3.0
+    m = QUALITIES["balanced"]
+    lin = rng.random((64, 96, 3)).astype(np.float32)
+    _, info = renderer.render_layers_linear(lin, coc, plan=plan_render(quality="balanced"))
+    wall = [layer["scale"] for layer in info["layers"] if layer.get("side") == "back"]
+    assert len(wall) == 1  # one layer, whatever the edges
+    np.testing.assert_array_equal(tiers._layer_scale(coc, m)[:, 30:], wall[0])
+    assert np.all(tiers._layer_scale(coc, m)[:, :30] == 1)

@@ -389,7 +389,7 @@ def continued_border(lin, pad: int, most: float | None = None, stream=0):
     return out
 
 
-def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: bool = True, stream=0):
+def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: bool = True, stream=0, edges=None):
     """Physical depth of field in linear light on the device (the rules of :mod:`pcdof.stages.render.reference`).
 
     Parameters
@@ -398,6 +398,8 @@ def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: 
     signed_coc : (H, W) float32 array (host or device), pixels (< 0 in front of focus; NaN = 0)
     aperture : pcdof.apertures.Aperture
     extend_behind : continue each layer behind nearer, not yet opaque layers (partial occlusion)
+    edges : (2, n) layer edges in front of the focus and behind it, pixels (None: the frame's,
+        :func:`pcdof.stages.render.classify.frame_edges` of *signed_coc*)
 
     Returns
     -------
@@ -411,7 +413,7 @@ def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: 
     if tuple(signed_coc.shape) != (H, W):
         raise InputError(f"signed_coc must be (H, W) = {(H, W)}; got {tuple(signed_coc.shape)}")
     ap = aperture_on_device(aperture, stream)
-    radius, key_bin, count, r_max = classify_layers(signed_coc, stream)
+    radius, key_bin, count, r_max = classify_layers(signed_coc, stream, edges)
     present = np.flatnonzero(count)
     rank_of_bin = np.full(N_BINS, -1, np.int32)
     rank_of_bin[present] = np.arange(present.size, dtype=np.int32)

@@ -23,10 +23,11 @@ from ..focus import resolve_lens
 from ..lens import ThinLens, aperture_for
 from ..stages.render import SHARP_COC_PX
 from ..stages.render.border import border_px
+from ..stages.render.classify import frame_edges
 from .coc import coc_maps
 from .color import decode, encode
 from .fill import count_holes, fill_depth
-from .launch import thread_stream, to_device
+from .launch import on_device, thread_stream, to_device
 from .register import register_depth
 from .render import clamped_window, continued_border, render_layers_linear
 
@@ -149,9 +150,11 @@ def _render_physical(frame, color_dev, opts, lens, signed, cmax, source_linear, 
         wide = (h + 2 * pad, w + 2 * pad)
         # light above white estimated by the highlights stage is not continued beyond the frame
         most = 1.0 if source_linear is not None else None
+        # the layer edges of the frame's own CoC, as the CPU renderer takes them (not of its widened copy)
+        edges = frame_edges(signed.copy_to_host(stream=stream) if on_device(signed) else np.asarray(signed))
         out_lin, layers = render_layers_linear(continued_border(lin, pad, most, stream),
                                                clamped_window(signed, -pad, -pad, wide, stream),
-                                               aperture_for(lens), stream=stream)
+                                               aperture_for(lens), stream=stream, edges=edges)
         out_lin = clamped_window(out_lin, pad, pad, (h, w), stream)
         blurred = [l for l in layers if l["key"] != 0]
         rec["reason"] = f"physical, {len(blurred)} blur layers, exact scatter at full resolution"

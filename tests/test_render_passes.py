@@ -104,13 +104,26 @@ class TestFrameEdges:
 
     def test_a_map_with_nothing_near_an_edge_keeps_the_nominal_edges(self):
         rng = np.random.default_rng(0)
-        mids = (renderer.LAYER_EDGES_PX[1:-2] + renderer.LAYER_EDGES_PX[2:-1]) / 2  # half-way between edges
+        edges = renderer.LAYER_EDGES_PX
+        mids = np.sqrt(edges[2:-2] * edges[3:-1])  # half-way between edges from 2 px (the bands' least width
+        # is 1/4 px: no value between 1.5 and 2 is that far from both)
         raw = (rng.choice(mids, (60, 80)) * rng.choice([-1, 1], (60, 80))).astype(np.float32)
         raw[0, :5] = [np.nan, np.inf, -np.inf, 0.0, 0.3]
         edges = renderer.classify.frame_edges(raw)
         np.testing.assert_array_equal(edges, np.stack([renderer.LAYER_EDGES_PX] * 2))
 
-    @pytest.mark.parametrize("edge", [2.0, 4.0, 16.0, 64.0, 181.0])
+    @pytest.mark.parametrize("ramp", ["linear", "log"])
+    def test_a_slanted_surface_leaves_the_edges_in_place(self, ramp):
+        """A floor whose blur runs smoothly through the edges has no valley to move them to (the thinnest part of
+        its histogram would be noise, or the narrowest band where the density is flat)."""
+        h, w = 2400, 100
+        t = np.linspace(0, 1, h)[:, None] * np.ones((1, w))
+        c = 1 + 59 * t if ramp == "linear" else np.exp(np.log(60) * t)  # 1 to 60 px: edges above it see nothing
+        raw = (c * (1 + np.random.default_rng(1).normal(0, 0.002, (h, w)))).astype(np.float32)
+        edges = renderer.classify.frame_edges(np.concatenate([raw, -raw]))
+        np.testing.assert_array_equal(edges, np.stack([renderer.LAYER_EDGES_PX] * 2))
+
+    @pytest.mark.parametrize("edge", [4.0, 6.0, 16.0, 64.0, 181.0])  # (an edge up to 3 px moves less than a band)
     @pytest.mark.parametrize("side", [-1, 1])
     def test_a_wall_on_an_edge_is_one_layer(self, edge, side):
         rng = np.random.default_rng(int(edge))

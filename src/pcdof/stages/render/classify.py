@@ -46,12 +46,20 @@ RELABEL_ROWS = 32
 EDGE_MOVE = 2.0 ** (1 / 6)
 #: the band around an edge whose pixels an edge splits, relative to the edge (:func:`frame_edges`)
 EDGE_BAND = 0.04
+#: the band's least half-width, pixels: two steps of the grid the edges move on, so that a depth map's steps (a
+#: CoC that changes by a fraction of a pixel from one row to the next) do not read as valleys between them
+EDGE_BAND_MIN_PX = 2.0 / EDGE_STEPS
+#: an edge moves only to where its band holds less than this share of the pixels it holds in its place: a surface
+#: that runs through the edge's range (a slanted floor) leaves it in place, wherever its histogram is thinnest
+EDGE_GAIN = 0.5
 
 
 def frame_edges(signed_coc: np.ndarray, edges: np.ndarray = LAYER_EDGES_PX, *, sample: int = 2) -> np.ndarray:
     """The layer edges for one frame, in front of the focus and behind it: each finite edge of *edges* past the
     first moved, by up to a factor of :data:`EDGE_MOVE`, to where the fewest of that side's pixels have a |CoC|
-    within :data:`EDGE_BAND` of it (nearest to its place among equals), in steps of 1 / :data:`EDGE_STEPS` px.
+    within :data:`EDGE_BAND` of it (at least :data:`EDGE_BAND_MIN_PX`; nearest to its place among equals), in steps
+    of 1 / :data:`EDGE_STEPS` px, when that is less than :data:`EDGE_GAIN` of the pixels within the band of the
+    edge in its place.
 
     A surface whose blur sits on an edge (a wall at one depth) would be cut into two layers, each with pixels
     of the other within its reach: no tile of it uniform, and two passes over it. The edge is moved off it.
@@ -96,7 +104,12 @@ def _side_edges(a: np.ndarray, edges: np.ndarray) -> np.ndarray:
         e = float(edges[k])
         cand = np.arange(math.ceil(e / EDGE_MOVE * steps), math.floor(e * EDGE_MOVE * steps) + 1) / steps
         cand = cand[cand > out[k - 1]]
-        cost = between(cand * (1 - EDGE_BAND), cand * (1 + EDGE_BAND))
+        half = np.maximum(cand * EDGE_BAND, EDGE_BAND_MIN_PX)
+        cost = between(cand - half, cand + half)
+        here = between(np.array([e - max(e * EDGE_BAND, EDGE_BAND_MIN_PX)]), np.array([e + max(e * EDGE_BAND,
+                                                                                             EDGE_BAND_MIN_PX)]))
+        if not cost.min() < EDGE_GAIN * here[0]:
+            continue  # no clear valley near the edge (a surface running through it, or nothing there): it stays
         best = np.flatnonzero(cost == cost.min())
         out[k] = cand[best[np.argmin(np.abs(np.log(cand[best] / e)))]]
     return out

@@ -372,7 +372,8 @@ def test_continued_pixels_of_an_earlier_mask_cut_to_the_later_one_are_the_later_
     h, w = layer.shape
     across = rng.integers(-1, int(layer.max()) + 1, (h, w)).astype(np.int8) if rng.random() < 0.5 else None
     edges = np.stack([renderer.LAYER_EDGES_PX] * 2)  # not read: the ownership reads the layer ids
-    frame = RenderFrame(None, None, layer.astype(np.int8), None, plan_render(threads=threads), None, True, across, edges)
+    frame = RenderFrame(None, None, layer.astype(np.int8), None, plan_render(threads=threads), None, True, across,
+                        edges)
     early = np.where(rng.random((h, w)) < 0.3, 1.0, rng.random((h, w)) * 0.99).astype(np.float32)
     late = np.where(rng.random((h, w)) < rng.choice([0.1, 0.5]), 1.0, early).astype(np.float32)
     ownership = renderer.ownership

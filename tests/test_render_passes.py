@@ -151,6 +151,20 @@ class TestFrameEdges:
             ratio = np.abs(np.log(side[1:-1] / nominal[1:-1]))
             assert np.all(ratio <= np.log(renderer.classify.EDGE_MOVE) + 1e-12)
 
+    def test_edges_given_to_the_render_are_checked(self):
+        lin = np.zeros((8, 8, 3), np.float32)
+        coc = np.full((8, 8), 5.0, np.float32)
+        nominal = renderer.LAYER_EDGES_PX
+        out, _ = renderer.render_layers_linear(lin, coc, edges=nominal)  # (n,): both sides
+        assert out.shape == lin.shape
+        off_grid, unsorted, first = nominal.copy(), nominal.copy(), nominal.copy()
+        off_grid[4] = 4.01
+        unsorted[4], unsorted[5] = 6.0, 4.0
+        first[0] = 0.5
+        for bad in (off_grid, unsorted, first, nominal[:-1], np.stack([nominal] * 3), "edges"):
+            with pytest.raises(InputError, match="edges must be"):
+                renderer.render_layers_linear(lin, coc, edges=bad)
+
     def test_non_maps_are_refused(self):
         with pytest.raises(InputError, match="signed_coc must be"):
             renderer.classify.frame_edges(np.zeros(5, np.float32))

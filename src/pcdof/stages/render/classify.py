@@ -77,11 +77,15 @@ def check_edges(edges) -> np.ndarray:
     """*edges* as (2, n) float64 layer edges (in front of the focus, behind it; (n,): both sides), n =
     ``len(LAYER_EDGES_PX)``: each side ascending, starting at ``LAYER_EDGES_PX[0]`` (the sharp limit), ending at
     inf, the others multiples of 1 / :data:`EDGE_STEPS` px; an :class:`InputError` naming *edges* otherwise."""
-    e = np.array(edges, np.float64)
     n = len(LAYER_EDGES_PX)
+    try:
+        e = np.array(edges, np.float64)
+    except (TypeError, ValueError):
+        e = np.zeros(0)
     e = np.stack([e, e]) if e.shape == (n,) else e
-    if e.shape != (2, n) or not np.all(np.diff(e, axis=1) > 0) or not np.all(e[:, 0] == LAYER_EDGES_PX[0]) \
-            or not np.all(e[:, -1] == np.inf) or not np.array_equal(e[:, :-1] * EDGE_STEPS, np.round(e[:, :-1] * EDGE_STEPS)):
+    on_grid = e.shape == (2, n) and np.array_equal(e[:, :-1] * EDGE_STEPS, np.round(e[:, :-1] * EDGE_STEPS))
+    if not on_grid or not np.all(np.diff(e, axis=1) > 0) or not np.all(e[:, 0] == LAYER_EDGES_PX[0]) \
+            or not np.all(e[:, -1] == np.inf):
         raise InputError(f"edges must be ({n},) or (2, {n}) ascending |CoC| layer edges from {LAYER_EDGES_PX[0]:g} "
                          f"px to inf, the others multiples of 1/{EDGE_STEPS} px; got {np.shape(edges)} {edges!r:.120}")
     return e
@@ -141,7 +145,8 @@ def classify_layers(raw, max_coc, edges):
     keys are replaced by layer ids, rows again as tasks (:func:`_relabel_tasks`).
 
     Returns (coc, radius) float32 (H, W), layer (H, W) int8 (at most 2 n + 1 layers), keys (L,) int64
-    ascending, and per layer: count (L,) int64, largest radius (L,) float32, box (L, 4) int64 (row0, row1, col0, col1; inclusive).
+    ascending, and per layer: count (L,) int64, largest radius (L,) float32, box (L, 4) int64 (row0, row1, col0,
+    col1; inclusive).
     """
     h, w = raw.shape
     edges = np.asarray(edges, np.float64)

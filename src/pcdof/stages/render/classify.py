@@ -10,6 +10,7 @@ import numpy as np
 from numba import njit
 
 from ...errors import InputError
+from ...runtime.kernels import read_only
 from ...runtime.tasks import next_chunk, run_tasks
 from ...runtime.threads import current_threads
 
@@ -69,8 +70,25 @@ def frame_edges(signed_coc: np.ndarray, edges: np.ndarray = LAYER_EDGES_PX, *, s
     c = np.asarray(signed_coc, np.float32)
     if c.ndim != 2:
         raise InputError(f"signed_coc must be (H, W); got shape {c.shape}")
-    c = c[::sample, ::sample].ravel()
-    return np.stack([_side_edges(-c[c < 0], edges), _side_edges(c[c > 0], edges)])
+    top = float(edges[-2]) * EDGE_MOVE * (1 + EDGE_BAND) + 1  # beyond every band the edges' moves can reach
+    counts = _sampled_histograms(read_only(np.ascontiguousarray(c)), int(sample), EDGE_STEPS, np.float32(top),
+                                 int(top * EDGE_STEPS) + 2)
+    return np.stack([_side_edges(counts[0], edges), _side_edges(counts[1], edges)])
+
+
+@njit(cache=True, nogil=True)
+def _sampled_histograms(coc, sample, steps, top, n_bins):
+    """Pixels per 1/*steps* px of |CoC| (at most *top*), in front of the focus (row 0: c < 0) and behind it (row 1:
+    c > 0; 0 and NaN on neither), on every *sample*-th pixel of every *sample*-th row: (2, n_bins) int64."""
+    counts = np.zeros((2, n_bins), np.int64)
+    for y in range(0, coc.shape[0], sample):
+        for x in range(0, coc.shape[1], sample):
+            c = coc[y, x]
+            if c < 0:
+                counts[0, int(min(-c, top) * steps)] += 1
+            elif c > 0:
+                counts[1, int(min(c, top) * steps)] += 1
+    return counts
 
 
 def check_edges(edges) -> np.ndarray:
@@ -91,11 +109,9 @@ def check_edges(edges) -> np.ndarray:
     return e
 
 
-def _side_edges(a: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """:func:`frame_edges` of one side, from its pixels' |CoC| *a* (N,)."""
+def _side_edges(counts: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """:func:`frame_edges` of one side, from its pixels per 1 / :data:`EDGE_STEPS` px of |CoC| *counts*."""
     steps = EDGE_STEPS
-    top = float(edges[-2]) * EDGE_MOVE * (1 + EDGE_BAND) + 1
-    counts = np.bincount((np.minimum(a, top) * steps).astype(np.int64), minlength=int(top * steps) + 2)
     cum = np.concatenate(([0], np.cumsum(counts)))
 
     def between(lo, hi):  # pixels with lo <= |c| < hi (on the 1/steps grid)

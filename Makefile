@@ -17,9 +17,11 @@ SHELL  := /bin/bash
 
 # $(call timed,WHAT,COMMAND): run COMMAND between a line saying what it does and one saying how long it took
 timed = t0=$$(date +%s); echo "==> $(1)"; $(2) && echo "==> done in $$(( $$(date +%s) - t0 )) s"
-# $(call ticking,WHAT,COMMAND): the same, with a line every 15 s while COMMAND runs (steps that print little)
+# $(call ticking,WHAT,COMMAND): the same, with a line every 15 s while COMMAND runs (steps that print little);
+# the ticker stops with the step's shell, however that ends (in the ticker's subshell, $$ is that shell)
 ticking = t0=$$(date +%s); echo "==> $(1)"; \
-	( while sleep 15; do echo "    ... still running, $$(( $$(date +%s) - t0 )) s"; done ) & tick=$$!; \
+	( while sleep 15 && kill -0 $$$$ 2>/dev/null; do echo "    ... still running, $$(( $$(date +%s) - t0 )) s"; done ) & \
+	tick=$$!; \
 	$(2); rc=$$?; kill $$tick 2>/dev/null; wait $$tick 2>/dev/null; \
 	[ $$rc = 0 ] && echo "==> done in $$(( $$(date +%s) - t0 )) s"
 

@@ -43,14 +43,13 @@ def _layer_scale(signed_coc: np.ndarray, m: float) -> np.ndarray:
     cut at the frame's edges as the renderer cuts them (:func:`pcdof.stages.render.classify.frame_edges`)."""
     from ..plans import RenderPlan
     from ..stages.render.classify import frame_edges
+    from ..stages.render.reference import layer_keys
 
     plan = RenderPlan(threads=1, reduce_min_coc_px=m)
     edges = frame_edges(signed_coc)
-    coc_abs = np.abs(signed_coc)
-    lo = np.zeros(coc_abs.shape)
-    for side, where in ((edges[0], signed_coc < 0), (edges[1], signed_coc >= 0)):
-        k = np.searchsorted(side, coc_abs, side="right")  # layer k: edges[k-1] <= c < edges[k]
-        lo = np.where(where & (k > 0), side[np.maximum(k - 1, 0)], lo)
+    keys = layer_keys(signed_coc, edges)  # +-k: edges[k-1] <= |c| < edges[k] of its side
+    below = np.maximum(np.abs(keys) - 1, 0)  # the index of the layer's lower edge
+    lo = np.where(keys < 0, edges[0][below], np.where(keys > 0, edges[1][below], 0.0))
     scales = {float(v): plan.scale(float(v)) for v in np.unique(lo)}
     return np.vectorize(lambda v: scales[float(v)], otypes=[np.int64])(lo) if scales else np.ones(lo.shape, np.int64)
 

@@ -114,9 +114,10 @@ def _side_edges(counts: np.ndarray, edges: np.ndarray) -> np.ndarray:
     steps = EDGE_STEPS
     cum = np.concatenate(([0], np.cumsum(counts)))
 
-    def between(lo, hi):  # pixels with lo <= |c| < hi (on the 1/steps grid)
-        i = np.clip(np.floor(lo * steps).astype(np.int64), 0, cum.size - 1)
-        j = np.clip(np.floor(hi * steps).astype(np.int64), 0, cum.size - 1)
+    def band(centres):  # pixels within the band around each of *centres* (on the 1/steps grid)
+        half = np.maximum(centres * EDGE_BAND, EDGE_BAND_MIN_PX)
+        i = np.clip(np.floor((centres - half) * steps).astype(np.int64), 0, cum.size - 1)
+        j = np.clip(np.floor((centres + half) * steps).astype(np.int64), 0, cum.size - 1)
         return cum[j] - cum[i]
 
     out = np.array(edges, np.float64)
@@ -124,11 +125,8 @@ def _side_edges(counts: np.ndarray, edges: np.ndarray) -> np.ndarray:
         e = float(edges[k])
         cand = np.arange(math.ceil(e / EDGE_MOVE * steps), math.floor(e * EDGE_MOVE * steps) + 1) / steps
         cand = cand[cand > out[k - 1]]
-        half = np.maximum(cand * EDGE_BAND, EDGE_BAND_MIN_PX)
-        cost = between(cand - half, cand + half)
-        here = between(np.array([e - max(e * EDGE_BAND, EDGE_BAND_MIN_PX)]), np.array([e + max(e * EDGE_BAND,
-                                                                                             EDGE_BAND_MIN_PX)]))
-        if not cost.min() < EDGE_GAIN * here[0]:
+        cost = band(cand)
+        if not cost.min() < EDGE_GAIN * band(np.array([e]))[0]:
             continue  # no clear valley near the edge (a surface running through it, or nothing there): it stays
         best = np.flatnonzero(cost == cost.min())
         out[k] = cand[best[np.argmin(np.abs(np.log(cand[best] / e)))]]

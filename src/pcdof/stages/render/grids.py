@@ -50,31 +50,32 @@ def reduce_cells(lin, radius, member, s, source=None, origin=(0, 0)):
 @njit(cache=True, nogil=True)
 def _reduce_tasks(counter, n_tasks, cell_rows, lin, radius, member, s, source, oy, ox, lin_s, r_s, m_s):
     """:func:`reduce_cells` into *lin_s*, *r_s*, *m_s* in tasks of *cell_rows* rows of cells claimed from
-    *counter*; *source* (0, 0) for none."""
+    *counter*; *source* (0, 0) for none. A row of cells is summed a pixel row at a time, each cell's pixels added
+    to its own accumulators (a row of them) in raster order: every cell's sums are those of its pixels in raster
+    order, read along whole rows of the frame."""
     h, w = member.shape
     nc = lin.shape[2]
     copies = source.shape[0] > 0
     hs, ws = r_s.shape
     inv_area = 1.0 / (s * s)
+    acc_m = np.empty(ws, np.float32)
+    acc_r = np.empty(ws, np.float32)
+    acc = np.empty((3, ws), np.float32)
     while True:
         ca, cb = next_chunk(counter, n_tasks, cell_rows, hs)
         if ca < 0:
             return
         for cy in range(ca, cb):
-            y0, y1 = cy * s, min(h, (cy + 1) * s)
-            for cx in range(ws):
-                r_s[cy, cx] = 0.0
-                for ch in range(nc):
-                    lin_s[cy, cx, ch] = 0.0
-            for cx in range(ws):
-                x0, x1 = cx * s, min(w, (cx + 1) * s)
-                m = np.float32(0.0)
-                r = np.float32(0.0)
-                # the channels in scalars, not a small array: they stay in registers (the same sums, in the same
-                # order)
-                a0 = a1 = a2 = np.float32(0.0)
-                for y in range(y0, y1):
-                    for x in range(x0, x1):
+            acc_m[:] = 0.0
+            acc_r[:] = 0.0
+            acc[:] = 0.0
+            for y in range(cy * s, min(h, (cy + 1) * s)):
+                for cx in range(ws):
+                    m = acc_m[cx]
+                    r = acc_r[cx]
+                    # the channels in scalars within the cell's run of the row (the same sums, in the same order)
+                    a0, a1, a2 = acc[0, cx], acc[1, cx], acc[2, cx]
+                    for x in range(cx * s, min(w, (cx + 1) * s)):
                         sy, sx = oy + y, ox + x
                         if not member[y, x]:
                             if not copies or source[y, x] < 0:
@@ -87,14 +88,22 @@ def _reduce_tasks(counter, n_tasks, cell_rows, lin, radius, member, s, source, o
                             a1 += lin[sy, sx, 1]
                         if nc > 2:
                             a2 += lin[sy, sx, 2]
+                    acc_m[cx] = m
+                    acc_r[cx] = r
+                    acc[0, cx], acc[1, cx], acc[2, cx] = a0, a1, a2
+            for cx in range(ws):
+                m = acc_m[cx]
+                r_s[cy, cx] = 0.0
+                for ch in range(nc):
+                    lin_s[cy, cx, ch] = 0.0
                 if m > 0:
                     inv = 1.0 / m
-                    r_s[cy, cx] = r * inv
-                    lin_s[cy, cx, 0] = a0 * inv
+                    r_s[cy, cx] = acc_r[cx] * inv
+                    lin_s[cy, cx, 0] = acc[0, cx] * inv
                     if nc > 1:
-                        lin_s[cy, cx, 1] = a1 * inv
+                        lin_s[cy, cx, 1] = acc[1, cx] * inv
                     if nc > 2:
-                        lin_s[cy, cx, 2] = a2 * inv
+                        lin_s[cy, cx, 2] = acc[2, cx] * inv
                 m_s[cy, cx] = m * inv_area
 
 

@@ -121,13 +121,16 @@ def _side_edges(counts: np.ndarray, edges: np.ndarray) -> np.ndarray:
         return cum[j] - cum[i]
 
     out = np.array(edges, np.float64)
+    own = band(out[1:-1])  # the pixels within each edge's band in its place
     for k in range(1, len(edges) - 1):
+        if own[k - 1] == 0:
+            continue  # nothing near the edge (most edges past the frame's largest blur): it stays
         e = float(edges[k])
         cand = np.arange(math.ceil(e / EDGE_MOVE * steps), math.floor(e * EDGE_MOVE * steps) + 1) / steps
         cand = cand[cand > out[k - 1]]
         cost = band(cand)
-        if not cost.min() < EDGE_GAIN * band(np.array([e]))[0]:
-            continue  # no clear valley near the edge (a surface running through it, or nothing there): it stays
+        if not cost.min() < EDGE_GAIN * own[k - 1]:
+            continue  # no clear valley near the edge (a surface running through it): it stays
         best = np.flatnonzero(cost == cost.min())
         out[k] = cand[best[np.argmin(np.abs(np.log(cand[best] / e)))]]
     return out

@@ -303,7 +303,8 @@ def still_hidden(found: Behind | None, canvas: Canvas, box) -> Behind | None:
     *canvas* now; None when none is left."""
     if found is None:
         return None
-    keep = (canvas.opacity[box] < 1).ravel()[found.dst]
+    rows, cols = np.divmod(found.dst, box[1].stop - box[1].start)
+    keep = canvas.opacity[box][rows, cols] < 1  # at those pixels only, not over the whole box
     if keep.all():
         return found
     return Behind(found.dst[keep], found.src[keep]) if keep.any() else None

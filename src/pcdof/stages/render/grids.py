@@ -34,7 +34,7 @@ def reduce_cells(lin, radius, member, s, source=None, origin=(0, 0)):
     :func:`pcdof.stages.render.extend.extend_layer_behind`, read in place instead of copied).
 
     Rows of cells run as tasks on the threads (:func:`_reduce_tasks`, about :data:`TASK_ROWS` pixel rows each);
-    each cell is summed in scalar accumulators, its pixels in raster order."""
+    each cell's pixels are summed in raster order, a pixel row of a row of cells at a time."""
     h, w = member.shape
     s = int(s)
     hs, ws = (h + s - 1) // s, (w + s - 1) // s

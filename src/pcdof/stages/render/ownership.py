@@ -152,7 +152,9 @@ def _nearest_candidates(layer, li, pos, wy0, wx0, dist, labels, hidden, by, bx, 
     *hidden* (hb, wb) bool is the box at (by, bx); *dist* and *labels* OpenCV's transform of the window at
     (wy0, wx0) (their shape), whose labels number its candidates in raster order: label k is the candidate at
     flat index pos[k - 1] of the window. Returns (py, px, qy, qx, d): the pixels, their candidates (frame
-    coordinates, int64) and their distance (float32).
+    coordinates, int64) and their distance (float32); and (y0, y1, x0, x1, d_max): the bounding box (inclusive)
+    of the candidates of the pixels farther than 1 px from theirs and the largest of those distances (y0 > y1
+    when there is none), found in the same pass.
     """
     ww = dist.shape[1]
     y0, y1, x0, x1 = part
@@ -161,6 +163,8 @@ def _nearest_candidates(layer, li, pos, wy0, wx0, dist, labels, hidden, by, bx, 
     qy, qx = np.empty(n, np.int64), np.empty(n, np.int64)
     d = np.empty(n, np.float32)
     i = 0
+    ty0, ty1, tx0, tx1 = 2 ** 62, -1, 2 ** 62, -1
+    d_max = np.float32(0.0)
     for y in range(y0, y1 + 1):
         for x in range(x0, x1 + 1):
             if hidden[y - by, x - bx]:
@@ -171,21 +175,11 @@ def _nearest_candidates(layer, li, pos, wy0, wx0, dist, labels, hidden, by, bx, 
                     if layer[sy, sx] == li:
                         py[i], px[i], qy[i], qx[i], d[i] = y, x, sy, sx, dd
                         i += 1
-    return py[:i], px[:i], qy[:i], qx[:i], d[:i]
-
-
-@njit(cache=True, nogil=True)
-def _tested_box(qy, qx, d):
-    """The candidates (qy, qx) (N,) int64 of the pixels farther than 1 px from them (d (N,) float32): their
-    bounding box (y0, y1, x0, x1 inclusive) and the largest of those distances; y0 > y1 when there is none."""
-    y0, y1, x0, x1 = 2 ** 62, -1, 2 ** 62, -1
-    d_max = np.float32(0.0)
-    for i in range(d.size):
-        if d[i] > 1.0:
-            y0, y1 = min(y0, qy[i]), max(y1, qy[i])
-            x0, x1 = min(x0, qx[i]), max(x1, qx[i])
-            d_max = max(d_max, d[i])
-    return y0, y1, x0, x1, d_max
+                        if dd > 1.0:
+                            ty0, ty1 = min(ty0, sy), max(ty1, sy)
+                            tx0, tx1 = min(tx0, sx), max(tx1, sx)
+                            d_max = max(d_max, dd)
+    return (py[:i], px[:i], qy[:i], qx[:i], d[:i]), (ty0, ty1, tx0, tx1, d_max)
 
 
 @njit(cache=True, nogil=True)
@@ -224,10 +218,9 @@ def _owned_in(layer: np.ndarray, li: int, win, hidden: np.ndarray, origin, part,
     (y0, _, x0, _), cand = found
     dist, labels = cv2.distanceTransformWithLabels(np.logical_not(cand).view(np.uint8), cv2.DIST_L2, 5,
                                                    labelType=cv2.DIST_LABEL_PIXEL)
-    found = _nearest_candidates(layer, int(li), read_only(np.flatnonzero(cand)), y0, x0, read_only(dist),
-                                read_only(labels), read_only(hidden), int(origin[0]), int(origin[1]),
-                                tuple(int(v) for v in part), int(rd))
-    tested = _tested_box(*(read_only(v) for v in found[2:]))
+    found, tested = _nearest_candidates(layer, int(li), read_only(np.flatnonzero(cand)), y0, x0, read_only(dist),
+                                        read_only(labels), read_only(hidden), int(origin[0]), int(origin[1]),
+                                        tuple(int(v) for v in part), int(rd))
     if tested[0] > tested[1]:  # within 1 px a candidate of layer li always reaches
         return found
     # the farther layers' transform, exact up to the largest distance tested

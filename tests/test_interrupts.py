@@ -251,3 +251,72 @@ def test_batch_ctrl_c_inside_numbas_compiler_comes_again_in_pcdofs_code():
         with pytest.raises(KeyboardInterrupt):
             time.sleep(5)
     assert swallowed == []
+
+
+# A decode whose library warnings are captured redirects fd 2 (pcdof.io.capture). The child below makes the
+# signal arrive at the worst moment: right after the redirection, before the block's try. Its last line must
+# reach the real stderr (it went to the deleted capture file before: exit 143 and no "terminated" line).
+SIGNAL_IN_REDIRECTION = r"""
+import os, signal, sys, time
+import cv2, numpy as np
+from pcdof import interrupts
+from pcdof.io import capture
+from pcdof.io._files import decode_image
+from pcdof.batch.signals import Terminated, sigterm_interrupts
+
+which, batch = getattr(signal, sys.argv[1]), sys.argv[2] == "batch"
+png = cv2.imencode(".png", np.zeros((4, 4), np.uint8))[1].tobytes()
+real_dup2 = os.dup2
+
+def dup2(fd, fd2):
+    real_dup2(fd, fd2)
+    if fd2 == 2 and fd != saved[0]:  # stderr now goes to the capture file
+        os.kill(os.getpid(), which)
+
+saved = [os.dup(2)]
+real_dup = os.dup
+
+def dup(fd):
+    saved[0] = real_dup(fd)
+    return saved[0]
+
+os.dup, os.dup2 = dup, dup2  # this process only
+capture.enable()
+interrupts.install()
+try:
+    with interrupts.raising(), (sigterm_interrupts() if batch else interrupts.raising()):
+        decode_image(png, "png", "frame.png", "colour")
+        time.sleep(5)  # the signal comes again here
+except Terminated:
+    sys.stderr.write("terminated\n")
+    sys.exit(143)
+except KeyboardInterrupt:
+    interrupts.say_interrupted()
+    sys.exit(130)
+"""
+
+
+@pytest.mark.parametrize("which,where,code,line", [
+    ("SIGTERM", "batch", 143, "terminated"),  # raised a moment later, once stderr is back
+    ("SIGINT", "batch", 130, "pcdof: interrupted"),  # the same
+    ("SIGINT", "command", 130, "pcdof: interrupted"),  # ends the process at once, stderr given back first
+])
+def test_a_signal_while_stderr_is_captured_leaves_stderr_to_the_last_line(which, where, code, line):
+    proc = subprocess.run([sys.executable, "-c", SIGNAL_IN_REDIRECTION, which, where], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == code and proc.stderr.splitlines() == [line], (proc.returncode, proc.stderr)
+
+
+def test_capturing_defers_the_handlers_raise():
+    from pcdof import interrupts
+    from pcdof.io import capture
+
+    was = capture.enabled()
+    capture.enable()
+    try:
+        assert not interrupts.must_not_raise(None)
+        with capture.captured_stderr():
+            assert interrupts.must_not_raise(None)
+        assert not interrupts.must_not_raise(None)
+    finally:
+        capture.enable(was)

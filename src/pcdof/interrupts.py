@@ -10,9 +10,10 @@ load. The handler has two behaviours:
 * anywhere else (starting up, importing a module, parsing arguments, shutting down), or while a module
   is being imported or a kernel compiled inside a command (an exception raised halfway through a C
   extension's import can crash the process later; one raised in numba's compiler is swallowed by its
-  callbacks), it ends the process at once: the line, the cleanups registered with :func:`on_interrupt`
-  and :class:`cleanup_on_interrupt` (temporary files of the writes in progress, a command's rollback),
-  then ``os._exit(130)``.
+  callbacks), or while the process's stderr is redirected (:class:`deferring`: a decode whose library
+  warnings are captured), it ends the process at once: the cleanups registered with :func:`on_interrupt`
+  and :class:`cleanup_on_interrupt` (temporary files of the writes in progress, a command's rollback,
+  stderr put back), the line, then ``os._exit(130)``.
 
 Once a command has ended (done, failed or interrupted), Ctrl-C is ignored and the process exits
 normally but within :data:`EXIT_GRACE_S` seconds (:func:`ending`): the exit status is the command's,
@@ -28,7 +29,7 @@ import sys
 #: exit status of an interrupted command (128 + SIGINT)
 EXIT_INTERRUPTED = 130
 
-_STATE = {"installed": False, "raising": 0, "said": False}
+_STATE = {"installed": False, "raising": 0, "said": False, "deferring": 0}
 _CLEANUPS: list = []
 
 
@@ -52,14 +53,14 @@ def say_interrupted() -> None:
 
 def exit_now(code: int = EXIT_INTERRUPTED) -> None:
     """Run the registered cleanups and end the process with *code* at once (saying ``pcdof: interrupted``
-    first when *code* is :data:`EXIT_INTERRUPTED`)."""
-    if code == EXIT_INTERRUPTED:
-        say_interrupted()
+    when *code* is :data:`EXIT_INTERRUPTED`: after the cleanups, one of which may give stderr back)."""
     for cleanup in list(_CLEANUPS):
         try:
             cleanup()
         except Exception:  # noqa: BLE001 - a cleanup's failure must not stop the exit
             pass
+    if code == EXIT_INTERRUPTED:
+        say_interrupted()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
@@ -124,6 +125,30 @@ def ending(code: int = 0, grace_s: float = EXIT_GRACE_S) -> None:
     exit_soon(code, grace_s)
 
 
+class deferring:
+    """Within the block, a signal handler of pcdof's must not raise (:func:`must_not_raise`).
+
+    For code that an exception would leave half done at any line, such as a redirection of the process's
+    stderr (:func:`pcdof.io.capture.captured_stderr`): raised between the redirection and its ``try``, or
+    in the ``finally`` before stderr is put back, the exception would leave every later message, the
+    command's last line included, in a deleted file. Keep such blocks short: Ctrl-C inside one ends the
+    process at once, and the batch's SIGTERM comes again a moment later.
+    """
+
+    def __enter__(self):
+        _STATE["deferring"] += 1
+        return self
+
+    def __exit__(self, *exc) -> None:
+        _STATE["deferring"] -= 1
+
+
+def must_not_raise(frame) -> bool:
+    """Whether a signal handler must not raise now: a :class:`deferring` block runs, or *frame* or one of
+    its callers runs the import machinery or numba's compiler (:func:`in_machinery`)."""
+    return _STATE["deferring"] > 0 or in_machinery(frame)
+
+
 def in_machinery(frame) -> bool:
     """Whether *frame* or one of its callers runs the import machinery or numba's compiler."""
     while frame is not None:
@@ -135,7 +160,7 @@ def in_machinery(frame) -> bool:
 
 
 def _on_sigint(signum, frame) -> None:
-    if _STATE["raising"] and not in_machinery(frame):
+    if _STATE["raising"] and not must_not_raise(frame):
         raise KeyboardInterrupt
     exit_now()
 

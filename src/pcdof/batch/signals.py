@@ -7,7 +7,7 @@ import os
 import signal
 import threading
 
-from ..interrupts import in_machinery
+from ..interrupts import must_not_raise
 
 #: seconds after which a signal that came inside the import machinery or numba's compiler is sent again
 REDELIVER_S = 0.05
@@ -26,9 +26,10 @@ def _on_signal(signum, frame) -> None:
     error = Terminated("SIGTERM") if signum == signal.SIGTERM else KeyboardInterrupt()
     if _SIGNALS["held"]:
         _SIGNALS["pending"] = _SIGNALS["pending"] or error
-    elif in_machinery(frame):
-        # raised here, the exception would be swallowed by numba's compiler (its callbacks from LLVM) or
-        # break an import halfway: the signal comes again a moment later, until it lands in pcdof's code
+    elif must_not_raise(frame):
+        # raised here, the exception would be swallowed by numba's compiler (its callbacks from LLVM), break
+        # an import halfway or leave stderr redirected: the signal comes again a moment later, until it lands
+        # in pcdof's code
         timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
         timer.daemon = True
         timer.start()

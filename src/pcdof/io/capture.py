@@ -14,6 +14,8 @@ import sys
 import tempfile
 import threading
 
+from .. import interrupts
+
 # The redirection is process-wide: one block at a time holds it.
 _stderr_lock = threading.Lock()
 #: whether :func:`captured_stderr` redirects (set by :func:`enable`)
@@ -50,18 +52,26 @@ def captured_stderr():
     if not _enabled:
         yield lines
         return
-    with _stderr_lock, tempfile.TemporaryFile() as captured:
+    # Ctrl-C or the batch's SIGTERM must not raise between the redirection and its try, nor in the finally
+    # before stderr is back (every later message would go to the deleted file); one that ends the process
+    # at once puts stderr back first (a cleanup).
+    with _stderr_lock, tempfile.TemporaryFile() as captured, interrupts.deferring():
         sys.stderr.flush()
         saved = os.dup(2)
-        os.dup2(captured.fileno(), 2)
-        try:
-            yield lines
-        finally:
+
+        def give_back() -> None:
             os.dup2(saved, 2)
-            os.close(saved)
-            captured.seek(0)
-            text = captured.read(_MAX_CAPTURED).decode("utf-8", "replace")
-            lines.extend(line.strip() for line in text.splitlines() if line.strip())
+
+        with interrupts.cleanup_on_interrupt(give_back):
+            os.dup2(captured.fileno(), 2)
+            try:
+                yield lines
+            finally:
+                give_back()
+                os.close(saved)
+        captured.seek(0)
+        text = captured.read(_MAX_CAPTURED).decode("utf-8", "replace")
+        lines.extend(line.strip() for line in text.splitlines() if line.strip())
 
 
 def pass_on(lines) -> None:

@@ -190,6 +190,38 @@ class TestOneBatchPerFolder:
 
             _acquire(os.path.realpath(out))
 
+    @pytest.mark.parametrize("when", ["taking", "giving back"])
+    def test_sigterm_while_the_lock_is_taken_or_given_back_leaves_no_lock_file(self, tmp_path, monkeypatch, when):
+        """The signal arrives as the lock file has just been created (or is about to be removed): it raises once
+        that is done, and the file is gone (raised halfway, it left the file behind)."""
+        import pcdof.batch.lock as lock
+        from pcdof.batch.signals import Terminated, sigterm_interrupts
+
+        out = tmp_path / "out"
+        out.mkdir()
+        if when == "taking":
+            real = lock._acquire
+
+            def acquire(folder):
+                fd = real(folder)
+                os.kill(os.getpid(), signal.SIGTERM)  # handled at the next line of Python: in the caller
+                return fd
+
+            monkeypatch.setattr(lock, "_acquire", acquire)
+        else:
+            real_unlink = os.unlink
+
+            def unlink(path, *a, **k):
+                os.kill(os.getpid(), signal.SIGTERM)
+                return real_unlink(path, *a, **k)
+
+            monkeypatch.setattr(lock.os, "unlink", unlink)
+        reached = []
+        with pytest.raises(Terminated), sigterm_interrupts(), lock.folder_lock(str(out)):
+            reached.append(True)
+        assert reached == ([] if when == "taking" else [True])
+        assert os.listdir(out) == [] and lock._HELD == {}
+
     def test_a_killed_owner_never_leaves_the_folder_stuck(self, tmp_path):
         out = tmp_path / "out"
         out.mkdir()

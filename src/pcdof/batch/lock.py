@@ -16,6 +16,7 @@ import os
 import socket
 
 from ..errors import ImageWriteError, OutputInUseError
+from .signals import signals_held
 
 try:
     import fcntl
@@ -90,12 +91,22 @@ def folder_lock(folder: str):
         finally:
             _HELD[real][1] -= 1
         return
-    fd = _acquire(real)
+    # Ctrl-C or SIGTERM (as a batch raises them, pcdof.batch.signals) while the lock is taken or given back is
+    # held until that is done: raised halfway, it would leave the lock file behind (or its descriptor open)
+    taking = signals_held()
+    taking.__enter__()
+    try:
+        fd = _acquire(real)
+    except BaseException:
+        taking.__exit__(None, None, None)
+        raise
     _HELD[real] = [fd, 1]
     try:
+        taking.__exit__(None, None, None)  # a signal held meanwhile raises here, and the lock is given back
         yield
     finally:
-        del _HELD[real]
-        with contextlib.suppress(OSError):
-            os.unlink(os.path.join(real, LOCK_NAME))  # while still locked: the next owner re-checks the inode
-        os.close(fd)
+        with signals_held():
+            del _HELD[real]
+            with contextlib.suppress(OSError):
+                os.unlink(os.path.join(real, LOCK_NAME))  # while still locked: the next owner re-checks the inode
+            os.close(fd)

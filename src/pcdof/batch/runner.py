@@ -450,7 +450,7 @@ def render_sequence(input_path: str, output_dir: str, *, lens=None, options=None
     _make_output_dir(output_dir)
     lens_args = {"focus_at": focus_at, "focus_keyframes": focus_keyframes, "f_number_keyframes": f_number_keyframes,
                  "easing": easing, "smoothing": smoothing}
-    with folder_lock(output_dir), sigterm_interrupts():  # owned from the focus pass on; SIGTERM like Ctrl-C
+    with sigterm_interrupts(), folder_lock(output_dir):  # SIGTERM like Ctrl-C before the lock file exists
         try:
             schedule = plan_lens(sequence, rig, options.lens, n_frames=n, rate_hz=fps, progress=progress, **lens_args)
         except KeyboardInterrupt as err:

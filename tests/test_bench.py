@@ -24,7 +24,7 @@ def quick_report(tmp_path_factory):
 def test_every_part_is_reported(quick_report):
     out, report = quick_report
     for part in ("dof", "wide", "wide_budget", "speed", "threads", "startup", "cost", "refocus", "refocus_threads",
-                 "memory", "registration", "fill"):
+                 "memory", "machine_threads", "registration", "fill"):
         assert report.get(part), f"{part} missing from report.json"
     md = (out / "report.md").read_text()
     for heading in ("Depth of field against the ray-traced ground truth", "Speed",
@@ -57,7 +57,7 @@ def test_cost_follows_the_blurred_share(quick_report):
 def test_refocus_rows_alternate_the_paper_method_at_each_blur(quick_report):
     from pcdof.bench.refocus import BLURS_PX
 
-    _, report = quick_report
+    out, report = quick_report
     rows = report["refocus"]
     assert [r["background_blur_px"] for r in rows] == list(BLURS_PX)
     for r in rows:
@@ -69,6 +69,8 @@ def test_refocus_rows_alternate_the_paper_method_at_each_blur(quick_report):
     (memory,) = report["memory"]
     assert memory["color_size"] == "160x120" and memory["peak_mb"] >= memory["baseline_mb"] > 0
     assert memory["marginal_bytes_per_pixel"] is None  # one size: no growth to measure
+    assert report["machine_threads"][0]["threads"] == 1 and report["machine_threads"][0]["stream_speedup"] == 1.0
+    assert "What this machine's threads can give" in (out / "report.md").read_text()
 
 
 def test_peak_memory_separates_the_cost_per_pixel_from_fixed_costs(monkeypatch):

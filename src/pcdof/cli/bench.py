@@ -186,7 +186,7 @@ def _dof_part(report, md, run) -> None:
 
 
 def _speed_part(report, md, run) -> None:
-    from ..bench import speed, table_lines
+    from ..bench import machine, speed, table_lines
 
     quick, repeats = run["quick"], run["repeats"]
     sizes = ((160, 120),) if quick else ((640, 480), (1920, 1080))
@@ -199,12 +199,28 @@ def _speed_part(report, md, run) -> None:
     report["speed"], report["threads"], report["startup"], report["cost"] = rows, scaling, start, cost
     refocus_rows, refocus_scaling, memory = _refocus_measures(quick, repeats, dsize)
     report["refocus"], report["refocus_threads"], report["memory"] = refocus_rows, refocus_scaling, memory
+    megabytes = 40.0 if quick else 400.0
+    bounds = machine.thread_bounds(megabytes=megabytes, steps=20_000 if quick else machine.ARITHMETIC_STEPS,
+                                   repeats=min(repeats, 3))
+    report["machine_threads"] = bounds
     lines = _speed_lines(rows, scaling, start) + [""] + _refocus_lines(refocus_rows, refocus_scaling, memory)
+    lines += ["", *_machine_lines(bounds, megabytes)]
     lines += ["", *table_lines(("out of focus", "f-number", "render ms", "relative to 100 %"), (
         (f"{100 * r['share']:.0f} %", f"{r['f_number']:.2f}", f"{r['render_ms']:.2f}", f"{r['relative_to_full']:.3f}")
         for r in cost))]
     md += ["## Speed\n", *lines, ""]
     click.echo("\n".join(lines))
+
+
+def _machine_lines(bounds, megabytes: float) -> list[str]:
+    """The table of :func:`pcdof.bench.machine.thread_bounds`' rows, with the line that says what it shows."""
+    from ..bench import table_lines
+
+    return [f"What this machine's threads can give (pcdof.bench.machine): a loop of arithmetic, and a loop that "
+            f"streams {megabytes:g} MB as the render's passes stream the frame:", "",
+            *table_lines(("threads", "arithmetic loop ms", "speed-up", "streaming loop ms", "speed-up"), (
+                (str(r["threads"]), f"{r['arithmetic_ms']:.1f}", f"{r['arithmetic_speedup']:.2f}",
+                 f"{r['stream_ms']:.1f}", f"{r['stream_speedup']:.2f}") for r in bounds))]
 
 
 def _refocus_measures(quick: bool, repeats: int, dsize) -> tuple[list, list, list]:

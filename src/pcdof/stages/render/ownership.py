@@ -12,6 +12,7 @@ from numba import njit
 
 from ...runtime.kernels import read_only
 from ...runtime.threads import worker_pool
+from .cells import expand_cells, pool_cells
 from .extend import Behind, behind_sources
 from .frame import Canvas, RenderFrame
 
@@ -266,6 +267,31 @@ def hidden_pixels(frame: RenderFrame, canvas: Canvas, li: int, box) -> np.ndarra
     return (frame.layer[box] < li) & (canvas.opacity[box] < 1)
 
 
+def continued_cells(frame: RenderFrame, hidden: np.ndarray, li: int, box, bbox, reach_px: float, s: int):
+    """:func:`continued_pixels` of a layer computed on the 1/s grid, found on that grid (:mod:`.cells`): the cells'
+    ownership (:func:`owners_of_hidden` with the reach / s), each hidden pixel of a cell found copying the layer's pixel
+    nearest the centre of that cell's source cell. A :class:`Behind` (flat indices into *box*) or None."""
+    layer = np.ascontiguousarray(frame.layer[box])
+    across = np.ascontiguousarray(frame.across[box]) if frame.across is not None else np.zeros((1, 1), np.int8)
+    lay_c, hid_c, acr_c = pool_cells(layer, np.ascontiguousarray(hidden), across, frame.across is not None,
+                                     np.int8(li), int(s))
+    if not hid_c.any():
+        return None
+    (y0, x0), reach = (box[0].start, box[1].start), reach_px / s
+    cells = (slice(0, lay_c.shape[0]), slice(0, lay_c.shape[1]))
+    cbox = ((bbox[0] - y0) // s, (bbox[1] - y0) // s, (bbox[2] - x0) // s, (bbox[3] - x0) // s)
+    found = owners_of_hidden(lay_c, li, cells, cbox, hid_c, reach, 1, 1, acr_c if frame.across is not None else None)
+    if isinstance(found, np.ndarray):  # layer li the only candidate: its nearest cells still to be found
+        found = behind_sources(lay_c == li, found, reach)
+    elif found is not None:
+        near = found[2] <= reach
+        found = (found[0][near], found[1][near])
+    if found is None or found[0].size == 0:
+        return None
+    dst, src = expand_cells(found[0], found[1], layer, np.ascontiguousarray(hidden), np.int8(li), int(s))
+    return Behind(dst, src) if dst.size else None
+
+
 def continued_pixels(frame: RenderFrame, hidden: np.ndarray, li: int, box, bbox, reach_px: float, cell_px: int = 1,
                      threads: int | None = None):
     """The pixels of *hidden* (:func:`hidden_pixels`) that this layer continues, and the pixel of the layer each
@@ -314,8 +340,8 @@ class OwnershipAhead:
     Parameters
     ----------
     frame, canvas : the render's frame and canvas
-    windows : per layer, ``(box, bbox, reach_px)`` to extend it behind nearer layers, or None where it is not
-        extended
+    windows : per layer, ``(box, bbox, reach_px, s)`` to extend it behind nearer layers, or None where it is not
+        extended; a layer computed on the 1/s grid (s > 1) finds its pixels on that grid (:func:`continued_cells`)
     ahead : find the next layer's pixels on a helper thread (one core) while a layer renders
     """
 
@@ -324,7 +350,9 @@ class OwnershipAhead:
         self._pending = {}  # layer -> a future of its Behind
 
     def _find(self, li: int, hidden: np.ndarray, threads: int | None):
-        box, bbox, reach = self.windows[li]
+        box, bbox, reach, s = self.windows[li]
+        if s > 1:
+            return continued_cells(self.frame, hidden, li, box, bbox, reach, s)
         return continued_pixels(self.frame, hidden, li, box, bbox, reach, threads=threads)
 
     def _start(self, li: int) -> None:
@@ -345,7 +373,7 @@ class OwnershipAhead:
         if window is None:
             return None
         if pending is None:
-            return continued_pixels(self.frame, hidden_pixels(self.frame, self.canvas, li, window[0]), li, *window)
+            return self._find(li, hidden_pixels(self.frame, self.canvas, li, window[0]), None)
         return still_hidden(pending.result(), self.canvas, window[0])
 
     def close(self) -> None:

@@ -144,7 +144,7 @@ def _composite_layers(frame: RenderFrame, canvas: Canvas, keys, counts, r_maxes,
         s = 1 if key == 0 else frame.plan.scale(_layer_range(frame, int(key))[0])
         box, ext_reach = _layer_window(frame, li, float(r_maxes[li]), r_front, boxes[li], s)
         extents.append((box, ext_reach))
-        windows.append((box, boxes[li], ext_reach) if ext_reach else None)
+        windows.append((box, boxes[li], ext_reach, s) if ext_reach else None)
         if key != 0:
             r_front = max(r_front, float(r_maxes[li]))
     ownership = OwnershipAhead(frame, canvas, windows, ahead=frame.plan.threads > 1)

@@ -76,7 +76,8 @@ def _check(counts, megabytes, steps, repeats) -> tuple[list[int], float, int, in
     return sorted({int(n) for n in counts}), float(megabytes), int(steps), int(repeats)
 
 
-def _best_ms(fn, n: int, repeats: int) -> float:
+def _mean_ms(fn, n: int, repeats: int) -> float:
+    """Mean ms of *repeats* runs of ``fn(n)`` on *n* threads."""
     with threads(n):
         t0 = time.perf_counter()
         for _ in range(repeats):
@@ -109,7 +110,7 @@ def thread_bounds(counts=None, *, megabytes: float = 400.0, steps: int = ARITHME
     for name, fn in loops.items():
         fn(counts[0])  # compiled or loaded, and the pages touched
         for t in counts + counts[::-1]:
-            best[name, t] = min(best[name, t], _best_ms(fn, t, repeats))
+            best[name, t] = min(best[name, t], _mean_ms(fn, t, repeats))
     first = counts[0]
     return [{"threads": t, **{f"{name}_ms": best[name, t] for name in loops},
              **{f"{name}_speedup": best[name, first] / best[name, t] for name in loops}} for t in counts]

@@ -271,25 +271,36 @@ def continued_cells(frame: RenderFrame, hidden: np.ndarray, li: int, box, bbox, 
     """:func:`continued_pixels` of a layer computed on the 1/s grid, found on that grid (:mod:`.cells`): the cells'
     ownership (:func:`owners_of_hidden` with the reach / s), each hidden pixel of a cell found copying the layer's pixel
     nearest the centre of that cell's source cell. A :class:`Behind` (flat indices into *box*) or None."""
-    layer = np.ascontiguousarray(frame.layer[box])
-    across = np.ascontiguousarray(frame.across[box]) if frame.across is not None else np.zeros((1, 1), np.int8)
-    lay_c, hid_c, acr_c = pool_cells(layer, np.ascontiguousarray(hidden), across, frame.across is not None,
-                                     np.int8(li), int(s))
+    layer, hidden = np.ascontiguousarray(frame.layer[box]), np.ascontiguousarray(hidden)
+    jumps = frame.across is not None
+    across = np.ascontiguousarray(frame.across[box]) if jumps else np.zeros((1, 1), np.int8)
+    lay_c, hid_c, acr_c = pool_cells(layer, hidden, across, jumps, np.int8(li), int(s))
     if not hid_c.any():
         return None
     (y0, x0), reach = (box[0].start, box[1].start), reach_px / s
     cells = (slice(0, lay_c.shape[0]), slice(0, lay_c.shape[1]))
     cbox = ((bbox[0] - y0) // s, (bbox[1] - y0) // s, (bbox[2] - x0) // s, (bbox[3] - x0) // s)
-    found = owners_of_hidden(lay_c, li, cells, cbox, hid_c, reach, 1, 1, acr_c if frame.across is not None else None)
-    if isinstance(found, np.ndarray):  # layer li the only candidate: its nearest cells still to be found
-        found = behind_sources(lay_c == li, found, reach)
-    elif found is not None:
-        near = found[2] <= reach
-        found = (found[0][near], found[1][near])
-    if found is None or found[0].size == 0:
+    found = _within_reach(owners_of_hidden(lay_c, li, cells, cbox, hid_c, reach, 1, 1, acr_c if jumps else None),
+                          lay_c, li, reach)
+    if found is None:
         return None
-    dst, src = expand_cells(found[0], found[1], layer, np.ascontiguousarray(hidden), np.int8(li), int(s))
+    dst, src = expand_cells(found[0], found[1], layer, hidden, np.int8(li), int(s))
     return Behind(dst, src) if dst.size else None
+
+
+def _within_reach(found, layer_box, li: int, reach_px: float, threads: int = 1):
+    """:func:`owners_of_hidden`'s answer *found* as (dst, src): the pixels within *reach_px* of the pixel of layer
+    *li* they copy (flat indices into *layer_box*, the layer ids on the same grid), or None when there is none.
+    A mask (layer *li* the only candidate) has its nearest pixels of the layer found here (:func:`behind_sources`)."""
+    if isinstance(found, np.ndarray):
+        return behind_sources(layer_box == li, found, reach_px, threads=threads)
+    if found is None:
+        return None
+    # the nearest candidate is the nearest pixel of the layer, the one the extension copies (the same
+    # transform with the farther layers' pixels left out labels it alike: see owners_of_hidden)
+    dst, src, d = found
+    near = d <= reach_px
+    return (dst[near], src[near]) if near.any() else None
 
 
 def continued_pixels(frame: RenderFrame, hidden: np.ndarray, li: int, box, bbox, reach_px: float, cell_px: int = 1,
@@ -305,16 +316,8 @@ def continued_pixels(frame: RenderFrame, hidden: np.ndarray, li: int, box, bbox,
     if threads is None:  # a second thread pays for itself from about 0.2 Mpx
         threads = frame.plan.threads if hidden.size >= 200_000 else 1
     found = owners_of_hidden(frame.layer, li, box, bbox, hidden, reach_px, cell_px, threads, frame.across)
-    if isinstance(found, np.ndarray):  # their nearest pixels of the layer still to be found
-        found = behind_sources(frame.layer[box] == li, found, reach_px, threads=threads)
-        return None if found is None else Behind(*found)
-    if found is None:
-        return None
-    # the nearest candidate is the nearest pixel of the layer, the one the extension copies (the same
-    # transform with the farther layers' pixels left out labels it alike: see owners_of_hidden)
-    dst, src, d = found
-    near = d <= reach_px
-    return Behind(dst[near], src[near]) if near.any() else None
+    found = _within_reach(found, frame.layer[box], li, reach_px, threads)
+    return None if found is None else Behind(*found)
 
 
 def still_hidden(found: Behind | None, canvas: Canvas, box) -> Behind | None:

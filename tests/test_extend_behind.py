@@ -15,6 +15,7 @@ from unittest import mock
 import cv2
 import hypothesis.strategies as st
 import numpy as np
+import pytest
 from hypothesis import given, settings
 
 import pcdof.stages.render as renderer
@@ -387,3 +388,15 @@ def test_continued_pixels_of_an_earlier_mask_cut_to_the_later_one_are_the_later_
         order, want_order = np.argsort(cut.dst), np.argsort(want.dst)
         np.testing.assert_array_equal(cut.dst[order], want.dst[want_order])
         np.testing.assert_array_equal(cut.src[order], want.src[want_order])
+
+
+@pytest.mark.parametrize("box", [(slice(3, 17), slice(0, 23)), (slice(0, 20), slice(5, 11)), (slice(19, 20), slice(22, 23))])
+def test_values_at_flat_indices_of_a_box_are_the_box_pixels(box):
+    """The opacity at a box's flat indices, gathered from the frame's flat buffer (a box as wide as the frame and a
+    narrower one), is the box's own pixel at each (row, column)."""
+    rng = np.random.default_rng(7)
+    image = rng.random((20, 23)).astype(np.float32)
+    hb, wb = box[0].stop - box[0].start, box[1].stop - box[1].start
+    flat = rng.choice(hb * wb, min(hb * wb, 40), replace=False).astype(np.int64)
+    rows, cols = np.divmod(flat, wb)
+    np.testing.assert_array_equal(renderer.ownership._values_at(image, box, flat), image[box][rows, cols])

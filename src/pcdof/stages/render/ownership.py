@@ -320,13 +320,23 @@ def continued_pixels(frame: RenderFrame, hidden: np.ndarray, li: int, box, bbox,
     return None if found is None else Behind(*found)
 
 
+def _values_at(image: np.ndarray, box, flat: np.ndarray) -> np.ndarray:
+    """The values of *image* (H, W), C-contiguous, at *flat* (N,) int64 flat indices into its *box* (two slices with
+    their bounds): gathered from the image's flat buffer, with no row and column pair computed (a box as wide as
+    the image is contiguous: its indices are the image's, offset)."""
+    w = image.shape[1]
+    y0, x0, box_w = box[0].start, box[1].start, box[1].stop - box[1].start
+    if box_w == w:
+        return image.reshape(-1)[y0 * w:].take(flat)
+    return image.reshape(-1).take(flat + (flat // box_w) * (w - box_w) + (y0 * w + x0))
+
+
 def still_hidden(found: Behind | None, canvas: Canvas, box) -> Behind | None:
     """*found* (:func:`continued_pixels` of a mask taken earlier) cut to the pixels of *box* not opaque on
     *canvas* now; None when none is left."""
     if found is None:
         return None
-    rows, cols = np.divmod(found.dst, box[1].stop - box[1].start)
-    keep = canvas.opacity[box][rows, cols] < 1  # at those pixels only, not over the whole box
+    keep = _values_at(canvas.opacity, box, found.dst) < 1  # at those pixels only, not over the whole box
     if keep.all():
         return found
     return Behind(found.dst[keep], found.src[keep]) if keep.any() else None

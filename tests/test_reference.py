@@ -824,13 +824,13 @@ class TestBorderAboveWhite:
         from pcdof.synth.rig import pinhole
 
         seen = []
-        real = render_pkg.render_image
+        real = render_pkg.METHODS["physical"]
 
         def spy(*args, **kwargs):
             seen.append(kwargs.get("border_most"))
             return real(*args, **kwargs)
 
-        monkeypatch.setattr(render_pkg, "render_image", spy)
+        monkeypatch.setitem(render_pkg.METHODS, "physical", spy)  # what the render stage calls
         color = np.full((40, 60, 3), 90, np.uint8)
         color[0:3, 20:26] = 255  # clipped: the highlights stage estimates light above white there
         rig = Rig.registered(pinhole((60, 40), 60.0), max_range_m=10.0)
@@ -854,7 +854,7 @@ class TestBorderAboveWhite:
         from pcdof.synth.rig import pinhole
 
         seen = []
-        real = render_pkg.render_image
+        real = render_pkg.METHODS["physical"]
 
         def spy(color, depth_m, *args, **kwargs):
             gc.collect()
@@ -862,7 +862,7 @@ class TestBorderAboveWhite:
             seen.append((color.shape, depth_m.shape, kwargs.get("source_border_px"), alive))
             return real(color, depth_m, *args, **kwargs)
 
-        monkeypatch.setattr(render_pkg, "render_image", spy)
+        monkeypatch.setitem(render_pkg.METHODS, "physical", spy)  # what the render stage calls
         color = np.full((40, 60, 3), 90, np.uint8)
         color[0:3, 20:26] = 255
         rig = Rig.registered(pinhole((60, 40), 60.0), max_range_m=10.0)

@@ -15,11 +15,13 @@ from ._common import check_output_file, check_output_folder, handle_errors, make
 
 #: every part; "wide-tune" (choosing the highlight default on the tuning seeds), "tiers" (the quality tiers'
 #: thresholds from the error-vs-blur curve, on the tuning seeds), "hidden" (what the hidden background
-#: costs) and "fill-rigs" (the fill on rigs of real devices, inside and outside the depth view) run only when named
-PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune", "tiers", "hidden", "fill-rigs")
+#: costs), "depth-errors" (what each class of depth error costs the render) and "fill-rigs" (the fill on rigs of real
+#: devices, inside and outside the depth view) run only when named
+PARTS = ("dof", "wide", "speed", "registration", "fill", "wide-tune", "tiers", "hidden", "depth-errors", "fill-rigs")
 DEFAULT_PARTS = ("dof", "wide", "speed", "registration", "fill")
 #: the order the parts run in (the report's sections follow it)
-RUN_ORDER = ("dof", "wide", "wide-tune", "tiers", "hidden", "speed", "registration", "fill", "fill-rigs")
+RUN_ORDER = ("dof", "wide", "wide-tune", "tiers", "hidden", "depth-errors", "speed", "registration", "fill",
+             "fill-rigs")
 #: the stages each side of the speed table sums
 PCDOF_STAGES, PAPER_STAGES = ("register", "fill", "coc", "highlights", "render"), ("register", "fill", "render")
 
@@ -77,6 +79,8 @@ def _output_files(parts) -> list[str]:
         files += ["wide.csv", "budget.png", "wide_tiers.png"]
     if "hidden" in parts:
         files += ["hidden.csv"]
+    if "depth-errors" in parts:
+        files += ["depth_errors.csv"]
     if "speed" in parts:
         files += ["cost.png"]
     return files
@@ -123,6 +127,7 @@ def command(output, quick, only, size, depth_size, repeats, samples, scenes, see
              "wide-tune": lambda: _wide_tune_part(report, md, output, run["seeds"], run["wide_kw"]),
              "tiers": lambda: _tiers_part(report, md, output, run["seeds"], run["wide_kw"]),
              "hidden": lambda: _hidden_part(report, md, output, run["seeds"], run["wide_kw"]),
+             "depth-errors": lambda: _depth_errors_part(report, md, output, run["seeds"], run["wide_kw"]),
              "speed": lambda: _speed_part(report, md, run), "registration": lambda: _registration_part(report, md, run),
              "fill": lambda: _fill_part(report, md, run),
              "fill-rigs": lambda: _fill_rigs_part(report, md, seeds, run["quick"])}
@@ -153,7 +158,7 @@ def _settings(output, parts, quick, size, depth_size, repeats, samples, scenes, 
     check_output_folder(output, "output")
     for name in _output_files(parts):
         check_output_file(os.path.join(output, name), "output")
-    if any(p in parts for p in ("dof", "wide", "wide-tune", "tiers", "hidden")):
+    if any(p in parts for p in ("dof", "wide", "wide-tune", "tiers", "hidden", "depth-errors")):
         check_output_folder(os.path.join(output, "cache"), "output")
     wide_kw = {"kinds": None, "blurs": wide_blurs, "size": wide_size, "depth_size": depth_size,
                "reference_width_px": None if absolute_blurs else wide.REFERENCE_WIDTH_PX}
@@ -439,6 +444,25 @@ def _tiers_part(report, md, output, seeds, kw) -> None:
     md += ["## Quality tiers: thresholds from the measured curve\n",
            f"Tuning seeds {', '.join(map(str, seed_list))}, never reported elsewhere.\n", *tables]
     click.echo("\n".join(tables))
+
+
+def _depth_errors_part(report, md, output, seeds, kw) -> None:
+    from ..bench import depth_errors
+
+    seed_list = _report_seeds(seeds)
+    rows = depth_errors.run_depth_errors(seeds=seed_list, cache_dir=os.path.join(output, "cache"), **kw)
+    report["depth_errors"] = rows
+    _write_csv(os.path.join(output, "depth_errors.csv"), rows)
+    size = f"{kw['size'][0]}x{kw['size'][1]}"
+    note = (f"Reported seeds {', '.join(map(str, seed_list))} at {size}, the wide part's cases and ground truths. "
+            "pcdof (coc + highlights + render, defaults) from its own filled depth, from the exact depth, and from the "
+            "filled depth with one class of its errors put right (a surface given another surface's depth: more than "
+            f"{depth_errors.WRONG_RATIO:.0%} apart). Mean PSNR overall / depth-edge band, dB (in brackets: the gain "
+            "over the filled depth).")
+    table = depth_errors.cost_table(rows)
+    md += ["## What each class of depth error costs the render\n", note, "", table, ""]
+    click.echo(note)
+    click.echo(table)
 
 
 def _hidden_part(report, md, output, seeds, kw) -> None:

@@ -766,6 +766,24 @@ class TestFrameBorder:
             if p >= 2:
                 np.testing.assert_allclose(got[p - 2, p + 4], a[0, 2:7].mean(axis=0), atol=1e-6)  # 2 rows up: 5 px
 
+    def test_edge_continuation_is_the_windowed_mean_of_the_running_sums(self):
+        """Line k at i: the float64 running sums' difference over the edge's pixels i - k .. i + k (cut at its ends),
+        divided by their count and rounded to float32, bit for bit; and that is their mean."""
+        from pcdof.stages.render.border import edge_continuation
+
+        rng = np.random.default_rng(5)
+        for n, pad, channels in ((1, 4, 3), (9, 3, 3), (9, 12, 1), (40, 7, 3)):
+            edge = (rng.random((n, channels)) * 40).astype(np.float32)
+            sums = np.concatenate([np.zeros((1, channels)), np.cumsum(edge, axis=0, dtype=np.float64)])
+            want = np.empty((pad, n, channels), np.float32)
+            for k in range(1, pad + 1):
+                for i in range(n):
+                    lo, hi = max(i - k, 0), min(i + k + 1, n)
+                    want[k - 1, i] = (sums[hi] - sums[lo]) / (hi - lo)
+                    np.testing.assert_allclose(want[k - 1, i], edge[lo:hi].mean(axis=0), rtol=1e-5)
+            np.testing.assert_array_equal(edge_continuation(edge, pad), want)
+            np.testing.assert_array_equal(edge_continuation(edge[:, 0], pad), want[:, :, 0])  # one channel, (N,)
+
     def test_replicate_border(self):
         from pcdof.stages.render.border import border_px, replicate_border
 

@@ -30,7 +30,8 @@ STAGES = {
     "render": (("pcdof.stages.render", "pcdof.stages.render.tiles"),
                ("pcdof.stages.render.classify", "pcdof.stages.render.scatter", "pcdof.stages.render.composite",
                 "pcdof.stages.render.extend", "pcdof.stages.render.uniform", "pcdof.stages.render.grids",
-                "pcdof.stages.render.ownership", "pcdof.stages.render.tiles", "pcdof.lens", "pcdof.color")),
+                "pcdof.stages.render.ownership", "pcdof.stages.render.tiles", "pcdof.stages.render.cells",
+                "pcdof.lens", "pcdof.color")),
 }
 
 #: CPU seconds each stage's ``warmup()`` takes to compile with an empty cache, measured on the project's 2-core

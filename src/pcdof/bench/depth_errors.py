@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from ..validate import positive_number
 
 #: a pixel has another surface's depth when the larger of its filled and exact depths exceeds the smaller by this
 #: share (the scale of a depth edge in the wide scenes: 0.45-0.85 m foregrounds over 1.1-4.4 m rooms)
@@ -50,8 +51,7 @@ def error_classes(filled_m, exact_m, *, ratio: float = WRONG_RATIO) -> dict:
     if filled.ndim != 2 or filled.shape != exact.shape:
         raise InputError(f"filled_m and exact_m must be (H, W) arrays of one shape; got {filled.shape} and "
                          f"{exact.shape}")
-    if not (isinstance(ratio, (int, float)) and not isinstance(ratio, bool) and np.isfinite(ratio) and ratio > 0):
-        raise InputError(f"ratio must be a finite number > 0; got {ratio!r}")
+    ratio = positive_number("ratio", ratio)
     seen = exact > 0
     differs = seen & (filled != exact)
     other = differs & (np.maximum(filled, exact) > (1.0 + ratio) * np.minimum(filled, exact))
@@ -77,17 +77,15 @@ def run_depth_errors(*, kinds=None, seeds=None, blurs=None, reference_width_px=6
     """
     from tqdm.auto import tqdm
 
-    from ..color import linear_to_srgb
-    from ..metrics import depth_edge_band
     from ..pipeline import prepare_depth, render_from_depth
     from ..synth.wide import generate_wide, lens_for_blur
-    from .wide import BLURS_PX, REPORT_SEEDS, check_cases, encode_srgb8, ground_truth, psnr_of_sse, scaled_blurs
+    from .wide import BLURS_PX, REPORT_SEEDS, case_truth, check_cases, encode_srgb8, psnr_of_sse, scaled_blurs
 
     seeds = REPORT_SEEDS if seeds is None else seeds
     blurs = BLURS_PX if blurs is None else blurs
     px = scaled_blurs(check_cases(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
     kinds, seeds, blurs = check_cases(kinds, seeds, px)
-    error_classes(np.ones((1, 1)), np.ones((1, 1)), ratio=ratio)  # the ratio checked before any work
+    ratio = positive_number("ratio", ratio)  # before any work
     rows = []
     bar = tqdm(total=len(kinds) * len(seeds), desc="depth errors", unit="frame", disable=not progress)
     for kind in kinds:
@@ -96,19 +94,14 @@ def run_depth_errors(*, kinds=None, seeds=None, blurs=None, reference_width_px=6
             exact = np.asarray(sf.depth_color_m, np.float32)
             registered, filled, _ = prepare_depth(sf.frame, sf.default_lens)
             classes = error_classes(filled, exact, ratio=ratio)
-            differs = np.zeros(exact.shape, bool)
-            for mask in classes.values():
-                differs |= mask
+            differs = np.logical_or.reduce(list(classes.values()))
             depths = {VARIANTS[0]: (filled, differs), VARIANTS[4]: (exact, np.zeros_like(differs))}
             depths.update({name: (np.where(mask, exact, filled).astype(np.float32), mask)
                            for name, mask in classes.items()})
             for focus in spec.focus_m:
                 for blur in blurs:
                     lens = lens_for_blur(exact, sf.rig.color.fx, spec.focus_m[focus], blur)
-                    gt_lin = ground_truth(sf, lens, cache_dir=cache_dir,
-                                          key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2])
-                    gt = linear_to_srgb(np.clip(gt_lin, 0, 1))
-                    band = depth_edge_band(exact, max(3, int(round(blur / 2))))
+                    gt, band = case_truth(sf, lens, (kind, seed, focus, blur), size, depth_size, cache_dir)
                     for name in VARIANTS:
                         depth, mask = depths[name]
                         image = render_from_depth(sf.color, depth, lens, sf.rig.color.fx)[0]

@@ -291,8 +291,6 @@ def run_hidden(*, kinds=None, seeds=None, blurs=None, reference_width_px=640, si
     """
     from tqdm.auto import tqdm
 
-    from ..color import linear_to_srgb
-    from ..metrics import depth_edge_band
     from ..plans import check_quality
     from . import wide
 
@@ -305,13 +303,10 @@ def run_hidden(*, kinds=None, seeds=None, blurs=None, reference_width_px=640, si
     for case in tqdm(cases, desc="hidden bench", unit="case", disable=not progress):
         if frame is None or frame.key != case[:2]:
             frame = _Frame.make(case[:2], size, depth_size)
-        sf, (kind, seed, focus, blur) = frame.sf, case
+        sf, (_, _, focus, blur) = frame.sf, case
         lens = frame.lens(focus, blur)
-        gt = linear_to_srgb(np.clip(wide.ground_truth(
-            sf, lens, cache_dir=cache_dir, key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2]),
-            0, 1))
+        gt, band = wide.case_truth(sf, lens, case, size, depth_size, cache_dir)
         coc = lens.coc_px(sf.depth_color_m, sf.rig.color.fx)
-        band = depth_edge_band(sf.depth_color_m, max(3, int(round(blur / 2))))
         for method, layers in frame.variants(lens):
             image = render_oracle(layers, lens, sf.rig.color.fx, quality=quality, max_range_m=sf.rig.max_range_m,
                                   convolve_uniform=method == PLAIN_BUDGET)

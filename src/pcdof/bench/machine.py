@@ -16,6 +16,7 @@ from numba import njit
 
 from ..errors import InputError
 from ..runtime.tasks import next_chunk, run_tasks
+from ..validate import integer, positive_number
 from .speed import thread_counts, threads
 
 #: elements of the arithmetic loop, and steps of its recurrence per element
@@ -67,13 +68,8 @@ def _check(counts, megabytes, steps, repeats) -> tuple[list[int], float, int, in
     if isinstance(counts, (str, bytes)) or not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool)
                                                    and 1 <= n <= top for n in counts) or not len(counts):
         raise InputError(f"counts must be thread counts from 1 to {top} (numba's threads); got {counts!r}")
-    if isinstance(megabytes, bool) or not isinstance(megabytes, (int, float)) or not math.isfinite(megabytes) \
-            or megabytes <= 0:
-        raise InputError(f"megabytes must be a finite number > 0; got {megabytes!r}")
-    for name, value in (("steps", steps), ("repeats", repeats)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise InputError(f"{name} must be an int >= 1; got {value!r}")
-    return sorted({int(n) for n in counts}), float(megabytes), int(steps), int(repeats)
+    return (sorted({int(n) for n in counts}), positive_number("megabytes", megabytes), integer("steps", steps, 1),
+            integer("repeats", repeats, 1))
 
 
 def _mean_ms(fn, n: int, repeats: int) -> float:

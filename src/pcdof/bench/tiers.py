@@ -99,10 +99,8 @@ def run_tiers(*, kinds=None, seeds=(0, 1, 2, 3, 4), blurs=(16, 64), reference_wi
     """
     from tqdm.auto import tqdm
 
-    from ..color import linear_to_srgb
-    from ..metrics import depth_edge_band
     from ..synth.wide import generate_wide, lens_for_blur
-    from .wide import check_cases, encode_srgb8, ground_truth, scaled_blurs, wide_cases
+    from .wide import case_truth, check_cases, encode_srgb8, scaled_blurs, wide_cases
 
     ladder = tuple(float(m) for m in ladder)
     if not ladder or any(not (math.isfinite(m) and m > 0) for m in ladder):
@@ -117,10 +115,7 @@ def run_tiers(*, kinds=None, seeds=(0, 1, 2, 3, 4), blurs=(16, 64), reference_wi
             frames = {(kind, seed): generate_wide(kind, seed=seed, color_size=size, depth_size=depth_size)}
         sf, spec = frames[(kind, seed)]
         lens = lens_for_blur(sf.depth_color_m, sf.rig.color.fx, spec.focus_m[focus], blur)
-        gt_lin = ground_truth(sf, lens, cache_dir=cache_dir,
-                               key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2])
-        gt = linear_to_srgb(np.clip(gt_lin, 0, 1))
-        band = depth_edge_band(sf.depth_color_m, max(3, int(round(blur / 2))))
+        gt, band = case_truth(sf, lens, (kind, seed, focus, blur), size, depth_size, cache_dir)
         exact, reduced, signed_coc = _renders(sf, lens, ladder)
         err_x = np.mean((encode_srgb8(exact) - gt) ** 2, axis=2)
         row = {"scene": kind, "seed": seed, "focus": focus, "blur_px": blur,

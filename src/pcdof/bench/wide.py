@@ -122,6 +122,17 @@ def ground_truth(sf, lens, *, cache_dir, key):
     return gt
 
 
+def case_truth(sf, lens, case, size, depth_size, cache_dir):
+    """What a wide case is scored against: (sRGB ground truth (H, W, 3) float in [0, 1], the ray-traced linear light
+    clipped at white and cached under the case's key; depth-edge band (H, W) bool, as far as the case's blur reaches).
+    *case* is (kind, seed, focus, blur_px), *size* and *depth_size* the frame's, as :func:`wide_cases` and
+    :func:`run_wide` give them."""
+    kind, seed, focus, blur = case
+    gt_lin = ground_truth(sf, lens, cache_dir=cache_dir,
+                          key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2])
+    return linear_to_srgb(np.clip(gt_lin, 0, 1)), depth_edge_band(sf.depth_color_m, max(3, int(round(blur / 2))))
+
+
 def _true_frame(sf, color):
     from ..camera import RGBDFrame, Rig
 
@@ -274,12 +285,9 @@ def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, reference_width_
         sf, spec = frames[(kind, seed)]
         lens = lens_for_blur(sf.depth_color_m, sf.rig.color.fx, spec.focus_m[focus], blur)
         bar.set_postfix_str(f"{kind}/{seed}/{focus}/{blur:g}px: ground truth")
-        gt_lin = ground_truth(sf, lens, cache_dir=cache_dir,
-                               key=["wide", kind, seed, focus, blur, list(size), list(depth_size), 2])
+        gt, band = case_truth(sf, lens, (kind, seed, focus, blur), size, depth_size, cache_dir)
         bar.update()
-        gt = linear_to_srgb(np.clip(gt_lin, 0, 1))
         coc = lens.coc_px(sf.depth_color_m, sf.rig.color.fx)
-        band = depth_edge_band(sf.depth_color_m, max(3, int(round(blur / 2))))
         for name, render in renderers.items():
             bar.set_postfix_str(f"{kind}/{seed}/{focus}/{blur:g}px: {name}")
             err = np.mean((encode_srgb8(render(sf, lens)) - gt) ** 2, axis=2)

@@ -90,6 +90,30 @@ def test_best_levels_are_the_plain_ones(seed, j, t, one_prior, weighted, dark):
     np.testing.assert_array_equal(got, _plain_best_levels(base, k, weight, starts, cands, probs))
 
 
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), j=st.integers(1, 40), threads=st.integers(2, 4))
+def test_levels_of_batches_shared_among_threads_are_those_of_one(seed, j, threads):
+    """Batches of a few footprints each (max_samples small), solved on several threads: each footprint's level as
+    one thread gives it, a footprint of no samples keeping its value."""
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(0, 120, j)
+    n = int(counts.sum())
+    base, k, weight = rng.uniform(0.01, 0.9, n), rng.uniform(1e-6, 1.0, n) ** 3, np.ones(n)
+    cands = np.column_stack((rng.uniform(CLIP_LEVEL, 1.0, j), np.sort(rng.uniform(1.0, 30.0, (j, 8)), axis=1)))
+    probs = rng.random((j, 8))
+    probs /= probs.sum(axis=1, keepdims=True)
+    one = loss.levels_of(base, k, weight, counts, cands, probs, max_samples=150, threads=1)
+    assert loss.levels_of(base, k, weight, counts, cands, probs, max_samples=150, threads=threads) == one
+    assert [one[i] for i in np.flatnonzero(counts == 0)] == cands[counts == 0, 0].tolist()
+
+
+def test_solve_all_keeps_the_items_order():
+    items = list(range(11))
+    for threads in (1, 2, 3, 20):
+        assert loss.solve_all(lambda i: i * i, items, threads) == [i * i for i in items]
+    assert loss.solve_all(lambda i: i, [], 4) == []
+
+
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), rows=st.integers(1, 40), n=st.integers(1, 300))
 def test_display_of_tables_above_the_linear_segment(seed, rows, n):

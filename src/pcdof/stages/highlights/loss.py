@@ -179,18 +179,57 @@ def chosen_levels(problems, max_samples: int = 8192) -> list:
     return chosen
 
 
-def levels_of(base, k, weight, counts, cands, probs, max_samples: int = 8192) -> list:
+def levels_of(base, k, weight, counts, cands, probs, max_samples: int = 8192, threads: int | None = None) -> list:
     """The chosen candidate of J footprints whose samples (*base*, *k*, *weight* (N,) float64) lie one after
     another, *counts* (J,) of them each; *cands* (J, 1 + T), *probs* (J, T): :func:`best_levels` in batches of
     about *max_samples* samples, so its (1 + T, N) tables stay about 2 MB (4096 samples: about 10 % slower, 16384
-    no faster). A footprint of no samples keeps its value (candidate 0). Returns a list of J floats."""
+    no faster). A footprint of no samples keeps its value (candidate 0). Returns a list of J floats.
+
+    The batches are independent: with *threads* > 1 (None: numba's count for this thread) they are shared out
+    among that many threads (:func:`solve_all`), each batch's values the same."""
     chosen = cands[:, 0].tolist()
     ends = np.cumsum(counts).tolist()
     todo = np.flatnonzero(counts).tolist()
-    for batch in _batches(todo, [int(counts[i]) for i in todo], max_samples):
+    batches = list(_batches(todo, [int(counts[i]) for i in todo], max_samples))
+
+    def solve(batch):
         a, b = ends[batch[0]] - int(counts[batch[0]]), ends[batch[-1]]
         starts = np.concatenate(([0], np.cumsum(counts[batch])))
-        levels = best_levels(base[a:b], k[a:b], weight[a:b], starts, cands[batch], probs[batch])
+        return best_levels(base[a:b], k[a:b], weight[a:b], starts, cands[batch], probs[batch])
+
+    if threads is None:
+        from ...runtime.threads import current_threads
+
+        threads = current_threads()
+    for batch, levels in zip(batches, solve_all(solve, batches, threads)):
         for i, level in zip(batch, levels.tolist()):
             chosen[i] = level
     return chosen
+
+
+def solve_all(solve, items, threads: int) -> list:
+    """``[solve(item) for item in items]``, with *threads* > 1 the items shared out round robin among the calling
+    thread and helpers of the runtime's task pool (:func:`pcdof.runtime.tasks.task_pool`): numpy's arithmetic on
+    large arrays releases the GIL. The 1920x1080 refocus's highlights stage on two threads: 61 -> 54 ms."""
+    n = max(1, min(int(threads), len(items)))
+    if n == 1:
+        return [solve(item) for item in items]
+    from ...runtime.tasks import task_pool
+
+    def share(first):
+        return [solve(item) for item in items[first::n]]
+
+    futures = {}
+    try:
+        pool = task_pool()
+        for first in range(1, n):
+            futures[first] = pool.submit(share, first)
+    except RuntimeError:  # interpreter shutting down: no new threads; the rest is solved here
+        pass
+    shares = {0: share(0)}
+    for first in range(1, n):
+        shares[first] = futures[first].result() if first in futures else share(first)
+    out = [None] * len(items)
+    for first, values in shares.items():
+        out[first::n] = values
+    return out

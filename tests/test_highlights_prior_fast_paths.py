@@ -107,13 +107,6 @@ def test_levels_of_batches_shared_among_threads_are_those_of_one(seed, j, thread
     assert [one[i] for i in np.flatnonzero(counts == 0)] == cands[counts == 0, 0].tolist()
 
 
-def test_solve_all_keeps_the_items_order():
-    items = list(range(11))
-    for threads in (1, 2, 3, 20):
-        assert loss.solve_all(lambda i: i * i, items, threads) == [i * i for i in items]
-    assert loss.solve_all(lambda i: i, [], 4) == []
-
-
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), rows=st.integers(1, 40), n=st.integers(1, 300))
 def test_display_of_tables_above_the_linear_segment(seed, rows, n):

@@ -356,3 +356,32 @@ def test_a_numba_that_renamed_its_internals_degrades_to_a_silent_compile(monkeyp
         overloads = {}
 
     assert k._in_cache(Renamed()) is True
+
+
+def test_map_on_threads_keeps_the_order_and_shares_the_items_out():
+    """Every item's result in the items' order, whatever the thread count; with two threads the helper takes every
+    other item, with numba on one thread there (the items are the parallel work)."""
+    import threading
+
+    import numba
+
+    from pcdof.runtime.tasks import map_on_threads
+    from pcdof.runtime.threads import numba_threads
+
+    seen = {}
+
+    def square(i):
+        seen[i] = (threading.get_ident(), numba.get_num_threads())
+        return i * i
+
+    items = list(range(11))
+    for n in (1, 2, 3, 20):
+        assert map_on_threads(square, items, n) == [i * i for i in items]
+    assert map_on_threads(square, [], 4) == []
+    with numba_threads(2) as n:
+        seen.clear()
+        map_on_threads(square, items, n)
+    if n == 2:
+        assert {seen[i][0] for i in items[0::2]} == {threading.get_ident()}
+        assert threading.get_ident() not in {seen[i][0] for i in items[1::2]}
+        assert {seen[i][1] for i in items} == {1}

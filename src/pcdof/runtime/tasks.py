@@ -72,3 +72,36 @@ def run_tasks(kernel, threads: int, n_tasks: int, *args, pool=None) -> None:
     for f in futures:
         if not f.cancel():
             f.result()
+
+
+def map_on_threads(func, items, threads: int, *, pool=None) -> list:
+    """``[func(item) for item in items]``, with *threads* > 1 the items shared out round robin among the calling
+    thread and helpers of *pool* (default :func:`task_pool`), for work that releases the GIL (numpy's arithmetic on
+    large arrays, OpenCV, numba's ``nogil`` kernels). Each helper's share runs with numba on one thread (the
+    items are the parallel work). A helper that cannot start (interpreter shutting down) leaves its share to the
+    caller."""
+    items = list(items)
+    n = max(1, min(int(threads), len(items)))
+    if n == 1:
+        return [func(item) for item in items]
+
+    def share(first):
+        from .threads import numba_threads
+
+        with numba_threads(1):
+            return [func(item) for item in items[first::n]]
+
+    futures = {}
+    try:
+        pool = task_pool() if pool is None else pool
+        for first in range(1, n):
+            futures[first] = pool.submit(share, first)
+    except RuntimeError:  # interpreter shutting down: no new threads; the rest is done here
+        pass
+    shares = {0: share(0)}
+    for first in range(1, n):
+        shares[first] = futures[first].result() if first in futures else share(first)
+    out = [None] * len(items)
+    for first, values in shares.items():
+        out[first::n] = values
+    return out

@@ -77,9 +77,9 @@ def run_tasks(kernel, threads: int, n_tasks: int, *args, pool=None) -> None:
 def map_on_threads(func, items, threads: int, *, pool=None) -> list:
     """``[func(item) for item in items]``, with *threads* > 1 the items shared out round robin among the calling
     thread and helpers of *pool* (default :func:`task_pool`), for work that releases the GIL (numpy's arithmetic on
-    large arrays, OpenCV, numba's ``nogil`` kernels). Each helper's share runs with numba on one thread (the
-    items are the parallel work). A helper that cannot start (interpreter shutting down) leaves its share to the
-    caller."""
+    large arrays, OpenCV, numba's ``nogil`` kernels). Every share, the caller's too, runs with numba on one thread
+    (the items are the parallel work). A helper that cannot start (interpreter shutting down) leaves its share to
+    the caller."""
     items = list(items)
     n = max(1, min(int(threads), len(items)))
     if n == 1:

@@ -257,6 +257,6 @@ def test_ownership_ahead_falls_back_to_in_turn_when_no_thread_can_start():
         def submit(self, *a, **k):
             raise RuntimeError("cannot schedule new futures after interpreter shutdown")
 
-    with mock.patch.object(renderer.ownership, "worker_pool", lambda *a, **k: Closed()):
+    with mock.patch.object(renderer.ownership, "task_pool", lambda *a, **k: Closed()):
         got, _ = render_layers_linear(lin, coc, quality="exact", plan=plan_render(quality="exact", threads=2))
     np.testing.assert_array_equal(got, want)

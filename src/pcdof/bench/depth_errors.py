@@ -79,12 +79,11 @@ def run_depth_errors(*, kinds=None, seeds=None, blurs=None, reference_width_px=6
 
     from ..pipeline import prepare_depth, render_from_depth
     from ..synth.wide import generate_wide, lens_for_blur
-    from .wide import BLURS_PX, REPORT_SEEDS, case_truth, check_cases, encode_srgb8, psnr_of_sse, scaled_blurs
+    from .wide import BLURS_PX, REPORT_SEEDS, case_truth, checked_cases, encode_srgb8, psnr_of_sse
 
     seeds = REPORT_SEEDS if seeds is None else seeds
     blurs = BLURS_PX if blurs is None else blurs
-    px = scaled_blurs(check_cases(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
-    kinds, seeds, blurs = check_cases(kinds, seeds, px)
+    kinds, seeds, blurs = checked_cases(kinds, seeds, blurs, size[0], reference_width_px)
     ratio = positive_number("ratio", ratio)  # before any work
     rows = []
     bar = tqdm(total=len(kinds) * len(seeds), desc="depth errors", unit="frame", disable=not progress)

@@ -297,8 +297,7 @@ def run_hidden(*, kinds=None, seeds=None, blurs=None, reference_width_px=640, si
     check_quality(quality)
     seeds = wide.REPORT_SEEDS if seeds is None else seeds
     blurs = wide.BLURS_PX if blurs is None else blurs
-    px = wide.scaled_blurs(wide.check_cases(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
-    cases = wide.wide_cases(*wide.check_cases(kinds, seeds, px))
+    cases = wide.wide_cases(*wide.checked_cases(kinds, seeds, blurs, size[0], reference_width_px))
     rows, frame = [], None
     for case in tqdm(cases, desc="hidden bench", unit="case", disable=not progress):
         if frame is None or frame.key != case[:2]:

@@ -100,13 +100,12 @@ def run_tiers(*, kinds=None, seeds=(0, 1, 2, 3, 4), blurs=(16, 64), reference_wi
     from tqdm.auto import tqdm
 
     from ..synth.wide import generate_wide, lens_for_blur
-    from .wide import case_truth, check_cases, encode_srgb8, scaled_blurs, wide_cases
+    from .wide import case_truth, checked_cases, encode_srgb8, wide_cases
 
     ladder = tuple(float(m) for m in ladder)
     if not ladder or any(not (math.isfinite(m) and m > 0) for m in ladder):
         raise InputError(f"ladder must be numbers > 0; got {ladder!r}")
-    px = scaled_blurs(check_cases(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
-    kinds, seeds, blurs = check_cases(kinds, seeds, px)
+    kinds, seeds, blurs = checked_cases(kinds, seeds, blurs, size[0], reference_width_px)
     cases, curve = [], {}
     todo = wide_cases(kinds, seeds, blurs)
     frames = {}

@@ -212,6 +212,13 @@ def wide_cases(kinds, seeds, blurs) -> list[tuple]:
     return [(k, s, f, b) for k in kinds for s in seeds for f in FOCUS_POSITIONS for b in blurs]
 
 
+def checked_cases(kinds, seeds, blurs, width_px: int, reference_width_px=REFERENCE_WIDTH_PX):
+    """*kinds*, *seeds* and *blurs* checked (:func:`check_cases`), the blurs in pixels of a frame *width_px* wide
+    (:func:`scaled_blurs`; *reference_width_px* None: already pixels): (kinds, seeds, blurs_px) as lists."""
+    px = scaled_blurs(check_cases(kinds, seeds, blurs)[2], width_px, reference_width_px=reference_width_px)
+    return check_cases(kinds, seeds, px)
+
+
 def check_cases(kinds, seeds, blurs):
     from ..synth.wide import WIDE_SCENES
 
@@ -273,8 +280,7 @@ def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, reference_width_
     from ..synth.wide import generate_wide, lens_for_blur
 
     parse_highlights(highlights)
-    px = scaled_blurs(check_cases(kinds, seeds, blurs)[2], size[0], reference_width_px=reference_width_px)
-    kinds, seeds, blurs = check_cases(kinds, seeds, px)
+    kinds, seeds, blurs = checked_cases(kinds, seeds, blurs, size[0], reference_width_px)
     renderers = _renderers(methods, budget, highlights, variants)
     rows, frames = [], {}
     cases = wide_cases(kinds, seeds, blurs)

@@ -136,8 +136,8 @@ def _composite_layers(frame: RenderFrame, canvas: Canvas, keys, counts, r_maxes,
     """Render and composite every layer, near to far (per layer: pixel count, largest radius, bounding box);
     returns one record per layer.
 
-    Which hidden pixels a layer continues (:class:`OwnershipAhead`) is found for the next layers on a thread of its
-    own while a layer renders, when the plan has more than one thread: the same answer, in the layers' shadow."""
+    Which hidden pixels a layer continues (:class:`OwnershipAhead`) is found for the next layers on the task pool's
+    helpers while a layer renders, when the plan has more than one thread: the same answer, in the layers' shadow."""
     extents, windows = [], []  # per layer: (its window, the extension's reach); what ownership needs, or None
     r_front = 0.0  # largest blur radius of the layers nearer than this one
     for li, key in enumerate(keys):

@@ -784,6 +784,30 @@ class TestFrameBorder:
             np.testing.assert_array_equal(edge_continuation(edge, pad), want)
             np.testing.assert_array_equal(edge_continuation(edge[:, 0], pad), want[:, :, 0])  # one channel, (N,)
 
+    def test_continue_border_is_each_edges_continuation_bit_for_bit(self):
+        """The compiled margin (a side a task, on two threads where the frame is large) is the plain composition of
+        :func:`edge_continuation`: rows above and below, capped, then the columns left and right of them, capped."""
+        from pcdof.stages.render.border import continue_border, edge_continuation
+
+        rng = np.random.default_rng(8)
+        for shape, p, most in (((300, 260, 3), 40, 1.0), ((5, 300, 1), 9, None), ((256, 300, 4), 3, 0.5),
+                               ((2, 3, 3), 7, None), ((40, 30, 3), 25, 1.2)):
+            a = (rng.random(shape) * 2).astype(np.float32)
+            h, w = shape[:2]
+            want = np.zeros((h + 2 * p, w + 2 * p, shape[2]), np.float32)
+            want[p:p + h, p:p + w] = a
+            want[:p, p:p + w] = edge_continuation(a[0], p)[::-1]
+            want[p + h:, p:p + w] = edge_continuation(a[-1], p)
+            if most is not None:
+                for part in (want[:p], want[p + h:]):
+                    np.minimum(part, np.float32(most), out=part)
+            want[:, :p] = edge_continuation(want[:, p], p)[::-1].transpose(1, 0, 2)
+            want[:, p + w:] = edge_continuation(want[:, p + w - 1], p).transpose(1, 0, 2)
+            if most is not None:
+                for part in (want[:, :p], want[:, p + w:]):
+                    np.minimum(part, np.float32(most), out=part)
+            np.testing.assert_array_equal(continue_border(a, p, most=most), want)
+
     def test_replicate_border(self):
         from pcdof.stages.render.border import border_px, replicate_border
 

@@ -113,3 +113,18 @@ class TestNumbaCacheFallback:
         assert os.path.isdir(fallback)
         assert numba_cache_fallback([*unwritable, str(tmp_path / "ok")], fallback) is None
         assert numba_cache_fallback(unwritable, str(blocker / "c")) is None  # nothing writable at all
+
+
+def test_a_library_users_synthetic_scene_starts_numbas_loops_without_a_warning():
+    """A program that imports pcdof as a library (no tuning) and makes a synthetic scene (Open3D, with its older TBB,
+    loaded before numba's parallel loops start) gets no NumbaWarning about TBB: the loops start through
+    :func:`pcdof.runtime.threads.start_parallel_loops`, on the layer numba takes anyway."""
+    code = ("import warnings\n"
+            "from numba.core.errors import NumbaWarning\n"
+            "warnings.simplefilter('error', NumbaWarning)\n"
+            "import numba\n"
+            "from pcdof.synth import generate_scene\n"
+            "generate_scene('portrait', color_size=(48, 32), depth_size=(48, 32), seed=0)\n"
+            "print(numba.threading_layer())\n")
+    layer = _python(code, drop=("NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY"))
+    assert layer in ("omp", "tbb", "workqueue")

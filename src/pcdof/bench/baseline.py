@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..color import decode_to_linear, encode_from_linear
+from ..runtime.threads import start_parallel_loops
 
 
 def register_opencv(frame, *, dilation: bool = False) -> np.ndarray:
@@ -78,6 +79,7 @@ def _gather(lin, radius):
 def gather_blur(color: np.ndarray, coc_px: np.ndarray) -> np.ndarray:
     """Each pixel averages the disc of its own CoC diameter (linear light); same dtype as *color*."""
     lin = decode_to_linear(color)
+    start_parallel_loops()
     out = _gather(np.ascontiguousarray(lin, np.float32), (np.asarray(coc_px, np.float32) * 0.5))
     return encode_from_linear(out, color.dtype)
 

@@ -25,6 +25,23 @@ def current_threads() -> int:
     return int(numba.get_num_threads())
 
 
+def start_parallel_loops() -> None:
+    """Start numba's threads for its parallel loops (``prange``) before a kernel with such loops first runs, without
+    the warning numba prints when the TBB it finds is older than it supports (Open3D bundles one, and the
+    synthetic scenes load Open3D first): numba then runs the loops on OpenMP, the layer it takes anyway, so the
+    warning says nothing a user can act on. Only that warning is silenced, only while the threads start (a
+    process run by the ``pcdof`` command avoids it by :func:`pcdof.runtime.process.tune_process`'s order of
+    layers). Cheap once started. Only the synthetic scenes and the gather baseline have such kernels."""
+    import warnings
+
+    import numba
+    from numba.core.errors import NumbaWarning
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*TBB threading layer requires TBB version", category=NumbaWarning)
+        numba.get_num_threads()
+
+
 def max_threads() -> int:
     """The most threads numba may run (``NUMBA_NUM_THREADS``, by default the machine's cores)."""
     import numba

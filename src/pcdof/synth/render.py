@@ -45,6 +45,7 @@ from numba import njit, prange
 from ..camera import Intrinsics
 from ..errors import InputError
 from ..lens import ThinLens, aperture_for
+from ..runtime.threads import start_parallel_loops
 
 #: rays cast per chunk (bounds memory: about 100 bytes per ray)
 RAYS_PER_CHUNK = 1 << 20
@@ -258,6 +259,7 @@ def _render_pixels(synth_frame, lens: ThinLens, pixels: np.ndarray, samples: int
         from tqdm.auto import tqdm
 
         starts = tqdm(starts, desc=f"thin-lens ground truth ({s} spp)", unit="chunk", leave=False)
+    start_parallel_loops()
     for lo in starts:
         hi = min(pixels.shape[0], lo + chunk)
         k = (hi - lo) * s

@@ -11,6 +11,7 @@ import numpy as np
 import trimesh
 
 from ..errors import InputError
+from ..runtime.threads import start_parallel_loops
 from .shading import Material, pack_materials, shade_hits
 
 
@@ -132,6 +133,7 @@ class Scene:
     def shade(self, origins: np.ndarray, directions: np.ndarray, hits: dict) -> np.ndarray:
         """Linear radiance (N, 3) float32 of the hits returned by :meth:`cast` for the same rays."""
         p = self._packed
+        start_parallel_loops()
         return shade_hits(
             np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(directions, np.float32),
             hits["t_hit"], hits["geometry_ids"], hits["primitive_ids"], hits["primitive_uvs"],

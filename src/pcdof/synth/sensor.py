@@ -26,6 +26,7 @@ import numpy as np
 
 from ..camera import Rig
 from ..errors import InputError
+from ..runtime.threads import start_parallel_loops
 from .scene import Scene
 from .shading import noise_at_points
 
@@ -123,6 +124,7 @@ def simulate_depth(scene: Scene, rig: Rig, *, rng: np.random.Generator, model: D
     # dark glossy surfaces lose the pattern in blobs
     glossy = scene.dark_glossy[hits["geometry_ids"][idx].astype(np.int64)]
     if glossy.any():
+        start_parallel_loops()
         blob = noise_at_points(np.ascontiguousarray(pts[glossy], np.float32), model.dropout_scale_m,
                                int(dropout_seed))
         g = np.flatnonzero(glossy)

@@ -309,10 +309,10 @@ def _fake_rows(method_psnr: dict, cases=(("room", 100, "far", 8.0), ("thin", 100
 
 
 def test_tier_curve_and_compare_measure_the_change_from_exact():
-    from pcdof.bench import wide
+    from pcdof.bench import tiers, wide
 
     rows = _fake_rows({"pcdof-exact": 30.0, "pcdof-balanced": 29.95, "pcdof-fast": 29.0})
-    curve = {(c["tier"], c["bucket"]): c for c in wide.tier_curve(rows, tiers=("pcdof-balanced", "pcdof-fast"))}
+    curve = {(c["tier"], c["bucket"]): c for c in tiers.tier_curve(rows, tiers=("pcdof-balanced", "pcdof-fast"))}
     for bucket in ("<2", "8-16", "all"):
         assert curve[("pcdof-balanced", bucket)]["mean_db"] == pytest.approx(-0.05, abs=1e-9)
         assert curve[("pcdof-fast", bucket)]["worst_db"] == pytest.approx(-1.0, abs=1e-9)
@@ -320,7 +320,7 @@ def test_tier_curve_and_compare_measure_the_change_from_exact():
     c = wide.compare(rows, "pcdof-exact", "pcdof-fast", tolerance_db=0.5)
     assert c["cases"] == 2 and len(c["losses"]) == 2 and c["mean_db"] == pytest.approx(-1.0)
     assert wide.compare(rows, "pcdof-exact", "pcdof-balanced", tolerance_db=0.1)["losses"] == []
-    table = wide.tier_table(rows)
+    table = tiers.tier_table(rows)
     assert "pcdof-fast: 2 of 2 cases lose more than 0.5 dB" in table
     assert "pcdof-balanced: 0 of 2 cases lose more than 0.1 dB" in table
 

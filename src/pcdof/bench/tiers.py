@@ -13,6 +13,9 @@ ground truth:
 
 :func:`choose_thresholds` then picks each tier's threshold by the rule stated there. Tune on
 :data:`pcdof.bench.wide.TUNING_SEEDS`, report on :data:`pcdof.bench.wide.REPORT_SEEDS`.
+
+The wide part's rows give the tiers' error-vs-blur curve against ``exact`` too (:func:`tier_curve`, its table
+and plot), with the loss each tier may have (:data:`TIER_TOLERANCE_DB`).
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError
+from . import plot_to
+from .wide import BUCKETS, by_case, pooled_psnr, compare, psnr_of_sse
 
 #: thresholds measured (CoC in cells of the reduced grid), half-octave steps
 LADDER = (2.0, 2.83, 4.0, 5.66, 8.0, 11.3, 16.0, 22.6)
@@ -225,3 +230,74 @@ def main(argv=None) -> None:
 
 if __name__ == "__main__":
     main()
+
+
+#: quality tiers against exact, and the loss each may have (issue's done-when: balanced 0.1, fast 0.5 dB)
+TIER_TOLERANCE_DB = {"pcdof-high": 0.1, "pcdof-balanced": 0.1, "pcdof-fast": 0.5}
+#: fewest pixels of a case in a bucket for its per-case PSNR there to count towards the worst case
+MIN_BUCKET_PIXELS = 200
+
+
+def tier_curve(rows: list[dict], ref: str = "pcdof-exact", tiers=tuple(TIER_TOLERANCE_DB)) -> list[dict]:
+    """Error-vs-blur curve of the quality tiers: per tier and blur bucket, the PSNR change from *ref*
+    (pixels pooled over all cases: "mean_db"; the worst single case with at least
+    :data:`MIN_BUCKET_PIXELS` pixels there: "worst_db"), and over whole frames ("all")."""
+    cases = by_case(rows)
+    out = []
+    for t in tiers:
+        pairs = [(by[ref], by[t]) for by in cases.values() if ref in by and t in by]
+        if not pairs:
+            continue
+        for _, _, label in BUCKETS + ((None, None, "all"),):
+            if label == "all":
+                diffs = [b["psnr"] - a["psnr"] for a, b in pairs]
+                mean = float(np.mean(diffs))
+            else:
+                key = f"{label}|all"
+                n = [a["sse"][key][1] for a, _ in pairs]
+                if not sum(n):
+                    continue
+                mean = pooled_psnr([b for _, b in pairs], t, key) - pooled_psnr([a for a, _ in pairs], ref, key)
+                diffs = [psnr_of_sse(*b["sse"][key]) - psnr_of_sse(*a["sse"][key]) for (a, b), k in zip(pairs, n)
+                         if k >= MIN_BUCKET_PIXELS]
+            out.append({"tier": t, "bucket": label, "mean_db": mean,
+                        "worst_db": float(min(diffs)) if diffs else float("nan"), "cases": len(diffs)})
+    return out
+
+
+def tier_table(rows: list[dict], ref: str = "pcdof-exact") -> str:
+    """:func:`tier_curve` as Markdown (mean / worst case change from *ref*, dB), and each tier's verdict."""
+    curve = tier_curve(rows, ref)
+    labels = [lab for lab in dict.fromkeys(c["bucket"] for c in curve)]
+    lines = [f"| tier - {ref}, dB (pooled / worst case) | " + " | ".join(
+        "whole frame" if lab == "all" else f"CoC {lab} px" for lab in labels) + " |", "|---|" + "---|" * len(labels)]
+    verdicts = []
+    for t in dict.fromkeys(c["tier"] for c in curve):
+        mine = {c["bucket"]: c for c in curve if c["tier"] == t}
+        lines.append(f"| {t} | " + " | ".join(f"{mine[lab]['mean_db']:+.2f} / {mine[lab]['worst_db']:+.2f}"
+                                               if lab in mine else "-" for lab in labels) + " |")
+        tol = TIER_TOLERANCE_DB.get(t)
+        if tol is not None and "all" in mine:
+            c = compare(rows, ref, t, tolerance_db=tol)
+            verdicts.append(f"{t}: {len(c['losses'])} of {c['cases']} cases lose more than {tol:g} dB to {ref} "
+                            f"(worst {c['worst_db']:+.2f} dB, edge band {c['worst_edge_db']:+.2f} dB)")
+    return "\n".join(lines) + "\n\n" + "\n".join(f"* {v}" for v in verdicts)
+
+
+def tier_plot(rows: list[dict], path: str, ref: str = "pcdof-exact") -> None:
+    """The quality tiers' error-vs-blur curve (:func:`tier_curve`: pooled and worst case), as a PNG."""
+    curve = [c for c in tier_curve(rows, ref) if c["bucket"] != "all"]
+    labels = list(dict.fromkeys(c["bucket"] for c in curve))
+    with plot_to(path, figsize=(7, 3.6)) as (_, ax):
+        for t, colour in zip(dict.fromkeys(c["tier"] for c in curve), ("#228833", "#4477aa", "#ee6677", "#aa3377")):
+            mine = {c["bucket"]: c for c in curve if c["tier"] == t}
+            x = [i for i, lab in enumerate(labels) if lab in mine]
+            ax.plot(x, [mine[labels[i]]["mean_db"] for i in x], "-o", color=colour, label=f"{t}, pooled")
+            ax.plot(x, [mine[labels[i]]["worst_db"] for i in x], "--x", color=colour, label=f"{t}, worst case")
+        for tol in sorted(set(TIER_TOLERANCE_DB.values())):
+            ax.axhline(-tol, color="grey", lw=0.8, ls=":")
+        ax.set_xticks(range(len(labels)), [f"{lab} px" for lab in labels])
+        ax.set_xlabel("true CoC diameter of the pixels")
+        ax.set_ylabel(f"PSNR change from {ref}, dB")
+        ax.set_title("quality tiers against exact, per blur size (wide benchmark)")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)

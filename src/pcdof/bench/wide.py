@@ -308,7 +308,8 @@ def run_wide(*, kinds=None, seeds=REPORT_SEEDS, blurs=BLURS_PX, reference_width_
     return rows
 
 
-def _pooled(rows, method, key) -> float:
+def pooled_psnr(rows, method, key) -> float:
+    """PSNR (dB) of *method*'s squared errors under *key* (a bucket and region of a row's ``sse``), pooled over *rows*."""
     sse = [r["sse"][key] for r in rows if r["method"] == method]
     return psnr_of_sse(sum(s for s, _ in sse), sum(n for _, n in sse))
 
@@ -321,7 +322,7 @@ def _case(r) -> tuple:
     return r["scene"], r["seed"], r["focus"], r["blur_px"]
 
 
-def _by_case(rows) -> dict:
+def by_case(rows) -> dict:
     """{case: {method: row}}."""
     out: dict = {}
     for r in rows:
@@ -341,7 +342,7 @@ def bucket_table(rows: list[dict]) -> str:
     for m in _methods(rows):
         cells = []
         for _, _, label in used:
-            a, e = _pooled(rows, m, f"{label}|all"), _pooled(rows, m, f"{label}|edge")
+            a, e = pooled_psnr(rows, m, f"{label}|all"), pooled_psnr(rows, m, f"{label}|edge")
             cells.append("-" if np.isnan(a) else f"{a:.2f} / {e:.2f}" if not np.isnan(e) else f"{a:.2f} / -")
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -403,7 +404,7 @@ def losses_table(rows: list[dict], ours: str = "pcdof-balanced", others=None) ->
     others = peers_in(rows) if others is None else others
     lines = [f"| scene | seed | focus | blur px | {ours} dB (edge) | best other dB (edge) | margin dB (edge) |",
              "|---|---|---|---|---|---|---|"]
-    cases = _by_case(rows)
+    cases = by_case(rows)
     for case, by in cases.items():
         if ours not in by or not any(o in by for o in others):
             continue
@@ -420,7 +421,7 @@ def losses_table(rows: list[dict], ours: str = "pcdof-balanced", others=None) ->
 def compare(rows: list[dict], a: str, b: str, *, tolerance_db: float = 0.0) -> dict:
     """Per-case PSNR of method *b* minus method *a*: mean, worst, and cases *b* loses by more than *tolerance_db*."""
     d = [(case, by[b]["psnr"] - by[a]["psnr"], by[b]["psnr_edge"] - by[a]["psnr_edge"])
-         for case, by in _by_case(rows).items() if a in by and b in by]
+         for case, by in by_case(rows).items() if a in by and b in by]
     if not d:
         return {"cases": 0}
     return {"cases": len(d), "mean_db": float(np.mean([x[1] for x in d])),
@@ -441,58 +442,6 @@ def compare_table(rows: list[dict], a: str, b: str, *, tolerance_db: float = 0.0
     lines = [head, "", "| scene | seed | focus | blur px | change dB | edge band dB |", "|---|---|---|---|---|---|"]
     lines += [f"| {s} | {sd} | {f} | {bl:g} | {x:+.2f} | {e:+.2f} |" for (s, sd, f, bl), x, e in c["losses"]]
     return "\n".join(lines if c["losses"] else lines[:1])
-
-
-#: quality tiers against exact, and the loss each may have (issue's done-when: balanced 0.1, fast 0.5 dB)
-TIER_TOLERANCE_DB = {"pcdof-high": 0.1, "pcdof-balanced": 0.1, "pcdof-fast": 0.5}
-#: fewest pixels of a case in a bucket for its per-case PSNR there to count towards the worst case
-MIN_BUCKET_PIXELS = 200
-
-
-def tier_curve(rows: list[dict], ref: str = "pcdof-exact", tiers=tuple(TIER_TOLERANCE_DB)) -> list[dict]:
-    """Error-vs-blur curve of the quality tiers: per tier and blur bucket, the PSNR change from *ref*
-    (pixels pooled over all cases: "mean_db"; the worst single case with at least
-    :data:`MIN_BUCKET_PIXELS` pixels there: "worst_db"), and over whole frames ("all")."""
-    cases = _by_case(rows)
-    out = []
-    for t in tiers:
-        pairs = [(by[ref], by[t]) for by in cases.values() if ref in by and t in by]
-        if not pairs:
-            continue
-        for _, _, label in BUCKETS + ((None, None, "all"),):
-            if label == "all":
-                diffs = [b["psnr"] - a["psnr"] for a, b in pairs]
-                mean = float(np.mean(diffs))
-            else:
-                key = f"{label}|all"
-                n = [a["sse"][key][1] for a, _ in pairs]
-                if not sum(n):
-                    continue
-                mean = _pooled([b for _, b in pairs], t, key) - _pooled([a for a, _ in pairs], ref, key)
-                diffs = [psnr_of_sse(*b["sse"][key]) - psnr_of_sse(*a["sse"][key]) for (a, b), k in zip(pairs, n)
-                         if k >= MIN_BUCKET_PIXELS]
-            out.append({"tier": t, "bucket": label, "mean_db": mean,
-                        "worst_db": float(min(diffs)) if diffs else float("nan"), "cases": len(diffs)})
-    return out
-
-
-def tier_table(rows: list[dict], ref: str = "pcdof-exact") -> str:
-    """:func:`tier_curve` as Markdown (mean / worst case change from *ref*, dB), and each tier's verdict."""
-    curve = tier_curve(rows, ref)
-    labels = [lab for lab in dict.fromkeys(c["bucket"] for c in curve)]
-    lines = [f"| tier - {ref}, dB (pooled / worst case) | " + " | ".join(
-        "whole frame" if lab == "all" else f"CoC {lab} px" for lab in labels) + " |", "|---|" + "---|" * len(labels)]
-    verdicts = []
-    for t in dict.fromkeys(c["tier"] for c in curve):
-        mine = {c["bucket"]: c for c in curve if c["tier"] == t}
-        lines.append(f"| {t} | " + " | ".join(f"{mine[lab]['mean_db']:+.2f} / {mine[lab]['worst_db']:+.2f}"
-                                               if lab in mine else "-" for lab in labels) + " |")
-        tol = TIER_TOLERANCE_DB.get(t)
-        if tol is not None and "all" in mine:
-            c = compare(rows, ref, t, tolerance_db=tol)
-            verdicts.append(f"{t}: {len(c['losses'])} of {c['cases']} cases lose more than {tol:g} dB to {ref} "
-                            f"(worst {c['worst_db']:+.2f} dB, edge band {c['worst_edge_db']:+.2f} dB)")
-    return "\n".join(lines) + "\n\n" + "\n".join(f"* {v}" for v in verdicts)
 
 
 #: highlight settings compared on the tuning seeds
@@ -583,23 +532,4 @@ def budget_plot(rows: list[dict], path: str) -> None:
         ax.set_xlim(max(0, lo - 3), max(max(b["psnr"], b["psnr_edge"]) for b in s) + 3 if s else 1)
         ax.set_xlabel("mean PSNR vs ray-traced ground truth, dB")
         ax.set_title("error budget on the wide benchmark")
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-
-
-def tier_plot(rows: list[dict], path: str, ref: str = "pcdof-exact") -> None:
-    """The quality tiers' error-vs-blur curve (:func:`tier_curve`: pooled and worst case), as a PNG."""
-    curve = [c for c in tier_curve(rows, ref) if c["bucket"] != "all"]
-    labels = list(dict.fromkeys(c["bucket"] for c in curve))
-    with plot_to(path, figsize=(7, 3.6)) as (_, ax):
-        for t, colour in zip(dict.fromkeys(c["tier"] for c in curve), ("#228833", "#4477aa", "#ee6677", "#aa3377")):
-            mine = {c["bucket"]: c for c in curve if c["tier"] == t}
-            x = [i for i, lab in enumerate(labels) if lab in mine]
-            ax.plot(x, [mine[labels[i]]["mean_db"] for i in x], "-o", color=colour, label=f"{t}, pooled")
-            ax.plot(x, [mine[labels[i]]["worst_db"] for i in x], "--x", color=colour, label=f"{t}, worst case")
-        for tol in sorted(set(TIER_TOLERANCE_DB.values())):
-            ax.axhline(-tol, color="grey", lw=0.8, ls=":")
-        ax.set_xticks(range(len(labels)), [f"{lab} px" for lab in labels])
-        ax.set_xlabel("true CoC diameter of the pixels")
-        ax.set_ylabel(f"PSNR change from {ref}, dB")
-        ax.set_title("quality tiers against exact, per blur size (wide benchmark)")
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)

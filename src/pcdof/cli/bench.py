@@ -380,18 +380,18 @@ def _report_seeds(seeds: int) -> tuple[int, ...]:
 
 
 def _wide_part(report, md, output, seeds, kw, highlights) -> None:
-    from ..bench import wide
+    from ..bench import tiers, wide
 
     seed_list = _report_seeds(seeds)
     rows = wide.run_wide(seeds=seed_list, highlights=highlights, cache_dir=os.path.join(output, "cache"), **kw)
     report["wide"] = rows
     report["wide_budget"] = wide.budget_summary(rows)
-    report["wide_tiers"] = wide.tier_curve(rows)
+    report["wide_tiers"] = tiers.tier_curve(rows)
     report["wide_highlights"] = {k: v for k, v in wide.compare(rows, "pcdof-balanced", "pcdof-balanced+hl",
                                                                tolerance_db=0.1).items()}
     _write_csv(os.path.join(output, "wide.csv"), [{k: v for k, v in r.items() if k != "sse"} for r in rows])
     wide.budget_plot(rows, os.path.join(output, "budget.png"))
-    wide.tier_plot(rows, os.path.join(output, "wide_tiers.png"))
+    tiers.tier_plot(rows, os.path.join(output, "wide_tiers.png"))
     blurs = ", ".join(f"{b:g}" for b in kw["blurs"])
     size = f"{kw['size'][0]}x{kw['size'][1]}"
     scale = (f"largest blurs {blurs} px at a {kw['reference_width_px']:g} px wide frame, scaled to {size}"
@@ -402,7 +402,7 @@ def _wide_part(report, md, output, seeds, kw, highlights) -> None:
               wide.bucket_table(rows), "", "### PSNR per focus position and largest blur (overall / edge band, dB)\n",
               wide.focus_table(rows), "", "### Error budget (pcdof exact)\n", wide.budget_table(rows, highlights), "",
               "### Quality tiers against exact (PSNR change, dB: pixels pooled / worst case)\n",
-              wide.tier_table(rows), "",
+              tiers.tier_table(rows), "",
               f"### Highlights {highlights} on pcdof-balanced (measured input)\n",
               wide.compare_table(rows, "pcdof-balanced", "pcdof-balanced+hl", tolerance_db=0.1), "",
               "### Cases where pcdof-balanced loses to a peer (the paper method, the gather baseline, Blender's Defocus node "

@@ -17,6 +17,7 @@ Tolerances (each kernel computes the reference's arithmetic, in another order or
   as float32), at most one pixel beyond it (a decision exactly at a tie may go either way with another rounding);
 - render: absolute 1e-5 in linear light (values <= 1) for the exact scatter, the tolerance of the CPU renderer's
   exact path (the same 4096-entry aperture table, float32 accumulation);
+- mixed pixels at in-focus edges: 1e-6 against the CPU's (the same float64 arithmetic, stored as float32);
 - colour: decoding bit-identical (the host's own table); encoding within one code (a GPU's power function may
   differ from numpy's in the last bit);
 - the whole pipeline against the references chained: PSNR >= 50 dB (the issue's bar for the GPU against the CPU).
@@ -190,6 +191,29 @@ def test_continued_border_matches_the_cpus():
     bright = rgb * 3
     np.testing.assert_allclose(continued_border(to_device(bright), 3, 1.0).copy_to_host(),
                                continue_border(bright, 3, most=1.0), rtol=1e-6, atol=1e-6)
+
+
+@sim_only
+def test_mixed_edges_match_the_cpus():
+    from pcdof.gpu.launch import to_device
+    from pcdof.gpu.render import mix_edges as mix_on_device
+    from pcdof.stages.render.mixed import mix_edges
+
+    rng = np.random.default_rng(3)
+    h, w, b = 10, 14, 2
+    z = np.where(rng.random((h, w)) < 0.3, 1.0, 3.0).astype(np.float32)
+    coc = np.where(z < 2, 0.3, 6.0).astype(np.float32)
+    lin = rng.random((h + 2 * b, w + 2 * b, 3)).astype(np.float32)
+    inner = lin[b:b + h, b:b + w]
+    for y in range(h):  # each row's pixels mixes of their neighbours
+        for x in range(1, w - 1):
+            inner[y, x] = 0.6 * inner[y, x + 1] + 0.4 * inner[y, x - 1] if (x + y) % 3 == 0 else inner[y, x]
+    out = rng.random((h, w, 3)).astype(np.float32)
+    want = out.copy()
+    assert mix_edges(want, lin, z, coc, b) > 0
+    got = to_device(out.copy())
+    mix_on_device(got, to_device(lin), z, coc, b)
+    np.testing.assert_allclose(got.copy_to_host(), want, rtol=1e-6, atol=1e-6)
 
 
 @sim_only

@@ -451,3 +451,62 @@ def render_layers_linear(lin, signed_coc, aperture: Aperture, *, extend_behind: 
     out = cuda.device_array((H, W, C), np.float32, stream=stream)
     _normalise[blocks, threads, stream](acc, acc_a, lin, out)
     return out, layers
+
+
+@cuda.jit
+def _mix_edges(out, lin, depth, coc, b, sharp, blurred, nearer, same, contrast2, off2, most_share):
+    y, x = cuda.grid(2)
+    h, w = depth.shape
+    if y >= h or x >= w:
+        return
+    nc = out.shape[2]
+    zp = depth[y, x]
+    if not (zp > 0.0 and abs(coc[y, x]) > blurred):
+        return
+    for k in range(4):  # above, below, left, right: the first that qualifies (the CPU's last of right ... above)
+        dy = -1 if k == 0 else 1 if k == 1 else 0
+        dx = 0 if k < 2 else -1 if k == 2 else 1
+        qy, qx, ry, rx = y + dy, x + dx, y - dy, x - dx
+        if not (0 <= qy < h and 0 <= qx < w and 0 <= ry < h and 0 <= rx < w):
+            continue
+        if not (depth[qy, qx] * nearer < zp and abs(coc[qy, qx]) < sharp and abs(depth[ry, rx] - zp) < same * zp):
+            continue
+        dd = 0.0
+        dot = 0.0
+        for c in range(nc):  # the share from the colours as the camera saw them (light above white at white)
+            f = min(float(lin[qy + b, qx + b, c]), 1.0) - min(float(lin[ry + b, rx + b, c]), 1.0)
+            dd += f * f
+            dot += (min(float(lin[y + b, x + b, c]), 1.0) - min(float(lin[ry + b, rx + b, c]), 1.0)) * f
+        if not dd > contrast2:
+            continue
+        a = dot / dd
+        if not (0.0 < a <= most_share):
+            continue
+        off = 0.0
+        for c in range(nc):
+            f = min(float(lin[qy + b, qx + b, c]), 1.0) - min(float(lin[ry + b, rx + b, c]), 1.0)
+            e = min(float(lin[y + b, x + b, c]), 1.0) - min(float(lin[ry + b, rx + b, c]), 1.0) - a * f
+            off += e * e
+        if not off < off2 * dd:
+            continue
+        for c in range(nc):
+            if a >= 1.0:
+                out[y, x, c] = lin[y + b, x + b, c]
+            else:
+                out[y, x, c] = a * float(lin[qy + b, qx + b, c]) + (1.0 - a) * float(out[y, x, c])
+        return
+
+
+def mix_edges(out, lin, depth, signed_coc, border: int = 0, stream=0) -> None:
+    """:func:`pcdof.stages.render.mixed.mix_edges` on the device, in place: *out* (H, W, C) float32 device array, the
+    linear source *lin* (H + 2 border, W + 2 border, C), *depth* and *signed_coc* (H, W) float32 (host or device)."""
+    from ..stages.render import mixed
+
+    depth = depth if on_device(depth) else to_device(np.asarray(depth, np.float32), stream)
+    coc = signed_coc if on_device(signed_coc) else to_device(np.asarray(signed_coc, np.float32), stream)
+    h, w = depth.shape
+    blocks, threads = grid_2d(h, w)
+    _mix_edges[blocks, threads, stream](out, lin, depth, coc, int(border), mixed.SHARP_PX, mixed.BLURRED_PX,
+                                        mixed.NEARER_RATIO,
+                                        mixed.SAME_SURFACE, mixed.MIN_CONTRAST ** 2, mixed.MAX_OFF ** 2,
+                                        mixed.MAX_SHARE)

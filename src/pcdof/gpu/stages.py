@@ -29,7 +29,7 @@ from .color import decode, encode
 from .fill import count_holes, fill_depth
 from .launch import on_device, thread_stream, to_device
 from .register import register_depth
-from .render import clamped_window, continued_border, render_layers_linear
+from .render import clamped_window, continued_border, mix_edges, render_layers_linear
 
 
 class _Stage:
@@ -133,8 +133,9 @@ def _highlights(color, opts, coc_size, cmax, trace):
     return out
 
 
-def _render_physical(frame, color_dev, opts, lens, signed, cmax, source_linear, trace, stream, sync):
-    """Device image of the input's dtype, or None when nothing is blurred (the input is the output)."""
+def _render_physical(frame, color_dev, depth, opts, lens, signed, cmax, source_linear, trace, stream, sync):
+    """Device image of the input's dtype, or None when nothing is blurred (the input is the output); *depth* the
+    filled depth the CoC was computed from (device)."""
     with _Stage(trace, "render", stream, sync) as rec:
         if cmax < SHARP_COC_PX:
             rec["skipped"] = True
@@ -152,10 +153,12 @@ def _render_physical(frame, color_dev, opts, lens, signed, cmax, source_linear, 
         most = 1.0 if source_linear is not None else None
         # the layer edges of the frame's own CoC, as the CPU renderer takes them (not of its widened copy)
         edges = frame_edges(signed.copy_to_host(stream=stream) if on_device(signed) else np.asarray(signed))
-        out_lin, layers = render_layers_linear(continued_border(lin, pad, most, stream),
-                                               clamped_window(signed, -pad, -pad, wide, stream),
+        wide_lin = continued_border(lin, pad, most, stream)
+        out_lin, layers = render_layers_linear(wide_lin, clamped_window(signed, -pad, -pad, wide, stream),
                                                aperture_for(lens), stream=stream, edges=edges)
         out_lin = clamped_window(out_lin, pad, pad, (h, w), stream)
+        # an in-focus structure's edge pixels that carry the depth behind it (pcdof.stages.render.mixed)
+        mix_edges(out_lin, wide_lin, depth, signed, pad, stream)
         blurred = [l for l in layers if l["key"] != 0]
         rec["reason"] = f"physical, {len(blurred)} blur layers, exact scatter at full resolution"
         rec["detail"]["layers"] = layers
@@ -203,7 +206,8 @@ def run_stages(frame: RGBDFrame, opts, *, stream=None, sync: bool = True) -> dic
             rec["detail"]["max_coc_px"] = cmax
     source_linear = _highlights(frame.color, opts, size, cmax, trace)
     if opts.method == "physical":
-        image_dev = _render_physical(frame, color_dev, opts, lens, signed, cmax, source_linear, trace, stream, sync)
+        image_dev = _render_physical(frame, color_dev, filled, opts, lens, signed, cmax, source_linear, trace, stream,
+                                     sync)
     else:
         image_dev = None
         _render_paper_on_host(frame, opts, lens, filled_host, trace)

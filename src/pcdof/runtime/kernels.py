@@ -31,7 +31,7 @@ STAGES = {
                ("pcdof.stages.render.classify", "pcdof.stages.render.scatter", "pcdof.stages.render.composite",
                 "pcdof.stages.render.extend", "pcdof.stages.render.uniform", "pcdof.stages.render.grids",
                 "pcdof.stages.render.ownership", "pcdof.stages.render.tiles", "pcdof.stages.render.cells",
-                "pcdof.stages.render.border",
+                "pcdof.stages.render.border", "pcdof.stages.render.mixed",
                 "pcdof.lens", "pcdof.color")),
 }
 

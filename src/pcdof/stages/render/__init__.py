@@ -13,7 +13,8 @@ describing the work done (which blur layers ran, what was skipped), used by the 
   kernels), :mod:`.uniform` (uniform-tile convolution), :mod:`.grids` (reduced-resolution grids),
   :mod:`.extend` (extension behind nearer layers), :mod:`.ownership` (ownership of hidden pixels),
   :mod:`.composite` (composite kernels), :mod:`.tiles` (the tile map), :mod:`.frame` (what the layers
-  share) and :mod:`.border` (what lies beyond the frame); :mod:`.serial` says when a kernel runs on one thread
+  share), :mod:`.border` (what lies beyond the frame) and :mod:`.mixed` (mixed pixels at the edges of in-focus
+  surfaces); :mod:`.serial` says when a kernel runs on one thread
 - :mod:`.paper`: the seed paper's method
 - :mod:`.reference`: the plain numpy specification the fast paths are tested against
 """

@@ -11,7 +11,8 @@ blurred foreground spreads softly over what lies behind it, and an in-focus subj
 receives nothing from behind. The result is divided by the accumulated opacity, so every output
 pixel is a convex combination of input pixels: a uniform image stays uniform. What lies beyond the frame
 is continued from its edge (:mod:`pcdof.stages.render.border`): the frame is rendered widened by the reach
-of its largest blur, and cut back.
+of its largest blur, and cut back. Last, an in-focus structure's edge pixels that carry the depth of the
+blurred surface behind it are rendered as the mix their colour says they are (:mod:`pcdof.stages.render.mixed`).
 
 The scatter is written as a gather over output rows (each source row's span on that output row),
 so rows run in parallel with no write conflicts and no per-layer image buffers are needed.
@@ -39,6 +40,7 @@ from .composite import copy_tiles
 from .extend import NO_PIXELS
 from .frame import Canvas, RenderFrame, as_channels
 from .grids import full_grid, reduced_grid, upsample_cells, upsampled_strips
+from .mixed import mix_edges
 from .ownership import OwnershipAhead
 from .scatter import scatter_sources
 from .tiles import TileMap, classify_tiles
@@ -293,8 +295,12 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
         del lin
     out_lin, info = render_layers_linear(wide_lin, coc, aperture=aperture_for(lens), quality=quality, plan=plan,
                                          coc_border_px=pad)
-    del wide_lin
     out_lin = interior_in_place(out_lin, pad)  # the render's own buffer: the frame without another copy of it
+    # an in-focus structure's edge pixels that carry the depth behind it (pcdof.stages.render.mixed)
+    info["mixed_edge_pixels"] = mix_edges(out_lin, np.ascontiguousarray(wide_lin, np.float32),
+                                          np.ascontiguousarray(depth_m, np.float32),
+                                          np.ascontiguousarray(coc, np.float32), pad)
+    del wide_lin
     info["border_px"] = pad
     if linear:
         out = out_lin if color.dtype.kind == "f" else from_float(out_lin, color.dtype)

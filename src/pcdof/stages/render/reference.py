@@ -284,9 +284,41 @@ def render_physical(color, depth_m, lens, *, fx: float, linear: bool = False, bo
     pad = border_px(float(np.abs(coc).max()))
     out = render_layers_linear(_continued(lin, pad, border_most), np.pad(coc, pad, mode="edge"),
                                aperture=aperture_for(lens), edges=frame_edges(coc))[pad:-pad, pad:-pad]
+    out = mixed_edges(out, lin, depth_m, coc)
     if linear:
         return out
     return to_float(encode_from_linear(out.astype(np.float32), np.float32)).astype(np.float64)
+
+
+def mixed_edges(out, lin, depth_m, coc) -> np.ndarray:
+    """The render *out* (H, W, C) with the mixed pixels at in-focus edges rendered as mixes
+    (:mod:`pcdof.stages.render.mixed`), from the source *lin* (H, W, C), the depth and the signed CoC, (H, W): one
+    whole-image pass per neighbour, right, left, below, above; a later neighbour that qualifies overrides an
+    earlier one. Returns a new float64 array."""
+    from .mixed import BLURRED_PX, MAX_OFF, MAX_SHARE, MIN_CONTRAST, NEARER_RATIO, SAME_SURFACE, SHARP_PX
+
+    out, lin = np.asarray(out, np.float64), np.asarray(lin, np.float64)
+    z, c = np.asarray(depth_m, np.float64), np.abs(np.asarray(coc, np.float64))
+    h, w = z.shape
+    res = out.copy()
+    ys, xs = np.mgrid[0:h, 0:w]
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        qy, qx, ry, rx = ys + dy, xs + dx, ys - dy, xs - dx
+        inside = (qy >= 0) & (qy < h) & (qx >= 0) & (qx < w) & (ry >= 0) & (ry < h) & (rx >= 0) & (rx < w)
+        qy, qx, ry, rx = np.clip(qy, 0, h - 1), np.clip(qx, 0, w - 1), np.clip(ry, 0, h - 1), np.clip(rx, 0, w - 1)
+        with np.errstate(invalid="ignore"):
+            edge = (inside & (z > 0) & (c > BLURRED_PX) & (z[qy, qx] * NEARER_RATIO < z) & (c[qy, qx] < SHARP_PX)
+                    & (np.abs(z[ry, rx] - z) < SAME_SURFACE * z))
+        seen = np.minimum(lin, 1.0)  # the share is estimated from the colours as the camera saw them
+        fore, back = seen[qy, qx], seen[ry, rx]
+        d = fore - back
+        dd = (d * d).sum(-1)
+        a = ((seen - back) * d).sum(-1) / np.where(dd > 0, dd, 1.0)
+        off = seen - back - a[..., None] * d
+        mix = edge & (dd > MIN_CONTRAST ** 2) & (a > 0) & (a <= MAX_SHARE) & ((off * off).sum(-1) < MAX_OFF ** 2 * dd)
+        a = np.minimum(a, 1.0)[..., None]
+        res[mix] = np.where(a >= 1.0, lin, a * lin[qy, qx] + (1 - a) * out)[mix]
+    return res
 
 
 # ----------------------------------------------------------------------------- paper method

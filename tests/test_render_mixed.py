@@ -125,3 +125,23 @@ def test_the_share_is_taken_from_the_colours_as_seen_and_the_light_from_the_esti
     assert mix_edges(got, lin, z, coc) == h
     np.testing.assert_allclose(got[:, 5], 0.75 * 5.0 + 0.25 * 0.4, rtol=1e-6)
     np.testing.assert_allclose(mixed_edges(out, lin, z, coc), got, rtol=1e-6)
+
+
+@pytest.mark.parametrize("args, name", [
+    ((np.zeros((4, 5, 3), np.float64), np.zeros((4, 5, 3), np.float32), np.ones((4, 5), np.float32),
+      np.ones((4, 5), np.float32)), "out"),
+    ((np.zeros((4, 5, 3), np.float32), np.zeros((4, 5, 1), np.float32), np.ones((4, 5), np.float32),
+      np.ones((4, 5), np.float32)), "lin"),
+    ((np.zeros((4, 5, 3), np.float32), np.zeros((4, 5, 3), np.float32), np.ones((5, 4), np.float32),
+      np.ones((4, 5), np.float32)), "depth_m"),
+    ((np.zeros((4, 5, 3), np.float32), np.zeros((4, 5, 3), np.float32), np.ones((4, 5), np.float32),
+      np.ones((4, 5), np.float64)), "signed_coc"),
+])
+def test_bad_arguments_are_refused_naming_them(args, name):
+    from pcdof.errors import InputError
+
+    with pytest.raises(InputError, match=f"^{name} must be"):
+        mix_edges(*args)
+    with pytest.raises(InputError, match="^border must be an integer >= 0"):
+        mix_edges(np.zeros((4, 5, 3), np.float32), np.zeros((4, 5, 3), np.float32), np.ones((4, 5), np.float32),
+                  np.ones((4, 5), np.float32), -1)

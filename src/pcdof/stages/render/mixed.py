@@ -33,9 +33,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ...errors import InputError
 from ...runtime.kernels import read_only
 from ...runtime.tasks import next_chunk, run_tasks
 from ...runtime.threads import current_threads
+from ...validate import integer, short_repr
 from .serial import SERIAL_BELOW_PX
 
 #: a neighbour in focus: |CoC| under this (pixels)
@@ -71,14 +73,22 @@ def mix_edges(out, lin, depth_m, signed_coc, border: int = 0) -> int:
     -------
     int, the pixels rendered as mixes
     """
-    h, w = depth_m.shape
+    b = integer("border", border, 0)
+    if not (isinstance(out, np.ndarray) and out.ndim == 3 and out.dtype == np.float32 and out.flags.c_contiguous
+            and out.flags.writeable):
+        raise InputError(f"out must be a writable C-contiguous (H, W, C) float32 array; got {short_repr(out)}")
+    h, w, nc = out.shape
+    for name, array, shape in (("lin", lin, (h + 2 * b, w + 2 * b, nc)), ("depth_m", depth_m, (h, w)),
+                               ("signed_coc", signed_coc, (h, w))):
+        if not (isinstance(array, np.ndarray) and array.dtype == np.float32 and array.shape == shape):
+            raise InputError(f"{name} must be a float32 array of shape {shape}; got {short_repr(array)}")
     changed = np.zeros(h, np.int64)
     focus = np.empty((h, w), np.uint8)
     threads = 1 if h * w < SERIAL_BELOW_PX else current_threads()
-    coc = read_only(signed_coc)
+    coc = read_only(np.ascontiguousarray(signed_coc))
     run_tasks(_focus_tasks, threads, -(-h // TASK_ROWS), coc, focus)
-    run_tasks(_mix_tasks, threads, -(-h // TASK_ROWS), out, read_only(lin), read_only(depth_m), coc, focus,
-              int(border), changed)
+    run_tasks(_mix_tasks, threads, -(-h // TASK_ROWS), out, read_only(np.ascontiguousarray(lin)),
+              read_only(np.ascontiguousarray(depth_m)), coc, focus, b, changed)
     return int(changed.sum())
 
 

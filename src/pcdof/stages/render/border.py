@@ -87,7 +87,7 @@ def continue_border(image: np.ndarray, pad_px: int, *, most: float | None = None
     """*image* (H, W, C) float widened by *pad_px* on every side, the colour beyond the edge continued as
     :func:`edge_continuation` says (rows above and below first, then the columns left and right of those), and
     no brighter than *most* there (None: no limit): (H + 2 pad, W + 2 pad, C) float32, the image itself in the
-    middle. The two sides of each pair are tasks on the threads (:func:`_continue_side`), each line value for
+    middle. The two sides of each pair are tasks on the threads (:func:`_continue_sides`), each line value for
     value what :func:`edge_continuation` gives it."""
     image = np.asarray(image, np.float32)
     h, w, nc = image.shape
@@ -105,77 +105,55 @@ def continue_border(image: np.ndarray, pad_px: int, *, most: float | None = None
 
 @njit(cache=True, nogil=True)
 def _continue_sides(counter, n_tasks, out, p, h, w, first, clip, most):
-    """:func:`continue_border`'s sides *first* + task number, claimed from *counter* (:func:`_continue_side`)."""
-    while True:
-        t = claim(counter)
-        if t >= n_tasks:
-            return
-        _continue_side(out, p, h, w, first + t, clip, most)
-
-
-@njit(cache=True, nogil=True)
-def _continue_side(out, p, h, w, side, clip, most):
-    """One side of :func:`continue_border`'s margin of *out* (h + 2 p, w + 2 p, C) float32, whose middle holds the
-    frame: the rows above (*side* 0) or below (1) continued from the frame's first or last row, or the columns
-    left (2) or right (3), the whole height, from the column beside the frame (the rows above and below done
-    first); capped at *most* when *clip*. Every value is :func:`edge_continuation`'s: the float64 running sums'
-    difference over the window, divided by its count, rounded to float32."""
+    """:func:`continue_border`'s sides *first* + task number, claimed from *counter*: one side of the margin of *out*
+    (h + 2 p, w + 2 p, C) float32, whose middle holds the frame. Side 0 (1): the rows above (below) continued from
+    the frame's first (last) row; side 2 (3): the columns left (right), the whole height, from the column beside
+    the frame (the rows above and below done first); capped at *most* when *clip*. Every value is
+    :func:`edge_continuation`'s: the float64 running sums' difference over the window, divided by its count,
+    rounded to float32. One kernel (compiling one costs about a second of CPU time after an install)."""
     nc = out.shape[2]
     cap = np.float32(most)
-    n = w if side < 2 else h + 2 * p
-    sums = np.empty((n + 1) * nc, np.float64)
-    for c in range(nc):
-        sums[c] = 0.0
-    for i in range(n):  # the edge's running sums, (n + 1) * C, flat
+    while True:
+        side = first + claim(counter)
+        if side >= first + n_tasks:
+            return
+        n = w if side < 2 else h + 2 * p
+        sums = np.empty((n + 1) * nc, np.float64)  # the edge's running sums, flat
         for c in range(nc):
-            if side < 2:
-                v = out[p if side == 0 else p + h - 1, p + i, c]
-            else:
-                v = out[i, p if side == 2 else p + w - 1, c]
-            sums[(i + 1) * nc + c] = sums[i * nc + c] + np.float64(v)
-    if side < 2:  # a line at a time, each a row of the margin
-        lines = np.empty((p, n * nc), np.float32)
-        _edge_lines(sums, n, nc, p, lines)
-        for d in range(1, p + 1):
-            y = p - d if side == 0 else p + h - 1 + d
-            for i in range(n):
-                for c in range(nc):
-                    v = lines[d - 1, i * nc + c]
-                    out[y, p + i, c] = cap if clip and v > cap else v
-    else:  # a row of the margin at a time: pixel i of every line
+            sums[c] = 0.0
         for i in range(n):
+            for c in range(nc):
+                if side < 2:
+                    v = out[p if side == 0 else p + h - 1, p + i, c]
+                else:
+                    v = out[i, p if side == 2 else p + w - 1, c]
+                sums[(i + 1) * nc + c] = sums[i * nc + c] + np.float64(v)
+        if side < 2:  # a line at a time, each a row of the margin
+            line = np.empty(n * nc, np.float32)
             for d in range(1, p + 1):
-                x = p - d if side == 2 else p + w - 1 + d
-                lo, hi = max(i - d, 0), min(i + d + 1, n)
-                for c in range(nc):
-                    v = np.float32((sums[hi * nc + c] - sums[lo * nc + c]) / np.float64(hi - lo))
-                    out[i, x, c] = cap if clip and v > cap else v
-
-
-@njit(cache=True, nogil=True)
-def _edge_lines(sums, n, nc, p, lines):
-    """:func:`edge_continuation` of an edge of *n* pixels of *nc* channels from its float64 running sums *sums*
-    ((n + 1) * nc, flat, starting at 0): line d (1-based) into ``lines[d - 1, :n * nc]``, value for value (the
-    difference of the sums over the window, divided by its count, rounded to float32). Whole windows a line at
-    a time with one divisor (a loop the compiler vectorises), the ends cut by the edge's ends one by one."""
-    for d in range(1, p + 1):
-        row = lines[d - 1]
-        k = np.float64(2 * d + 1)
-        for j in range(d * nc, (n - d) * nc):  # pixels d .. n - d - 1: the whole window
-            row[j] = np.float32((sums[j + (d + 1) * nc] - sums[j - d * nc]) / k)
-        head = min(d, n)
-        for i in range(head):  # the ends, cut by the edge's ends (a short edge: all of it)
-            _cut_window(sums, n, nc, d, i, row)
-        for i in range(max(n - d, head), n):
-            _cut_window(sums, n, nc, d, i, row)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _cut_window(sums, n, nc, d, i, row):
-    """:func:`_edge_lines`' value of pixel *i* on line *d* where the edge's ends cut its window."""
-    lo, hi = max(i - d, 0), min(i + d + 1, n)
-    for c in range(nc):
-        row[i * nc + c] = np.float32((sums[hi * nc + c] - sums[lo * nc + c]) / np.float64(hi - lo))
+                k = np.float64(2 * d + 1)
+                for j in range(d * nc, (n - d) * nc):  # pixels d .. n - d - 1: the whole window (vectorised)
+                    line[j] = np.float32((sums[j + (d + 1) * nc] - sums[j - d * nc]) / k)
+                head = min(d, n)
+                for i in range(n):  # the ends, cut by the edge's ends (a short edge: all of it)
+                    if head <= i < max(n - d, head):
+                        continue
+                    lo, hi = max(i - d, 0), min(i + d + 1, n)
+                    for c in range(nc):
+                        line[i * nc + c] = np.float32((sums[hi * nc + c] - sums[lo * nc + c]) / np.float64(hi - lo))
+                y = p - d if side == 0 else p + h - 1 + d
+                for i in range(n):
+                    for c in range(nc):
+                        v = line[i * nc + c]
+                        out[y, p + i, c] = cap if clip and v > cap else v
+        else:  # a row of the margin at a time: pixel i of every line
+            for i in range(n):
+                for d in range(1, p + 1):
+                    x = p - d if side == 2 else p + w - 1 + d
+                    lo, hi = max(i - d, 0), min(i + d + 1, n)
+                    for c in range(nc):
+                        v = np.float32((sums[hi * nc + c] - sums[lo * nc + c]) / np.float64(hi - lo))
+                        out[i, x, c] = cap if clip and v > cap else v
 
 
 def bordered_source(lin: np.ndarray, max_coc_px: float, plan) -> tuple[np.ndarray, int]:

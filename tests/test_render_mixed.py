@@ -42,19 +42,26 @@ def test_the_compiled_step_is_its_plain_reference():
     assert mixes > 100  # the cases took the rule's every branch many times
 
 
-def test_a_pickets_edge_column_is_rendered_as_its_share_of_the_picket():
-    """A grey wall (0.2) at 3 m, blurred; a white picket (0.9) at 1 m, in focus, whose right edge column carries the
-    wall's depth and 3/4 of the picket's colour: that column becomes 3/4 picket over 1/4 of what the layers gave."""
+def _picket(share: float):
+    """A grey wall (0.2) at 3 m, blurred by 9 px; a white picket (0.9) at 1 m in columns 4-5, in focus; column 6
+    carries the wall's depth and *share* of the picket's colour; the render the layers left: the wall blurred (0.3).
+    Returns (depth, signed CoC, linear colour, render), 5 x 12."""
     h, w = 5, 12
     z = np.full((h, w), 3.0, np.float32)
     z[:, 4:6] = 1.0
     coc = np.where(z < 2, 0.2, 9.0).astype(np.float32)
     lin = np.full((h, w, 3), 0.2, np.float32)
     lin[:, 4:6] = 0.9
-    lin[:, 6] = 0.75 * 0.9 + 0.25 * 0.2
-    out = np.full((h, w, 3), 0.3, np.float32)  # the wall, blurred, as the layers left it
+    lin[:, 6] = share * 0.9 + (1 - share) * 0.2
+    return z, coc, lin, np.full((h, w, 3), 0.3, np.float32)
+
+
+def test_a_pickets_edge_column_is_rendered_as_its_share_of_the_picket():
+    """A grey wall (0.2) at 3 m, blurred; a white picket (0.9) at 1 m, in focus, whose right edge column carries the
+    wall's depth and 3/4 of the picket's colour: that column becomes 3/4 picket over 1/4 of what the layers gave."""
+    z, coc, lin, out = _picket(0.75)
     got = out.copy()
-    assert mix_edges(got, lin, z, coc) == h
+    assert mix_edges(got, lin, z, coc) == z.shape[0]
     np.testing.assert_allclose(got[:, 6], 0.75 * 0.9 + 0.25 * 0.3, atol=1e-6)
     np.testing.assert_array_equal(np.delete(got, 6, axis=1), np.delete(out, 6, axis=1))
     # a whole picket column (share 1) keeps its own colour, sharp
@@ -67,13 +74,7 @@ def test_a_pickets_edge_column_is_rendered_as_its_share_of_the_picket():
 @pytest.mark.parametrize("change", ["blurred neighbour", "same depth", "colour beyond the picket's", "low contrast",
                                     "off the segment", "wall in focus", "unknown depth"])
 def test_nothing_changes_where_the_pixel_is_not_such_a_mix(change):
-    h, w = 5, 12
-    z = np.full((h, w), 3.0, np.float32)
-    z[:, 4:6] = 1.0
-    coc = np.where(z < 2, 0.2, 9.0).astype(np.float32)
-    lin = np.full((h, w, 3), 0.2, np.float32)
-    lin[:, 4:6] = 0.9
-    lin[:, 6] = 0.5 * 0.9 + 0.5 * 0.2
+    z, coc, lin, out = _picket(0.5)
     if change == "blurred neighbour":
         coc[:, 4:6] = 1.5
     elif change == "same depth":
@@ -89,7 +90,6 @@ def test_nothing_changes_where_the_pixel_is_not_such_a_mix(change):
         coc[z > 2] = 1.5
     elif change == "unknown depth":
         z[:, 6] = np.nan
-    out = np.full((h, w, 3), 0.3, np.float32)
     got = out.copy()
     assert mix_edges(got, lin, z, coc) == 0
     np.testing.assert_array_equal(got, out)

@@ -301,6 +301,7 @@ def mixed_edges(out, lin, depth_m, coc) -> np.ndarray:
     z, c = np.asarray(depth_m, np.float64), np.abs(np.asarray(coc, np.float64))
     h, w = z.shape
     res = out.copy()
+    seen = np.minimum(lin, 1.0)  # the share is estimated from the colours as the camera saw them
     ys, xs = np.mgrid[0:h, 0:w]
     for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
         qy, qx, ry, rx = ys + dy, xs + dx, ys - dy, xs - dx
@@ -309,7 +310,6 @@ def mixed_edges(out, lin, depth_m, coc) -> np.ndarray:
         with np.errstate(invalid="ignore"):
             edge = (inside & (z > 0) & (c > BLURRED_PX) & (z[qy, qx] * NEARER_RATIO < z) & (c[qy, qx] < SHARP_PX)
                     & (np.abs(z[ry, rx] - z) < SAME_SURFACE * z))
-        seen = np.minimum(lin, 1.0)  # the share is estimated from the colours as the camera saw them
         fore, back = seen[qy, qx], seen[ry, rx]
         d = fore - back
         dd = (d * d).sum(-1)

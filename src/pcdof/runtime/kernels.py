@@ -37,9 +37,10 @@ STAGES = {
 
 #: CPU seconds each stage's ``warmup()`` takes to compile with an empty cache, measured on the project's 2-core
 #: machine with ``scripts/profile_compile.py`` (each stage in a fresh interpreter, its start and imports included;
-#: other load on the cores adds 10-30 %, and slower days measured up to 1.7 times these); only for the estimate
-#: printed before compiling.
-COMPILE_CPU_S = {"register": 8.6, "fill": 13.6, "render": 14.5}
+#: other load on the cores adds 10-30 %, and the machine's faster hours measured down to 0.7 times these); only for
+#: the estimate printed before compiling. With these, three stages on two cores estimate 35 s; a first render of a
+#: 640x480 frame with an empty cache took 36.8 s wall, 65 s of CPU, the same hour.
+COMPILE_CPU_S = {"register": 12.5, "fill": 21.0, "render": 28.5}
 
 #: stages this process has checked (or compiled): each is checked once per process
 _checked: set = set()

@@ -123,4 +123,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    from pcdof.runtime.process import tune_process
+
+    tune_process()  # timed in a process tuned as the pcdof command tunes its own
     sys.exit(main())

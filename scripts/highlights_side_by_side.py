@@ -167,4 +167,7 @@ def pipeline_side_by_side(modules, args) -> None:
 
 
 if __name__ == "__main__":
+    from pcdof.runtime.process import tune_process
+
+    tune_process()  # timed in a process tuned as the pcdof command tunes its own
     main()

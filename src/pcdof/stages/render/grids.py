@@ -34,7 +34,8 @@ def reduce_cells(lin, radius, member, s, source=None, origin=(0, 0)):
     :func:`pcdof.stages.render.extend.extend_layer_behind`, read in place instead of copied).
 
     Rows of cells run as tasks on the threads (:func:`_reduce_tasks`, about :data:`TASK_ROWS` pixel rows each);
-    each cell's pixels are summed in raster order, a pixel row of a row of cells at a time."""
+    each cell's pixels are summed in raster order (float64 sums), a pixel row of a row of cells at a time; each mean
+    is the float64 sum times 1 / count, rounded once to float32."""
     h, w = member.shape
     s = int(s)
     hs, ws = (h + s - 1) // s, (w + s - 1) // s
@@ -58,9 +59,10 @@ def _reduce_tasks(counter, n_tasks, cell_rows, lin, radius, member, s, source, o
     copies = source.shape[0] > 0
     hs, ws = r_s.shape
     inv_area = 1.0 / (s * s)
-    acc_m = np.empty(ws, np.float32)
-    acc_r = np.empty(ws, np.float32)
-    acc = np.empty((3, ws), np.float32)
+    # sums in float64: a cell sums up to s^2 pixels, and in float32 equal values (a flat colour) round alike
+    acc_m = np.empty(ws, np.float64)
+    acc_r = np.empty(ws, np.float64)
+    acc = np.empty((3, ws), np.float64)
     while True:
         ca, cb = next_chunk(counter, n_tasks, cell_rows, hs)
         if ca < 0:
@@ -81,13 +83,13 @@ def _reduce_tasks(counter, n_tasks, cell_rows, lin, radius, member, s, source, o
                             if not copies or source[y, x] < 0:
                                 continue
                             sy, sx = oy + source[y, x] // w, ox + source[y, x] % w
-                        m += np.float32(1.0)
-                        r += radius[sy, sx]
-                        a0 += lin[sy, sx, 0]
+                        m += 1.0
+                        r += np.float64(radius[sy, sx])
+                        a0 += np.float64(lin[sy, sx, 0])
                         if nc > 1:
-                            a1 += lin[sy, sx, 1]
+                            a1 += np.float64(lin[sy, sx, 1])
                         if nc > 2:
-                            a2 += lin[sy, sx, 2]
+                            a2 += np.float64(lin[sy, sx, 2])
                     acc_m[cx] = m
                     acc_r[cx] = r
                     acc[0, cx], acc[1, cx], acc[2, cx] = a0, a1, a2

@@ -129,7 +129,9 @@ def _scatter_rows(ya, yb, xs, radius, values, offsets, width, reach, n_max, symm
     areas = np.empty((nd, nd, n_max), np.float64)  # [source row % nd, dy + reach, source]
     centres = np.zeros((nd if not symmetric else 1, nd, n_max), np.float64)
     row_r = np.zeros(nd, np.float32)  # the largest radius of each source row in the ring
-    diff = np.empty((width + 1, 4), np.float32)
+    # the runs' starts and ends, and their running sums, in float64: a row's difference array takes a term from
+    # every strip of the 2 reach + 1 rows around it, and in float32 equal terms (a flat colour) round alike
+    diff = np.empty((width + 1, 4), np.float64)
     next_row = max(0, ya - reach)
     for y in range(ya, yb):
         while next_row <= min(h - 1, y + reach):
@@ -189,10 +191,10 @@ def _scatter_rows(ya, yb, xs, radius, values, offsets, width, reach, n_max, symm
                     diff[hi, 1] -= v1
                     diff[hi, 2] -= v2
                     diff[hi, 3] -= v3
-        r0 = np.float32(0.0)
-        r1 = np.float32(0.0)
-        r2 = np.float32(0.0)
-        r3 = np.float32(0.0)
+        r0 = 0.0
+        r1 = 0.0
+        r2 = 0.0
+        r3 = 0.0
         for x in range(width):
             r0 += diff[x, 0]
             r1 += diff[x, 1]

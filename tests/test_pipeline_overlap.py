@@ -11,6 +11,7 @@ import pcdof.stages.highlights as highlights
 import pcdof.pipeline as pipeline
 import pcdof.runtime.threads as runtime_threads
 import pcdof.stages.highlights.stage as highlights_stage
+import pcdof.stages.render.stage as render_stage
 from pcdof.camera import RGBDFrame
 from pcdof.color import decode_to_linear, srgb_to_linear
 from pcdof.errors import InputError
@@ -142,17 +143,20 @@ def test_overlapped_and_sequential_pipelines_give_the_same_bits(monkeypatch, see
     assert got.image.dtype == dtype
 
 
-def _counting_threads(monkeypatch):
-    """The work handed to the colour side's worker thread, as a list that grows."""
+def _counting_threads(monkeypatch, pool="colour"):
+    """The work handed to the worker thread *pool* (the colour side's, or the render's "layers"), as a list that
+    grows."""
     started = []
     real = runtime_threads.worker_pool
 
     class Counted:
         def __init__(self, name, workers):
             self.pool = real(name, workers)
+            self.name = name
 
         def submit(self, fn):
-            started.append(fn)
+            if self.name == pool:
+                started.append(fn)
             return self.pool.submit(fn)
 
     monkeypatch.setattr(runtime_threads, "worker_pool", Counted)
@@ -209,3 +213,68 @@ def test_the_fill_kernels_release_the_gil():
     assert {k.__name__ for k in kernels} >= {"index_depth", "_sweep_tasks", "_fit_tasks", "_combine_tasks",
                                              "_despeckle_tasks", "_median_tasks", "_align_tasks", "_band_from_range"}
     assert all(k.targetoptions.get("nogil") for k in kernels), [k.__name__ for k in kernels]
+
+
+# ------------------------------------------------------------------ the render's layers classified beside the highlights
+@pytest.mark.parametrize("seed,options", [(0, {}), (3, {"quality": "exact"}), (5, {"highlights": "off"}),
+                                          (6, {"quality": "fast"})])
+def test_layers_classified_beside_the_highlights_give_the_same_bits(monkeypatch, seed, options):
+    if numba.get_num_threads() < 2:
+        pytest.skip("one thread: the pipeline runs every stage on it")
+    frame = _frame(seed)
+    started = _counting_threads(monkeypatch, "layers")
+    got = pipeline.run(frame, LENS, **options)
+    assert len(started) == 1
+    detail = _stage(got, "render").detail
+    assert {"classify_ms", "classify_overlapped_ms", "classify_waited_ms"} <= set(detail)
+    assert 0.0 <= detail["classify_overlapped_ms"] <= detail["classify_ms"]
+    assert "(its layers) ran beside the highlights stage" in got.explain()
+    monkeypatch.setattr(render_stage, "OVERLAP", False)
+    want = pipeline.run(frame, LENS, **options)
+    assert len(started) == 1 and "classify_ms" not in _stage(want, "render").detail
+    for a, b in ((got.image, want.image), (got.coc_px, want.coc_px)):
+        np.testing.assert_array_equal(a, b)
+    # a focus change (the depth given) classifies beside the highlights stage too
+    lens = ThinLens(50.0, 1.2, 2.5)
+    x, trace = pipeline.render_from_depth(frame.color, got.depth_filled_m, lens, frame.rig.color.fx, **options)
+    monkeypatch.setattr(render_stage, "OVERLAP", True)
+    y, trace_y = pipeline.render_from_depth(frame.color, got.depth_filled_m, lens, frame.rig.color.fx, **options)
+    assert "classify_ms" in trace_y[-1].detail and "classify_ms" not in trace[-1].detail
+    np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("change,options", [("paper", {"method": "paper"}), ("sharp", {}), ("one thread", {}),
+                                            ("large", {})])
+def test_frames_the_physical_render_does_not_blur_classify_nothing_beside(monkeypatch, change, options):
+    import pcdof.plans as plans
+
+    frame = _frame(0)
+    if change == "large":  # as if the frame were larger than the plan classifies beside the highlights
+        monkeypatch.setattr(plans, "CLASSIFY_BESIDE_MAX_PX", frame.color.shape[0] * frame.color.shape[1] - 1)
+    lens = (PaperLens(focus_distance_m=1.2) if change == "paper" else
+            ThinLens(50.0, 5000.0, 1.2) if change == "sharp" else LENS)
+    started = _counting_threads(monkeypatch, "layers")
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1 if change == "one thread" else threads)
+    try:
+        pipeline.run(frame, lens, **options)
+    finally:
+        numba.set_num_threads(threads)
+    assert started == []
+
+
+def test_a_classification_failure_on_the_worker_is_raised_in_the_callers_thread(monkeypatch):
+    if numba.get_num_threads() < 2:
+        pytest.skip("one thread: no worker")
+    import pcdof.stages.render.physical as physical
+
+    where = []
+
+    def broken(*args, **kwargs):
+        where.append(threading.current_thread())
+        raise ArithmeticError("layers failed")
+
+    monkeypatch.setattr(physical, "classify_frame", broken)
+    with pytest.raises(ArithmeticError, match="layers failed"):
+        pipeline.run(_frame(0), LENS)
+    assert where and where[0] is not threading.current_thread()

@@ -126,3 +126,14 @@ class TestKernels:
 
         with pytest.raises(InputError, match="stages must be among"):
             kernels.warmup(["render", "paint"])
+
+
+def test_layers_are_classified_beside_the_highlights_up_to_the_plans_size():
+    from pcdof.plans import CLASSIFY_BESIDE_MAX_PX, classify_beside_highlights
+
+    assert classify_beside_highlights(1920 * 1080, 2) and classify_beside_highlights(640 * 480, 16)
+    assert not classify_beside_highlights(1920 * 1080, 1)  # no second thread
+    assert not classify_beside_highlights(3840 * 2160, 2)  # memory first: in turn
+    assert classify_beside_highlights(CLASSIFY_BESIDE_MAX_PX, 2) and not classify_beside_highlights(
+        CLASSIFY_BESIDE_MAX_PX + 1, 2)
+    assert not classify_beside_highlights(0, 2)

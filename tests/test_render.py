@@ -195,6 +195,25 @@ def test_flat_colour_stays_flat_under_a_huge_blur(quality, blades):
     assert np.abs(out / value - 1).max() < 1e-6
 
 
+def test_layers_classified_by_the_caller_render_as_the_renderer_classifies_them():
+    from pcdof.stages.render.physical import classify_frame
+
+    rng = np.random.default_rng(7)
+    b = 9
+    lin = rng.random((40 + 2 * b, 52 + 2 * b, 3)).astype(np.float32)
+    coc = rng.choice([-14.0, -3.0, 0.2, 2.5, 7.0, 19.0], size=(40, 52)).astype(np.float32)
+    plan = plan_render(quality="balanced")
+    want, info = render_layers_linear(lin, coc, plan=plan, coc_border_px=b)
+    layers = classify_frame(coc, b, plan)
+    got, info_got = render_layers_linear(lin, coc, plan=plan, coc_border_px=b, layers=layers)
+    np.testing.assert_array_equal(got, want)
+    assert info_got["layers"] == info["layers"]
+    with pytest.raises(InputError, match="layers must be the FrameLayers"):
+        render_layers_linear(lin, coc, plan=plan, coc_border_px=b, layers=classify_frame(coc, b - 1, plan))
+    with pytest.raises(InputError, match="layers must be the FrameLayers"):
+        render_layers_linear(lin, coc, plan=plan, coc_border_px=b, layers="layers")
+
+
 class TestPaper:
     def test_uniform_image_unchanged_without_luminosity_constant(self):
         color = np.full((50, 60, 3), 200, np.uint8)

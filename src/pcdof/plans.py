@@ -36,6 +36,19 @@ QUALITIES = {"exact": math.inf, "high": 11.3, "balanced": 8.0, "fast": 5.66}
 UNIFORM_MIN_RADIUS_PX = 2.0
 
 
+#: the largest frame (colour pixels) whose layers are classified beside the highlights stage: the classification's
+#: arrays are then made while the highlights stage's are alive (3840x2160 peaked 6-10 bytes a pixel higher,
+#: 1920x1080 2; the 1920x1080 focus change 2-6 % faster), so larger frames, where memory is what runs out, keep
+#: the two in turn
+CLASSIFY_BESIDE_MAX_PX = 4_000_000
+
+
+def classify_beside_highlights(pixels: int, threads: int) -> bool:
+    """Whether the render stage classifies a frame of *pixels* colour pixels into layers on a second thread while
+    the highlights stage runs (:data:`CLASSIFY_BESIDE_MAX_PX`), given the calling thread's *threads*."""
+    return threads >= 2 and 0 < pixels <= CLASSIFY_BESIDE_MAX_PX
+
+
 def check_quality(quality) -> str:
     """*quality* itself if it is a key of :data:`QUALITIES`; else an :class:`InputError`."""
     if not isinstance(quality, str) or quality not in QUALITIES:

@@ -32,6 +32,26 @@ class RenderFrame:
 
 
 @dataclass(frozen=True)
+class FrameLayers:
+    """A frame's classification into layers (:func:`pcdof.stages.render.physical.classify_frame`): the layer edges
+    (2, n) px, footprint radius (H, W) float32 and layer ids (H, W) int8 of the frame widened by *border_px*, the
+    layers' keys, pixel counts, largest radii and bounding boxes, the tile map, and where surfaces end (``across``:
+    (H, W) int8, or None when nothing is extended). Plain data: made once, read by the render."""
+
+    edges: np.ndarray
+    radius: np.ndarray
+    layer: np.ndarray
+    keys: np.ndarray
+    counts: np.ndarray
+    r_maxes: np.ndarray
+    boxes: np.ndarray
+    tiles: TileMap
+    across: np.ndarray | None
+    border_px: int
+    extend_behind: bool
+
+
+@dataclass(frozen=True)
 class Canvas:
     """Front-to-back compositing state: (H, W, C) premultiplied colour and (H, W) opacity composited so far
     (the transmittance left is 1 - opacity)."""

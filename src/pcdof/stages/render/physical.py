@@ -38,7 +38,7 @@ from .border import border_px, check_source_border, continue_border, interior, i
 from .classify import LAYER_EDGES_PX, SHARP_COC_PX, across_jumps
 from .composite import copy_tiles
 from .extend import NO_PIXELS
-from .frame import Canvas, RenderFrame, as_channels
+from .frame import Canvas, FrameLayers, RenderFrame, as_channels
 from .grids import full_grid, reduced_grid, upsample_cells, upsampled_strips
 from .mixed import mix_edges
 from .ownership import OwnershipAhead
@@ -184,11 +184,37 @@ def _shape_of(aperture, blades, rotation_deg) -> Aperture:
     return aperture
 
 
+def classify_frame(signed_coc: np.ndarray, coc_border_px: int, plan: RenderPlan, extend_behind: bool = True, *,
+                   edges: np.ndarray | None = None, tiles: TileMap | None = None) -> FrameLayers:
+    """The frame's layers (:class:`~pcdof.stages.render.frame.FrameLayers`), as :func:`render_layers_linear` reads them.
+
+    Parameters
+    ----------
+    signed_coc : (H, W) float32, the frame's signed circle of confusion, pixels (NaN: in focus)
+    coc_border_px : int >= 0, the border the render widens the frame by (the CoC's edge pixels repeated)
+    plan : :class:`pcdof.plans.RenderPlan`
+    extend_behind : whether layers continue behind nearer ones (then where surfaces end is found)
+    edges : (2, n) px or None (:func:`pcdof.stages.render.classify.frame_edges` of *signed_coc*)
+    tiles : the widened frame's :class:`TileMap` or None (classified here)
+    """
+    b = int(coc_border_px)
+    # (front, back): the nominal edges moved off the blur sizes the frame is full of
+    edges = classify.frame_edges(signed_coc) if edges is None else classify.check_edges(edges)
+    wide_coc = replicate_border(np.asarray(signed_coc, np.float32), b)
+    coc, radius, layer, keys, counts, r_maxes, boxes = classify.classify_layers(wide_coc, MAX_COC_PX, edges)
+    del wide_coc  # the widened map lives only while the layers are classified
+    tiles = _tiles_for(coc, tiles, plan)
+    # where surfaces end, for the extension behind nearer layers (an int8 map, a quarter of the CoC's size)
+    across = across_jumps(coc, layer) if extend_behind and keys.size > 1 else None
+    # the layers read the radius and the layer ids: the cleaned CoC is not kept through them
+    return FrameLayers(edges, radius, layer, keys, counts, r_maxes, boxes, tiles, across, b, bool(extend_behind))
+
+
 def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int = 0,
                          rotation_deg: float = 0.0, aperture: Aperture | None = None, quality: str = "balanced",
                          extend_behind: bool = True, tiles: TileMap | None = None,
                          plan: RenderPlan | None = None, coc_border_px: int = 0,
-                         edges: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+                         edges: np.ndarray | None = None, layers: FrameLayers | None = None) -> tuple[np.ndarray, dict]:
     """Physical depth of field in linear light.
 
     Parameters
@@ -211,6 +237,8 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
         classified (4 bytes a pixel less through the render)
     edges : (2, n) float, the layer edges in front of the focus and behind it, pixels (None:
         :func:`pcdof.stages.render.classify.frame_edges` of *signed_coc* as given)
+    layers : :func:`classify_frame` of *signed_coc*, *coc_border_px*, the plan and *extend_behind*, if the caller
+        has it (then *edges* and *tiles* are not read)
 
     Returns
     -------
@@ -229,20 +257,20 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
                          f"and coc_border_px b, an int >= 0; got {np.shape(signed_coc)} and b = {b!r}")
     lin = np.ascontiguousarray(lin, np.float32)
     with threads_for(plan):
-        # (front, back): the nominal edges moved off the blur sizes the frame is full of
-        edges = classify.frame_edges(signed_coc) if edges is None else classify.check_edges(edges)
-        wide_coc = replicate_border(np.asarray(signed_coc, np.float32), int(b))
+        if layers is None:
+            layers = classify_frame(signed_coc, b, plan, extend_behind, edges=edges, tiles=tiles)
+        elif not isinstance(layers, FrameLayers) or layers.radius.shape != (h, w) or layers.border_px != b \
+                or layers.extend_behind != bool(extend_behind):
+            raise InputError(f"layers must be the FrameLayers of this frame ({h}x{w} widened by {b} px, extend_behind "
+                             f"{bool(extend_behind)}); got {type(layers).__name__}")
         del signed_coc
-        coc, radius, layer, keys, counts, r_maxes, boxes = classify.classify_layers(wide_coc, MAX_COC_PX, edges)
-        del wide_coc  # the widened map lives only while the layers are classified
-        tiles = _tiles_for(coc, tiles, plan)
-        # where surfaces end, for the extension behind nearer layers (an int8 map, a quarter of the CoC's size)
-        across = across_jumps(coc, layer) if extend_behind and keys.size > 1 else None
-        del coc  # the layers read the radius and the layer ids: the cleaned CoC is not kept through them
+        keys, tiles = layers.keys, layers.tiles
         render_aperture = RenderAperture(shape.symmetric, cached_aperture_table(shape))
-        frame = RenderFrame(lin, radius, layer, tiles, plan, render_aperture, extend_behind, across, edges)
+        frame = RenderFrame(lin, layers.radius, layers.layer, tiles, plan, render_aperture, extend_behind,
+                            layers.across, layers.edges)
         canvas = Canvas.start(lin, tiles, plan.copy_tiles)
-        layers_run = _composite_layers(frame, canvas, keys, counts, r_maxes, boxes)
+        layers_run = _composite_layers(frame, canvas, keys, layers.counts, layers.r_maxes, layers.boxes)
+        del layers
         out = canvas.acc  # normalised in place: no other full-size image
         composite.normalise(canvas.acc, canvas.opacity, lin, out)
     in_focus = sum(l["pixels"] for l in layers_run if not l["blurred"])
@@ -252,7 +280,7 @@ def render_layers_linear(lin: np.ndarray, signed_coc: np.ndarray, *, blades: int
 
 
 def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False, quality="balanced",
-                    signed_coc=None, plan=None, border_most=None, source_border_px=0):
+                    signed_coc=None, plan=None, border_most=None, source_border_px=0, layers=None):
     """Thin-lens depth of field (see the module docstring). Returns (image, info).
 
     *signed_coc* (H, W) float32 pixels, if given, is ``lens.signed_coc_px(depth_m, fx)`` already
@@ -264,6 +292,8 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
     continued b pixels beyond it (:func:`pcdof.stages.render.border.continue_border`, as the pipeline's highlights
     stage hands it over); taken as it is when b is the border this render needs, so the widened colour is not
     copied again (else the frame inside it is continued anew, with *border_most*).
+    *layers*: :func:`classify_frame` of *signed_coc* with this render's border and plan, made by the caller beside
+    other work (the render stage's early start), or None (classified here).
     """
     plan = plan_render(quality=quality) if plan is None else check_render_plan(plan)
     if not isinstance(lens, ThinLens):
@@ -293,8 +323,11 @@ def render_physical(color, depth_m, lens, *, fx, max_range_m=None, linear=False,
         lin = to_float(src) if linear else decode_to_linear(src)
         wide_lin = continue_border(lin, pad, most=border_most)
         del lin
+    if layers is not None and (layers.border_px != pad or layers.radius.shape != wide_lin.shape[:2]):
+        layers = None  # made for another border: classified anew (the same layers, as this render needs them)
     out_lin, info = render_layers_linear(wide_lin, coc, aperture=aperture_for(lens), quality=quality, plan=plan,
-                                         coc_border_px=pad)
+                                         coc_border_px=pad, layers=layers)
+    del layers
     out_lin = interior_in_place(out_lin, pad)  # the render's own buffer: the frame without another copy of it
     # an in-focus structure's edge pixels that carry the depth behind it (pcdof.stages.render.mixed)
     info["mixed_edge_pixels"] = mix_edges(out_lin, np.ascontiguousarray(wide_lin, np.float32),

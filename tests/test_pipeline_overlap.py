@@ -215,7 +215,7 @@ def test_the_fill_kernels_release_the_gil():
     assert all(k.targetoptions.get("nogil") for k in kernels), [k.__name__ for k in kernels]
 
 
-# ------------------------------------------------------------------ the render's layers classified beside the highlights
+# -------------------------------------------------------------- the render's layers classified beside the highlights
 @pytest.mark.parametrize("seed,options", [(0, {}), (3, {"quality": "exact"}), (5, {"highlights": "off"}),
                                           (6, {"quality": "fast"})])
 def test_layers_classified_beside_the_highlights_give_the_same_bits(monkeypatch, seed, options):

@@ -90,7 +90,8 @@ class RenderResult:
             if "overlapped_ms" in t.detail:
                 what += f"; {t.detail['overlapped_ms']:.2f} ms more ran beside the fill"
             if "classify_overlapped_ms" in t.detail:
-                what += f"; {t.detail['classify_overlapped_ms']:.2f} ms more (its layers) ran beside the highlights stage"
+                what += (f"; {t.detail['classify_overlapped_ms']:.2f} ms more (its layers) ran beside the "
+                         "highlights stage")
             lines.append(f"{t.name:<10} {t.seconds * 1e3:9.2f}  {what}")
         lines.append(f"{'total':<10} {self.total_seconds * 1e3:9.2f}")
         return "\n".join(lines)

@@ -14,9 +14,10 @@ these methods and an entry in :data:`pcdof.stages.STAGES` (or a ``stages=`` list
 :func:`pcdof.pipeline.run_stages`).
 
 A stage may also start part of its work early, beside an earlier stage (the highlights stage reads the colour
-while the fill runs; the render stage classifies the frame into layers while the highlights stage runs): ``starts_before`` names that stage and ``start(state, options)`` returns a function that
-waits for the result (or None when the frame does not need it); the pipeline calls ``start`` just before the
-named stage runs and passes the waiter to ``run`` through ``state.started``.
+while the fill runs; the render stage classifies the frame into layers while the highlights stage runs):
+``starts_before`` names that stage and ``start(state, options)`` returns a function that waits for the result (or
+None when the frame does not need it); the pipeline calls ``start`` just before the named stage runs and passes the
+waiter to ``run`` through ``state.started``.
 """
 
 from __future__ import annotations

@@ -59,10 +59,11 @@ LENS = ThinLens(50.0, 1.4, 1.2)
 
 @pytest.fixture(autouse=True)
 def every_thread():
-    """These tests check what a frame does with a second thread: the load adaptation stays off for them."""
-    from pcdof.runtime.threads import fixed_threads
+    """These tests check what a frame does with a second thread: every thread numba may run (whatever count a test
+    before left this thread with), and the load adaptation off."""
+    from pcdof.runtime.threads import fixed_threads, max_threads
 
-    with fixed_threads():
+    with fixed_threads(max_threads()):
         yield
 
 

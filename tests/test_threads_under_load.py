@@ -189,3 +189,23 @@ def test_a_frame_renders_alike_on_one_thread_or_two(scene):
     assert np.array_equal(out[1].depth_registered_m, out[2].depth_registered_m)
     assert np.array_equal(out[1].depth_filled_m, out[2].depth_filled_m)
     assert np.array_equal(out[1].image, out[2].image)
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs numba with 2 threads")
+def test_threads_restored_undoes_a_count_the_block_set():
+    """A batch rendered in the caller's process sets the process's threads inside ``threads_restored``: the caller
+    gets its own count back (it kept the block's count, one thread, for the rest of the process)."""
+    import cv2
+
+    from pcdof.runtime.threads import set_process_threads, threads_restored
+
+    before, cv_before = numba.get_num_threads(), cv2.getNumThreads()
+    numba.set_num_threads(2)
+    try:
+        with threads_restored():
+            set_process_threads(1)
+            assert numba.get_num_threads() == 1
+        assert numba.get_num_threads() == 2 and cv2.getNumThreads() == cv_before
+    finally:
+        numba.set_num_threads(before)
+        cv2.setNumThreads(cv_before)

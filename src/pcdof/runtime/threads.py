@@ -69,8 +69,8 @@ def numba_threads(n: int, *, opencv: bool = False):
         numba.set_num_threads(n)
     try:
         yield n
-    finally:
-        if n != before:
+    finally:  # as it was, whoever changed it (the block may set the count itself: :func:`threads_restored`)
+        if int(numba.get_num_threads()) != before:
             numba.set_num_threads(before)
         if cv_before is not None:
             import cv2

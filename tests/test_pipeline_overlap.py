@@ -187,7 +187,12 @@ def test_frames_that_do_not_need_the_colour_side_use_no_thread(monkeypatch, chan
     assert len(started) == (threads > 1)  # the counter sees a frame that needs it
 
 
-def test_a_failure_on_the_worker_is_raised_in_the_callers_thread(monkeypatch):
+@pytest.mark.parametrize("module,name", [("pcdof.stages.highlights", "prepare_highlights"),
+                                         ("pcdof.stages.render.physical", "classify_frame")])
+def test_a_failure_on_the_worker_is_raised_in_the_callers_thread(monkeypatch, module, name):
+    """The highlights stage's colour side and the render's layers run on workers: what fails there is raised here."""
+    import importlib
+
     if numba.get_num_threads() < 2:
         pytest.skip("one thread: no worker")
 
@@ -196,12 +201,12 @@ def test_a_failure_on_the_worker_is_raised_in_the_callers_thread(monkeypatch):
 
     where = []
 
-    def broken(color):
+    def broken(*args, **kwargs):
         where.append(threading.current_thread())
-        raise Broken("colour side failed")
+        raise Broken(f"{name} failed")
 
-    monkeypatch.setattr(highlights, "prepare_highlights", broken)
-    with pytest.raises(Broken, match="colour side failed"):
+    monkeypatch.setattr(importlib.import_module(module), name, broken)
+    with pytest.raises(Broken, match=f"{name} failed"):
         pipeline.run(_frame(0), LENS)
     assert where and where[0] is not threading.current_thread()
 
@@ -262,20 +267,3 @@ def test_frames_the_physical_render_does_not_blur_classify_nothing_beside(monkey
     finally:
         numba.set_num_threads(threads)
     assert started == []
-
-
-def test_a_classification_failure_on_the_worker_is_raised_in_the_callers_thread(monkeypatch):
-    if numba.get_num_threads() < 2:
-        pytest.skip("one thread: no worker")
-    import pcdof.stages.render.physical as physical
-
-    where = []
-
-    def broken(*args, **kwargs):
-        where.append(threading.current_thread())
-        raise ArithmeticError("layers failed")
-
-    monkeypatch.setattr(physical, "classify_frame", broken)
-    with pytest.raises(ArithmeticError, match="layers failed"):
-        pipeline.run(_frame(0), LENS)
-    assert where and where[0] is not threading.current_thread()

@@ -426,6 +426,83 @@ def test_quartiles():
     assert quartiles([4, 1, 3, 2]) == [1.75, 3.25]
 
 
+def _splat_nearest(depth_m, rig):
+    """An independent point splat: every depth pixel back-projected, moved into the colour camera, rounded to the
+    nearest pixel; the nearest point wins (no distortion on either camera)."""
+    import numpy as np
+
+    h, w = depth_m.shape
+    v, u = np.mgrid[0:h, 0:w]
+    z = depth_m.astype(np.float64)
+    ok = z > 0
+    kd, kc = rig.depth.K, rig.color.K
+    points = np.stack([(u[ok] - kd[0, 2]) / kd[0, 0] * z[ok], (v[ok] - kd[1, 2]) / kd[1, 1] * z[ok], z[ok]])
+    t = np.asarray(rig.T_color_from_depth, np.float64)
+    q = t[:3, :3] @ points + t[:3, 3:]
+    px = np.floor(kc[0, 0] * q[0] / q[2] + kc[0, 2] + 0.5).astype(np.int64)
+    py = np.floor(kc[1, 1] * q[1] / q[2] + kc[1, 2] + 0.5).astype(np.int64)
+    W, H = rig.color.width, rig.color.height
+    keep = (q[2] > 0) & (px >= 0) & (py >= 0) & (px < W) & (py < H)
+    out = np.full((H, W), np.inf)
+    np.minimum.at(out, (py[keep], px[keep]), q[2][keep])
+    out[np.isinf(out)] = 0.0
+    return out.astype(np.float32)
+
+
+_CV2_SMALL_PLANE = """
+import json, sys
+import numpy as np
+from pcdof.bench.registration import register_cv2
+from pcdof.synth import generate_scene
+sf = generate_scene("portrait", color_size=(int(sys.argv[1]), int(sys.argv[2])), depth_size=(256, 212), seed=3)
+out = register_cv2(sf.frame.depth_m, sf.rig)
+np.save(sys.argv[3], out)
+"""
+
+
+@pytest.mark.parametrize("size", [(256, 192), (160, 120), (300, 200)])
+def test_cv2_registration_survives_a_colour_camera_smaller_than_the_depth_image(size, tmp_path):
+    """cv2.registerDepth corrupts the heap when its output plane is narrower or lower than the depth image
+    (opencv_contrib#3761): the wrapper registers onto a plane widened to the depth image's size and crops it, and
+    gives what an independent point splat gives. Run in a child process: the bug aborts the process it runs in."""
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from pcdof.synth import generate_scene
+
+    path = tmp_path / "registered.npy"
+    done = subprocess.run([sys.executable, "-c", _CV2_SMALL_PLANE, str(size[0]), str(size[1]), str(path)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-800:]
+    got = np.load(path)
+    sf = generate_scene("portrait", color_size=size, depth_size=(256, 212), seed=3)
+    expected = _splat_nearest(sf.frame.depth_m, sf.rig)
+    assert got.shape == (size[1], size[0]) and got.dtype == np.float32
+    assert (expected > 0).mean() > 0.3
+    # OpenCV projects in float32: a point within rounding of a pixel's edge may land on the neighbour
+    assert np.mean(np.abs(got - expected) > 1e-3) < 0.002
+
+
+def test_cv2_registration_is_opencv_as_it_is_where_the_plane_is_large_enough():
+    """Where the colour camera's image is at least the depth image's size the wrapper is one plain call."""
+    import cv2
+    import numpy as np
+
+    from pcdof.bench.registration import register_cv2
+    from pcdof.synth import generate_scene
+
+    sf = generate_scene("near_object", color_size=(320, 240), depth_size=(256, 212), seed=2)
+    rig = sf.rig
+    for dilation in (False, True):
+        plain = cv2.registerDepth(rig.depth.K, rig.color.K, rig.color.dist_coeffs, np.asarray(rig.T_color_from_depth),
+                                  sf.frame.depth_m, (rig.color.width, rig.color.height), depthDilation=dilation)
+        got = register_cv2(sf.frame.depth_m, rig, dilation=dilation)
+        assert np.array_equal(got, np.maximum(np.nan_to_num(plain, nan=0.0), 0.0))
+    assert np.mean(np.abs(register_cv2(sf.frame.depth_m, rig) - _splat_nearest(sf.frame.depth_m, rig)) > 1e-3) < 0.002
+
+
 def test_paper_on_opencv_depth_is_the_paper_method_on_cv2_registered_depth():
     """The speed target's baseline: the paper renderer fed cv2.registerDepth's depth (holes kept), nothing else."""
     import numpy as np

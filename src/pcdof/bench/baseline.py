@@ -19,23 +19,11 @@ from ..runtime.threads import start_parallel_loops
 
 
 def register_opencv(frame, *, dilation: bool = False) -> np.ndarray:
-    """cv2.registerDepth of the frame's depth into the colour camera, (H, W) float32 metres.
+    """cv2.registerDepth of the frame's depth into the colour camera, (H, W) float32 metres
+    (:func:`pcdof.bench.registration.register_cv2`)."""
+    from .registration import register_cv2
 
-    cv2.registerDepth writes outside its output buffer for points that project just past the image
-    border (heap corruption, seen with objects 0.45 m from a Kinect-like rig), so it draws onto a
-    canvas with a margin of half the image on every side, which is then cropped.
-    """
-    rig = frame.rig
-    w, h = rig.color.width, rig.color.height
-    m = max(w, h) // 2 + 2
-    K = rig.color.K.copy()
-    K[0, 2] += m
-    K[1, 2] += m
-    out = cv2.registerDepth(rig.depth.K, K, rig.color.dist_coeffs, np.asarray(rig.T_color_from_depth),
-                            frame.depth_m, (w + 2 * m, h + 2 * m), depthDilation=dilation)[m:m + h, m:m + w]
-    out = np.nan_to_num(out.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-    out[out < 0] = 0
-    return out
+    return register_cv2(frame.depth_m, frame.rig, dilation=dilation)
 
 
 def fill_telea(depth_m: np.ndarray, radius_px: float = 5.0) -> np.ndarray:

@@ -288,10 +288,23 @@ def register_pcdof(depth_m: np.ndarray, rig: Rig) -> np.ndarray:
 
 
 def register_cv2(depth_m: np.ndarray, rig: Rig, *, dilation: bool = False) -> np.ndarray:
-    """``cv2.registerDepth`` (ignores the depth camera's distortion); NaN (no value) becomes 0."""
+    """``cv2.registerDepth`` of *depth_m* (h, w) metres into the colour camera of *rig* (the depth camera's
+    distortion ignored, as OpenCV does): (H, W) float32 metres, 0 = unknown (NaN, infinite and negative values).
+
+    OpenCV fills a buffer the size of its output plane at the depth image's pixels, so an output plane narrower
+    or lower than the depth image corrupts the heap (opencv/opencv_contrib#3761: a 256x192 colour camera over a
+    256x212 depth camera aborts the process). The plane is therefore widened to the right and downwards to at
+    least the depth image's size and cropped back: the principal point is unchanged, so every point lands on the
+    same pixel, and a plane at least as large as the depth image is left as it is.
+    """
+    w, h = rig.color.width, rig.color.height
+    depth = np.asarray(depth_m)
+    plane = (max(w, depth.shape[1]), max(h, depth.shape[0]))
     out = cv2.registerDepth(rig.depth.K, rig.color.K, rig.color.dist_coeffs, np.asarray(rig.T_color_from_depth),
-                            depth_m, (rig.color.width, rig.color.height), depthDilation=dilation)
-    return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
+                            depth, plane, depthDilation=dilation)[:h, :w]
+    out = np.nan_to_num(out.astype(np.float32, copy=False), nan=0.0, posinf=0.0, neginf=0.0)
+    out[out < 0] = 0
+    return out
 
 
 def register_cv2_dilated(depth_m: np.ndarray, rig: Rig) -> np.ndarray:

@@ -166,6 +166,29 @@ def test_registration_profile_script(capsys):
     assert 0.9 * 639 * 479 < quads <= 639 * 479  # the box scene fills nearly the whole depth image
 
 
+def test_refocus_bounds_script(capsys):
+    """scripts/refocus_bounds.py times the refocus with passes made free, and gives every pass back afterwards."""
+    import importlib.util
+    import os
+
+    import pcdof.stages.render.composite as composite
+    import pcdof.stages.render.scatter as scatter
+
+    passes = (scatter.scatter_packed, composite.composite_under)
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "refocus_bounds.py")
+    spec = importlib.util.spec_from_file_location("refocus_bounds", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main(["--size", "160x120", "--blur", "8", "--repeats", "1"]) == 0
+    assert (scatter.scatter_packed, composite.composite_under) == passes
+    rows = {line[:30].strip(): line[30:].split() for line in capsys.readouterr().out.splitlines()[2:]}
+    assert set(rows) == {"refocus", "no scatter", "no scatter, no compositing", "highlights off", "paper whole frame"}
+    assert rows["paper whole frame"][1] == "1.00"
+    assert all(0 < float(ms) < 60_000 and float(ratio) > 0 for ms, ratio in rows.values())
+    with pytest.raises(SystemExit):
+        script.main(["--repeats", "0"])
+
+
 @pytest.mark.parametrize("args, flag", [
     (["--only", "speed", "--repeats", "0"], "--repeats"),
     (["--only", "speed", "--repeats", "-3"], "--repeats"),

@@ -19,7 +19,6 @@ per-round ratio to the paper's whole frame.
 
 import argparse
 import statistics
-import time
 
 
 def main(argv=None) -> int:
@@ -33,7 +32,7 @@ def main(argv=None) -> int:
 
     import pcdof.stages.render.composite as composite
     import pcdof.stages.render.scatter as scatter
-    from pcdof.bench.refocus import PaperLens, lens_for_background_blur, speed_frame
+    from pcdof.bench.refocus import PaperLens, alternated, lens_for_background_blur, speed_frame
     from pcdof.bench.speed import paper_on_opencv_depth
     from pcdof.pipeline import render_from_depth, run
 
@@ -69,14 +68,7 @@ def main(argv=None) -> int:
         "highlights off": refocus(highlights="off"),
         "paper whole frame": lambda: paper_on_opencv_depth(sf.frame, paper),
     }
-    for fn in contenders.values():  # warm-up
-        fn()
-    seconds = {name: [] for name in contenders}
-    for _ in range(args.repeats):
-        for name, fn in contenders.items():
-            t0 = time.perf_counter()
-            fn()
-            seconds[name].append(time.perf_counter() - t0)
+    seconds = alternated(contenders, args.repeats)
     paper_s = seconds["paper whole frame"]
     print(f"{size[0]}x{size[1]}, background blur {args.blur:g} px, {args.repeats} rounds alternated")
     print(f"{'contender':30s} {'ms':>8s} {'/ paper':>8s}")

@@ -88,7 +88,7 @@ class _Upscaled:
         self.frame, self.rig, self.default_lens = frame, rig, default_lens
 
 
-def _alternated(fns: dict, repeats: int) -> dict:
+def alternated(fns: dict, repeats: int) -> dict:
     """Seconds of each of *fns* (name -> callable), one warm-up each, then *repeats* rounds in turn."""
     for fn in fns.values():
         fn()
@@ -129,7 +129,7 @@ def refocus_vs_paper(*, sizes=((640, 480), (1920, 1080)), blurs=BLURS_PX, depth_
             paper = PaperLens(focus_distance_m=focus, blur_sigma_px=max(blur / 4.0, 0.3))
             fns[blur, "refocus"] = lambda lens=lens: render_from_depth(sf.frame.color, filled, lens, fx)
             fns[blur, "paper"] = lambda paper=paper: paper_on_opencv_depth(sf.frame, paper)
-        samples = _alternated(fns, repeats)
+        samples = alternated(fns, repeats)
         smallest = statistics.median(samples[blurs[0], "refocus"])
         for blur in blurs:
             ref, pap = samples[blur, "refocus"], samples[blur, "paper"]
